@@ -10,3 +10,4 @@
 //! chosen once at the edge (the `cac` binary, the tests, the benchmarks).
 
 pub mod io;
+pub mod scene;

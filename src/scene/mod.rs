@@ -1,0 +1,462 @@
+//! Scenes: the 3D object to be camouflaged, as one indexed triangle mesh with UVs, materials and
+//! the set of paintable parts.
+//!
+//! Loaders for OBJ (+MTL, textures) and glTF/GLB turn a file into a [`Scene`]; [`Scene::normalise`]
+//! puts every object into the same frame (see `docs/conventions.md`): metres, **+Y up**, ground
+//! contact at `y = 0`, the object's length along **+X** (its front facing +X), centred on the
+//! origin in X and Z. The [`generate`] module builds the project's default meshes.
+//!
+//! This module does not render and knows nothing about tensors.
+
+pub mod generate;
+mod gltf_load;
+mod obj_load;
+pub mod obj_write;
+
+use anyhow::{bail, Context, Result};
+use glam::{Mat4, Vec2, Vec3};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// An RGB texture in display (sRGB-encoded) values, row-major, row 0 at the top (`v = 1`).
+#[derive(Clone, Debug)]
+pub struct Texture {
+    pub width: usize,
+    pub height: usize,
+    /// `width * height` texels, each `[r, g, b]` in `[0, 1]`.
+    pub texels: Vec<[f32; 3]>,
+}
+
+impl Texture {
+    pub fn from_rgb8(img: &image::RgbImage) -> Self {
+        let texels = img
+            .pixels()
+            .map(|p| {
+                [
+                    p[0] as f32 / 255.0,
+                    p[1] as f32 / 255.0,
+                    p[2] as f32 / 255.0,
+                ]
+            })
+            .collect();
+        Texture {
+            width: img.width() as usize,
+            height: img.height() as usize,
+            texels,
+        }
+    }
+
+    pub fn to_rgb8(&self) -> image::RgbImage {
+        let mut img = image::RgbImage::new(self.width as u32, self.height as u32);
+        for (p, t) in img.pixels_mut().zip(&self.texels) {
+            *p = image::Rgb(t.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8));
+        }
+        img
+    }
+
+    /// A texture of one colour.
+    pub fn solid(width: usize, height: usize, rgb: [f32; 3]) -> Self {
+        Texture {
+            width,
+            height,
+            texels: vec![rgb; width * height],
+        }
+    }
+
+    /// Bilinear resampling to a new size (texel centres aligned, clamp at the border).
+    pub fn resized(&self, width: usize, height: usize) -> Self {
+        let mut texels = Vec::with_capacity(width * height);
+        for y in 0..height {
+            for x in 0..width {
+                let u = (x as f32 + 0.5) / width as f32;
+                let v = 1.0 - (y as f32 + 0.5) / height as f32;
+                texels.push(self.sample_clamped(Vec2::new(u, v)));
+            }
+        }
+        Texture {
+            width,
+            height,
+            texels,
+        }
+    }
+
+    /// Bilinear sample at `uv` with clamp-to-edge addressing (used for resampling only).
+    fn sample_clamped(&self, uv: Vec2) -> [f32; 3] {
+        let x = (uv.x * self.width as f32 - 0.5).clamp(0.0, (self.width - 1) as f32);
+        let y = ((1.0 - uv.y) * self.height as f32 - 0.5).clamp(0.0, (self.height - 1) as f32);
+        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(self.width - 1), (y0 + 1).min(self.height - 1));
+        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+        let t = |xx: usize, yy: usize| self.texels[yy * self.width + xx];
+        let mut out = [0.0; 3];
+        for (c, o) in out.iter_mut().enumerate() {
+            let top = t(x0, y0)[c] * (1.0 - fx) + t(x1, y0)[c] * fx;
+            let bot = t(x0, y1)[c] * (1.0 - fx) + t(x1, y1)[c] * fx;
+            *o = top * (1.0 - fy) + bot * fy;
+        }
+        out
+    }
+}
+
+/// Surface appearance of one part.
+#[derive(Clone, Debug)]
+pub struct Material {
+    pub name: String,
+    /// Base colour (display values), multiplied with the texture when there is one.
+    pub base_color: [f32; 3],
+    /// Index into [`Scene::textures`].
+    pub texture: Option<usize>,
+    /// Strength of a Blinn-Phong highlight (0 = matte); glass and chrome are shiny.
+    pub specular: f32,
+    /// Blinn-Phong exponent.
+    pub shininess: f32,
+}
+
+impl Material {
+    pub fn plain(name: &str, base_color: [f32; 3]) -> Self {
+        Material {
+            name: name.into(),
+            base_color,
+            texture: None,
+            specular: 0.04,
+            shininess: 16.0,
+        }
+    }
+}
+
+/// One triangle: three position indices, optional UV and normal indices, and a material.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Triangle {
+    pub p: [u32; 3],
+    /// Indices into [`Scene::uvs`]; `None` for primitives without texture coordinates.
+    pub uv: Option<[u32; 3]>,
+    /// Indices into [`Scene::normals`]; `None` for flat shading.
+    pub n: Option<[u32; 3]>,
+    pub material: u32,
+}
+
+/// Which parts may be painted, chosen by material (or OBJ object/group) name.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PaintRule {
+    /// A material is paintable when its name contains any of these (case-insensitive) ...
+    #[serde(default = "PaintRule::default_include")]
+    pub include: Vec<String>,
+    /// ... and none of these.
+    #[serde(default = "PaintRule::default_exclude")]
+    pub exclude: Vec<String>,
+}
+
+impl Default for PaintRule {
+    fn default() -> Self {
+        PaintRule {
+            include: Self::default_include(),
+            exclude: Self::default_exclude(),
+        }
+    }
+}
+
+impl PaintRule {
+    /// The camouflage covers the body: by default any material whose name says body, paint,
+    /// truck, car or hull, or `*` for every textured part.
+    fn default_include() -> Vec<String> {
+        [
+            "body",
+            "paint",
+            "truck",
+            "car",
+            "hull",
+            "shell",
+            "barrel",
+            "container",
+        ]
+        .map(String::from)
+        .to_vec()
+    }
+    /// Wheels, glass, lights and trim stay as they are.
+    fn default_exclude() -> Vec<String> {
+        [
+            "wheel", "tire", "tyre", "glass", "window", "light", "lamp", "trim", "rim", "chrome",
+        ]
+        .map(String::from)
+        .to_vec()
+    }
+
+    pub fn is_paintable(&self, name: &str) -> bool {
+        let n = name.to_lowercase();
+        let inc = self
+            .include
+            .iter()
+            .any(|p| p == "*" || n.contains(&p.to_lowercase()));
+        let exc = self.exclude.iter().any(|p| n.contains(&p.to_lowercase()));
+        inc && !exc
+    }
+}
+
+/// A loaded object: an indexed triangle mesh with materials, textures and paintable parts.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    pub name: String,
+    pub positions: Vec<Vec3>,
+    pub normals: Vec<Vec3>,
+    pub uvs: Vec<Vec2>,
+    pub triangles: Vec<Triangle>,
+    pub materials: Vec<Material>,
+    pub textures: Vec<Texture>,
+    /// Per material: may the camouflage paint it? A material is only paintable when its
+    /// triangles carry UVs.
+    pub paintable: Vec<bool>,
+}
+
+/// How a file is turned into a normalised scene.
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct LoadOptions {
+    pub paint: PaintRule,
+    /// Extra rotation about +Y (degrees) applied after the automatic orientation, to turn the
+    /// object's front to +X when the automatic choice (longest horizontal axis) faces backwards.
+    pub yaw_deg: f32,
+    /// Rescale so that the object's length is this many metres (`None`: keep the file's units).
+    pub length_m: Option<f32>,
+}
+
+impl Scene {
+    /// Loads an OBJ or glTF/GLB file (by extension), applies the paint rule and normalises it.
+    pub fn load(path: &Path, opts: &LoadOptions) -> Result<Scene> {
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .unwrap_or("")
+            .to_lowercase();
+        let mut scene = match ext.as_str() {
+            "obj" => obj_load::load(path)?,
+            "gltf" | "glb" => gltf_load::load(path)?,
+            _ => bail!(
+                "{}: unsupported mesh format (expected .obj, .gltf or .glb)",
+                path.display()
+            ),
+        };
+        scene
+            .validate()
+            .with_context(|| format!("invalid mesh in {}", path.display()))?;
+        scene.apply_paint_rule(&opts.paint);
+        scene.normalise(opts.yaw_deg, opts.length_m);
+        Ok(scene)
+    }
+
+    /// Marks materials paintable by name; untextured (UV-less) parts are never painted.
+    pub fn apply_paint_rule(&mut self, rule: &PaintRule) {
+        let mut has_uv = vec![true; self.materials.len()];
+        let mut used = vec![false; self.materials.len()];
+        for t in &self.triangles {
+            used[t.material as usize] = true;
+            if t.uv.is_none() {
+                has_uv[t.material as usize] = false;
+            }
+        }
+        self.paintable = self
+            .materials
+            .iter()
+            .enumerate()
+            .map(|(i, m)| used[i] && has_uv[i] && rule.is_paintable(&m.name))
+            .collect();
+    }
+
+    /// Checks indices and values: every index in range, every coordinate finite.
+    pub fn validate(&self) -> Result<()> {
+        if self.triangles.is_empty() {
+            bail!("the mesh has no triangles");
+        }
+        if let Some(i) = self.positions.iter().position(|p| !p.is_finite()) {
+            bail!("vertex {i} has a non-finite position");
+        }
+        if let Some(i) = self.uvs.iter().position(|p| !p.is_finite()) {
+            bail!("texture coordinate {i} is not finite");
+        }
+        for (k, t) in self.triangles.iter().enumerate() {
+            let bad = |idx: &[u32; 3], n: usize| idx.iter().any(|&i| i as usize >= n);
+            if bad(&t.p, self.positions.len()) {
+                bail!(
+                    "triangle {k} refers to a vertex index beyond the {} vertices",
+                    self.positions.len()
+                );
+            }
+            if t.uv.is_some_and(|uv| bad(&uv, self.uvs.len())) {
+                bail!(
+                    "triangle {k} refers to a texture coordinate beyond the {} given",
+                    self.uvs.len()
+                );
+            }
+            if t.n.is_some_and(|n| bad(&n, self.normals.len())) {
+                bail!(
+                    "triangle {k} refers to a normal beyond the {} given",
+                    self.normals.len()
+                );
+            }
+            if t.material as usize >= self.materials.len() {
+                bail!(
+                    "triangle {k} refers to material {} of {}",
+                    t.material,
+                    self.materials.len()
+                );
+            }
+        }
+        for m in &self.materials {
+            if let Some(ti) = m.texture {
+                if ti >= self.textures.len() {
+                    bail!("material '{}' refers to a missing texture {ti}", m.name);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Axis-aligned bounds `(min, max)` of the positions used by triangles.
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        let mut lo = Vec3::splat(f32::INFINITY);
+        let mut hi = Vec3::splat(f32::NEG_INFINITY);
+        for t in &self.triangles {
+            for &i in &t.p {
+                lo = lo.min(self.positions[i as usize]);
+                hi = hi.max(self.positions[i as usize]);
+            }
+        }
+        (lo, hi)
+    }
+
+    /// The object's length: its extent along X (after [`Scene::normalise`]).
+    pub fn length(&self) -> f32 {
+        let (lo, hi) = self.bounds();
+        hi.x - lo.x
+    }
+
+    /// Puts the object in the project's frame: the longer horizontal axis becomes X, then
+    /// `yaw_deg` about +Y, optional rescale, centred in X/Z, lowest point at `y = 0`.
+    pub fn normalise(&mut self, yaw_deg: f32, length_m: Option<f32>) {
+        let (lo, hi) = self.bounds();
+        let ext = hi - lo;
+        let mut m = if ext.z > ext.x {
+            Mat4::from_rotation_y(std::f32::consts::FRAC_PI_2)
+        } else {
+            Mat4::IDENTITY
+        };
+        m = Mat4::from_rotation_y(yaw_deg.to_radians()) * m;
+        self.transform(&m);
+        if let Some(len) = length_m {
+            let s = len / self.length().max(1e-9);
+            self.transform(&Mat4::from_scale(Vec3::splat(s)));
+        }
+        let (lo, hi) = self.bounds();
+        let c = (lo + hi) * 0.5;
+        self.transform(&Mat4::from_translation(Vec3::new(-c.x, -lo.y, -c.z)));
+    }
+
+    /// Applies an affine transform to positions and (inverse-transpose) normals.
+    pub fn transform(&mut self, m: &Mat4) {
+        for p in &mut self.positions {
+            *p = m.transform_point3(*p);
+        }
+        let nm = m.inverse().transpose();
+        for n in &mut self.normals {
+            *n = nm.transform_vector3(*n).normalize_or_zero();
+        }
+    }
+
+    /// Appends another scene's geometry and materials (used by loaders and generators).
+    pub fn append(&mut self, other: Scene) {
+        let (po, uo, no) = (
+            self.positions.len() as u32,
+            self.uvs.len() as u32,
+            self.normals.len() as u32,
+        );
+        let (mo, to) = (self.materials.len() as u32, self.textures.len());
+        self.positions.extend(other.positions);
+        self.uvs.extend(other.uvs);
+        self.normals.extend(other.normals);
+        self.textures.extend(other.textures);
+        self.paintable.extend(other.paintable);
+        self.materials
+            .extend(other.materials.into_iter().map(|mut m| {
+                m.texture = m.texture.map(|t| t + to);
+                m
+            }));
+        self.triangles
+            .extend(other.triangles.into_iter().map(|t| Triangle {
+                p: t.p.map(|i| i + po),
+                uv: t.uv.map(|u| u.map(|i| i + uo)),
+                n: t.n.map(|n| n.map(|i| i + no)),
+                material: t.material + mo,
+            }));
+    }
+
+    /// An empty scene to build into.
+    pub fn empty(name: &str) -> Scene {
+        Scene {
+            name: name.into(),
+            positions: vec![],
+            normals: vec![],
+            uvs: vec![],
+            triangles: vec![],
+            materials: vec![],
+            textures: vec![],
+            paintable: vec![],
+        }
+    }
+
+    /// Is triangle `t` on a paintable part?
+    pub fn is_paintable(&self, t: &Triangle) -> bool {
+        self.paintable
+            .get(t.material as usize)
+            .copied()
+            .unwrap_or(false)
+            && t.uv.is_some()
+    }
+
+    /// The texture of the paintable parts (the camouflage atlas): the first paintable material's
+    /// texture, or `None` when the paintable parts are untextured (the attack then starts from
+    /// the material colour).
+    pub fn paint_texture(&self) -> Option<&Texture> {
+        self.materials
+            .iter()
+            .zip(&self.paintable)
+            .find(|(m, &p)| p && m.texture.is_some())
+            .and_then(|(m, _)| m.texture.map(|t| &self.textures[t]))
+    }
+
+    /// The initial camouflage atlas at `res x res`: the paintable texture resampled, or the
+    /// first paintable material's base colour.
+    pub fn initial_atlas(&self, res: usize) -> Texture {
+        if let Some(t) = self.paint_texture() {
+            return t.resized(res, res);
+        }
+        let c = self
+            .materials
+            .iter()
+            .zip(&self.paintable)
+            .find(|(_, &p)| p)
+            .map(|(m, _)| m.base_color)
+            .unwrap_or([0.5; 3]);
+        Texture::solid(res, res, c)
+    }
+
+    /// The triangle's geometric (face) normal, unnormalised (zero for degenerate triangles).
+    pub fn face_normal(&self, t: &Triangle) -> Vec3 {
+        let [a, b, c] = t.p.map(|i| self.positions[i as usize]);
+        (b - a).cross(c - a)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn paint_rule_includes_body_and_excludes_wheels() {
+        let r = PaintRule::default();
+        assert!(r.is_paintable("Body_paint"));
+        assert!(r.is_paintable("truck"));
+        assert!(!r.is_paintable("wheels"));
+        assert!(!r.is_paintable("truck_glass"));
+        assert!(!r.is_paintable("seat"));
+    }
+}
