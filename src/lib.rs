@@ -9,5 +9,8 @@
 //! Library code never names a concrete compute backend: tensors live on a [`burn::tensor::Device`]
 //! chosen once at the edge (the `cac` binary, the tests, the benchmarks).
 
+pub mod config;
+pub mod environment;
 pub mod io;
+pub mod render;
 pub mod scene;

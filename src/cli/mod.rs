@@ -3,7 +3,11 @@
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 
+pub mod config;
+pub mod demo;
 pub mod device;
+pub mod meshes;
+pub mod render;
 
 /// Learn, fabricate and physically test coated adversarial camouflages.
 #[derive(Parser, Debug)]
@@ -14,8 +18,23 @@ pub struct Cli {
 }
 
 #[derive(Subcommand, Debug)]
-pub enum Command {}
+pub enum Command {
+    /// Run the main job on the embedded defaults.
+    Demo(demo::Args),
+    /// Render one view, or a contact sheet of sampled views.
+    Render(render::Args),
+    /// The built-in default objects.
+    #[command(subcommand)]
+    Meshes(meshes::Cmd),
+    /// Print the default scene config (TOML), or check a config file.
+    Config(config::Args),
+}
 
 pub fn run(cli: Cli) -> Result<()> {
-    match cli.command {}
+    match cli.command {
+        Command::Demo(a) => demo::run(a),
+        Command::Render(a) => render::run(a),
+        Command::Meshes(c) => meshes::run(c),
+        Command::Config(a) => config::run(a),
+    }
 }

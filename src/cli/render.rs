@@ -1,0 +1,138 @@
+//! `cac render`: one view, or a contact sheet of sampled views.
+
+use super::device;
+use anyhow::{bail, Result};
+use cac::config::SceneConfig;
+use cac::environment::{self, Brightness, Condition, Environment, ViewpointSet};
+use cac::render::{self, Renderer, Viewpoint};
+use clap::Args as ClapArgs;
+use std::path::PathBuf;
+
+#[derive(ClapArgs, Debug)]
+pub struct Args {
+    /// Scene config (TOML); defaults to the built-in jeep and the paper's environment.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Mesh file (OBJ/glTF/GLB) or built-in name; overrides the config.
+    #[arg(long)]
+    pub mesh: Option<String>,
+    /// Camouflage atlas PNG for the paintable parts (default: the object's own texture).
+    #[arg(long)]
+    pub texture: Option<PathBuf>,
+    #[arg(long, default_value_t = 30.0)]
+    pub azimuth: f32,
+    #[arg(long, default_value_t = 10.0)]
+    pub elevation: f32,
+    /// Camera distance in object lengths.
+    #[arg(long, default_value_t = 1.6)]
+    pub distance: f32,
+    #[arg(long)]
+    pub width: Option<usize>,
+    #[arg(long)]
+    pub height: Option<usize>,
+    /// Samples per pixel.
+    #[arg(long)]
+    pub samples: Option<usize>,
+    #[arg(long, value_enum, default_value = "bright")]
+    pub brightness: BrightnessArg,
+    /// Render N sampled views (the environment distribution) in a grid instead of one view.
+    #[arg(long)]
+    pub contact_sheet: Option<usize>,
+    #[arg(long, value_enum, default_value = "free")]
+    pub viewpoints: ViewpointArg,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+pub enum BrightnessArg {
+    Bright,
+    Dark,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+pub enum ViewpointArg {
+    Free,
+    Restricted,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let mut cfg = match &a.config {
+        Some(p) => SceneConfig::from_file(p)?,
+        None => SceneConfig::default(),
+    };
+    if let Some(m) = &a.mesh {
+        cfg.object.mesh = m.clone();
+    }
+    if let Some(w) = a.width {
+        cfg.render.width = w;
+    }
+    if let Some(h) = a.height {
+        cfg.render.height = h;
+    }
+    if let Some(s) = a.samples {
+        cfg.render.samples = s;
+    }
+    let brightness = match a.brightness {
+        BrightnessArg::Bright => Brightness::Bright,
+        BrightnessArg::Dark => Brightness::Dark,
+    };
+    let scene = cfg.object.load()?;
+    let atlas = match &a.texture {
+        Some(p) => cac::scene::Texture::from_rgb8(&cac::io::load_rgb(p)?)
+            .resized(cfg.render.atlas_res, cfg.render.atlas_res),
+        None => scene.initial_atlas(cfg.render.atlas_res),
+    };
+    let renderer = Renderer::new(scene, cfg.render.clone())?;
+    let env = Environment::new(cfg.environment.clone())?;
+    let conds = match a.contact_sheet {
+        Some(0) => bail!("--contact-sheet needs at least one view"),
+        Some(n) => {
+            let set = match a.viewpoints {
+                ViewpointArg::Free => ViewpointSet::Free,
+                ViewpointArg::Restricted => ViewpointSet::Restricted,
+            };
+            env.sample_n(n, set, brightness, a.seed)
+        }
+        None => vec![Condition::plain(
+            Viewpoint::new(a.azimuth, a.elevation, a.distance),
+            brightness,
+        )],
+    };
+    let dev = device::inference();
+    let images = render_conditions(&renderer, &env, &conds, &atlas, &dev)?;
+    let img = if images.len() == 1 {
+        images.into_iter().next().unwrap()
+    } else {
+        cac::render::contact_sheet(&images)
+    };
+    cac::io::save_png_atomic(&a.out, &img)?;
+    println!(
+        "wrote {} ({} view{})",
+        a.out.display(),
+        conds.len(),
+        if conds.len() == 1 { "" } else { "s" }
+    );
+    Ok(())
+}
+
+/// Renders conditions with the environment's transforms applied, as 8-bit images.
+pub fn render_conditions(
+    r: &Renderer,
+    env: &Environment,
+    conds: &[Condition],
+    atlas: &cac::scene::Texture,
+    dev: &burn::tensor::Device,
+) -> Result<Vec<image::RgbImage>> {
+    let mut out = Vec::new();
+    for c in conds {
+        let plan = r.plan(&c.viewpoint, &env.lighting(c), &env.backdrop(c))?;
+        let t = render::atlas_tensor(atlas, dev);
+        let t = environment::print_error(t, std::slice::from_ref(c));
+        let img = environment::photometric(render::composite(&[plan], t), std::slice::from_ref(c));
+        out.extend(render::to_images(&img));
+    }
+    Ok(out)
+}

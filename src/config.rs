@@ -1,0 +1,101 @@
+//! The scene config (TOML): which object, how it is rendered, and the environment distribution.
+//! Every field has a documented default (`cac config` prints them), so an empty file is valid.
+
+use crate::environment::EnvConfig;
+use crate::render::RenderSettings;
+use crate::scene::{generate, LoadOptions, PaintRule, Scene};
+use anyhow::{Context, Result};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// The `[object]` table.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ObjectConfig {
+    /// A built-in object (`jeep`, `barrel`, `container`) or a path to an OBJ/glTF/GLB file.
+    pub mesh: String,
+    /// Which materials the camouflage may paint.
+    pub paint: PaintRule,
+    /// Extra turn about +Y (degrees) after automatic orientation.
+    pub yaw_deg: f32,
+    /// Rescale to this length in metres (none: keep the file's units).
+    pub length_m: Option<f32>,
+}
+
+impl Default for ObjectConfig {
+    fn default() -> Self {
+        ObjectConfig {
+            mesh: "jeep".into(),
+            paint: PaintRule::default(),
+            yaw_deg: 0.0,
+            length_m: None,
+        }
+    }
+}
+
+impl ObjectConfig {
+    /// Loads (or generates) the object.
+    pub fn load(&self) -> Result<Scene> {
+        if let Some(mut s) = generate::by_name(&self.mesh) {
+            s.normalise(self.yaw_deg, self.length_m);
+            return Ok(s);
+        }
+        let opts = LoadOptions {
+            paint: self.paint.clone(),
+            yaw_deg: self.yaw_deg,
+            length_m: self.length_m,
+        };
+        Scene::load(Path::new(&self.mesh), &opts)
+    }
+}
+
+/// A whole scene config.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SceneConfig {
+    pub object: ObjectConfig,
+    pub render: RenderSettings,
+    pub environment: EnvConfig,
+}
+
+impl SceneConfig {
+    /// Reads a TOML config; errors name the file and the offending key.
+    pub fn from_file(path: &Path) -> Result<SceneConfig> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read scene config {}", path.display()))?;
+        let cfg: SceneConfig = toml::from_str(&text)
+            .with_context(|| format!("malformed scene config {}", path.display()))?;
+        cfg.render
+            .validate()
+            .with_context(|| format!("in {}", path.display()))?;
+        cfg.environment
+            .validate()
+            .with_context(|| format!("in {}", path.display()))?;
+        Ok(cfg)
+    }
+
+    /// The defaults as TOML text.
+    pub fn default_toml() -> String {
+        toml::to_string_pretty(&SceneConfig::default()).expect("defaults serialise")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_round_trip_and_unknown_keys_are_rejected() {
+        let text = SceneConfig::default_toml();
+        let back: SceneConfig = toml::from_str(&text).unwrap();
+        assert_eq!(back, SceneConfig::default());
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("bad.toml");
+        std::fs::write(&p, "[render]\nwidht = 3\n").unwrap();
+        let e = format!("{:#}", SceneConfig::from_file(&p).unwrap_err());
+        assert!(e.contains("bad.toml") && e.contains("widht"), "{e}");
+        std::fs::write(&p, "[environment]\ndistance_ratio = [6.0, 1.0]\n").unwrap();
+        let e = format!("{:#}", SceneConfig::from_file(&p).unwrap_err());
+        assert!(e.contains("distance_ratio"), "{e}");
+    }
+}

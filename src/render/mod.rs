@@ -1,0 +1,132 @@
+//! The differentiable renderer, as four small primitives in the spirit of nvdiffrast:
+//!
+//! 1. [`accel`]: BVH ray casting (obvhs CWBVH) — closest and any-hit queries;
+//! 2. [`gbuffer`]: primary rays through a pinhole [`camera`] → per-sample triangle, barycentrics,
+//!    UV, normal, depth, object mask (anti-aliasing by N samples per pixel);
+//! 3. [`shade`]: lighting, shadows, ground and background → a [`RenderPlan`] (constant image +
+//!    texel taps of the paintable atlas);
+//! 4. [`composite`]: plan + atlas tensor → image tensor, differentiable with respect to the atlas.
+//!
+//! Geometry is fixed during an attack, so steps 1–3 run once per view on the CPU and only step 4
+//! is in the autodiff graph.
+
+pub mod accel;
+pub mod camera;
+pub mod composite;
+pub mod gbuffer;
+pub mod shade;
+mod sheet;
+pub use sheet::contact_sheet;
+
+pub use camera::{Camera, Intrinsics, Viewpoint};
+pub use composite::{atlas_tensor, atlas_texture, composite, to_images};
+pub use shade::{Backdrop, Background, Ground, Lighting, RenderPlan};
+
+use crate::scene::Scene;
+use anyhow::{bail, Result};
+use serde::{Deserialize, Serialize};
+
+/// Image size, sampling and camera settings (the `[render]` table of a scene config).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RenderSettings {
+    pub width: usize,
+    pub height: usize,
+    /// Samples per pixel (anti-aliasing); see docs/renderer.md for error against time.
+    pub samples: usize,
+    /// Vertical field of view in degrees.
+    pub vfov_deg: f32,
+    /// Side of the square camouflage atlas (texels).
+    pub atlas_res: usize,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        RenderSettings {
+            width: 512,
+            height: 512,
+            samples: 4,
+            vfov_deg: 45.0,
+            atlas_res: 512,
+        }
+    }
+}
+
+impl RenderSettings {
+    pub fn validate(&self) -> Result<()> {
+        if self.width == 0 || self.height == 0 || self.width > 16384 || self.height > 16384 {
+            bail!(
+                "render size {}x{} is out of range (1..=16384)",
+                self.width,
+                self.height
+            );
+        }
+        if self.samples == 0 || self.samples > 1024 {
+            bail!("samples per pixel must be 1..=1024, got {}", self.samples);
+        }
+        if !(self.vfov_deg > 1.0 && self.vfov_deg < 170.0) {
+            bail!(
+                "vertical field of view must be within (1, 170) degrees, got {}",
+                self.vfov_deg
+            );
+        }
+        if self.atlas_res < 2 || self.atlas_res > 8192 {
+            bail!("atlas resolution must be 2..=8192, got {}", self.atlas_res);
+        }
+        Ok(())
+    }
+
+    pub fn intrinsics(&self) -> Intrinsics {
+        Intrinsics::from_vfov(self.width, self.height, self.vfov_deg)
+    }
+}
+
+/// A scene with its acceleration structure, ready to render views.
+pub struct Renderer {
+    pub scene: Scene,
+    pub accel: accel::Accel,
+    pub settings: RenderSettings,
+}
+
+impl Renderer {
+    pub fn new(scene: Scene, settings: RenderSettings) -> Result<Renderer> {
+        settings.validate()?;
+        let accel = accel::Accel::build(&scene);
+        Ok(Renderer {
+            scene,
+            accel,
+            settings,
+        })
+    }
+
+    /// The camera of a viewpoint (errors when it would be inside the object).
+    pub fn camera(&self, view: &Viewpoint) -> Result<Camera> {
+        let (lo, hi) = self.scene.bounds();
+        view.camera(self.settings.intrinsics(), lo, hi, self.scene.length())
+    }
+
+    /// Ray-casts and shades one view into a plan.
+    pub fn plan(
+        &self,
+        view: &Viewpoint,
+        light: &Lighting,
+        backdrop: &Backdrop,
+    ) -> Result<RenderPlan> {
+        let cam = self.camera(view)?;
+        let g = gbuffer::GBuffer::cast(
+            &self.scene,
+            &self.accel,
+            &cam,
+            self.settings.samples,
+            backdrop.ground.is_some(),
+        );
+        Ok(shade::plan(
+            &self.scene,
+            &self.accel,
+            &g,
+            light,
+            backdrop,
+            self.settings.atlas_res,
+        ))
+    }
+}
