@@ -1,8 +1,9 @@
 //! Ray casting against a scene: a compressed wide BVH (CWBVH, `obvhs`) over the scene's triangles,
 //! closest-hit queries with barycentrics, and any-hit (shadow) queries.
 //!
-//! The triangle test is Möller–Trumbore with a relative determinant cut-off, so zero-area and
-//! edge-on triangles are never hit (no NaN barycentrics).
+//! The triangle test is Cramer's rule with a precomputed normal (one cross product per test) and
+//! a relative determinant cut-off, so zero-area and edge-on triangles are never hit (no NaN
+//! barycentrics).
 
 use crate::scene::Scene;
 use glam::{Vec2, Vec3, Vec3A};
@@ -19,42 +20,68 @@ pub struct Hit {
     pub bary: Vec2,
 }
 
+/// A triangle prepared for ray tests: vertex 0, both edges, the (unnormalised) normal and a
+/// determinant threshold; `eps < 0` marks a zero-area triangle, which is never hit.
+#[derive(Clone, Copy)]
+struct Prepared {
+    v0: Vec3A,
+    e1: Vec3A,
+    e2: Vec3A,
+    n: Vec3A,
+    eps: f32,
+}
+
+impl Prepared {
+    fn new(a: Vec3A, b: Vec3A, c: Vec3A) -> Self {
+        let (e1, e2) = (b - a, c - a);
+        let n = e1.cross(e2);
+        let len = n.length();
+        let scale = e1.length_squared().max(e2.length_squared());
+        let eps = if len > 1e-12 * scale && len.is_finite() {
+            1e-9 * len
+        } else {
+            -1.0
+        };
+        Prepared {
+            v0: a,
+            e1,
+            e2,
+            n,
+            eps,
+        }
+    }
+}
+
+/// Ray–triangle test: `(t, b1, b2)` for a hit with `tmin < t < tmax`.
+#[inline(always)]
+fn intersect(t: &Prepared, o: Vec3A, d: Vec3A, tmin: f32, tmax: f32) -> Option<(f32, f32, f32)> {
+    let det = d.dot(t.n);
+    if !(det.abs() > t.eps) {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let c = t.v0 - o;
+    let r = d.cross(c);
+    let u = -t.e2.dot(r) * inv;
+    let v = t.e1.dot(r) * inv;
+    if u < 0.0 || v < 0.0 || u + v > 1.0 {
+        return None;
+    }
+    let tt = c.dot(t.n) * inv;
+    (tt > tmin && tt < tmax).then_some((tt, u, v))
+}
+
 /// The acceleration structure of one scene.
 pub struct Accel {
     bvh: CwBvh,
     /// Triangles in BVH primitive order (so traversal reads them sequentially).
-    tris: Vec<[Vec3A; 3]>,
+    tris: Vec<Prepared>,
     /// Scene triangle index of each BVH primitive.
     ids: Vec<u32>,
 }
 
-#[inline(always)]
-fn intersect(t: &[Vec3A; 3], o: Vec3A, d: Vec3A, tmin: f32, tmax: f32) -> Option<(f32, f32, f32)> {
-    let e1 = t[1] - t[0];
-    let e2 = t[2] - t[0];
-    let p = d.cross(e2);
-    let det = e1.dot(p);
-    // Relative cut-off: rejects degenerate triangles and rays in the triangle's plane.
-    if det.abs() <= 1e-12 * e1.length_squared().max(e2.length_squared()).max(1e-30) {
-        return None;
-    }
-    let inv = 1.0 / det;
-    let s = o - t[0];
-    let u = s.dot(p) * inv;
-    if !(0.0..=1.0).contains(&u) {
-        return None;
-    }
-    let q = s.cross(e1);
-    let v = d.dot(q) * inv;
-    if v < 0.0 || u + v > 1.0 {
-        return None;
-    }
-    let tt = e2.dot(q) * inv;
-    (tt > tmin && tt < tmax && tt.is_finite()).then_some((tt, u, v))
-}
-
 impl Accel {
-    /// Builds the BVH (time it with [`Accel::build_timed`]).
+    /// Builds the BVH.
     pub fn build(scene: &Scene) -> Accel {
         Self::build_timed(scene).0
     }
@@ -76,20 +103,25 @@ impl Accel {
             .collect();
         let bvh = build_cwbvh_from_tris(
             &tris,
-            BvhBuildParams::medium_build(),
+            BvhBuildParams::very_slow_build(),
             &mut Duration::default(),
         );
         let ids: Vec<u32> = bvh.primitive_indices.clone();
-        let ordered = ids.iter().map(|&i| {
-            let t = &tris[i as usize];
-            [t.v0, t.v1, t.v2]
-        });
-        let accel = Accel {
-            tris: ordered.collect(),
-            ids,
-            bvh,
-        };
-        (accel, start.elapsed())
+        let prepared = ids
+            .iter()
+            .map(|&i| {
+                let t = &tris[i as usize];
+                Prepared::new(t.v0, t.v1, t.v2)
+            })
+            .collect();
+        (
+            Accel {
+                tris: prepared,
+                ids,
+                bvh,
+            },
+            start.elapsed(),
+        )
     }
 
     /// The closest hit along `origin + t * dir` for `t` in `(tmin, tmax)`.
@@ -107,18 +139,12 @@ impl Accel {
                 None => f32::INFINITY,
             }
         });
-        if !found {
-            return None;
-        }
-        // `best` belongs to the last accepted (closest) primitive only if it was the last
-        // improvement; recompute for the final primitive to be exact.
-        let id = hit.primitive_id as usize;
-        let (t, u, v) =
-            intersect(&self.tris[id], o, d, tmin, tmax).unwrap_or((hit.t, best.0, best.1));
-        Some(Hit {
-            tri: self.ids[id],
-            t,
-            bary: Vec2::new(u, v),
+        // Every finite value the closure returns is closer than the current best and is accepted
+        // by the traversal, so `best` belongs to the closest hit.
+        found.then(|| Hit {
+            tri: self.ids[hit.primitive_id as usize],
+            t: hit.t,
+            bary: Vec2::new(best.0, best.1),
         })
     }
 
@@ -135,5 +161,23 @@ impl Accel {
 
     pub fn triangle_count(&self) -> usize {
         self.tris.len()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn barycentrics_and_distance_are_exact_on_a_known_triangle() {
+        let t = Prepared::new(Vec3A::ZERO, Vec3A::X, Vec3A::Y);
+        let (tt, u, v) = intersect(&t, Vec3A::new(0.2, 0.3, 1.0), Vec3A::NEG_Z, 0.0, 10.0).unwrap();
+        assert!((tt - 1.0).abs() < 1e-6 && (u - 0.2).abs() < 1e-6 && (v - 0.3).abs() < 1e-6);
+        // Back side, outside, parallel, degenerate.
+        assert!(intersect(&t, Vec3A::new(0.2, 0.3, -1.0), Vec3A::Z, 0.0, 10.0).is_some());
+        assert!(intersect(&t, Vec3A::new(0.8, 0.3, 1.0), Vec3A::NEG_Z, 0.0, 10.0).is_none());
+        assert!(intersect(&t, Vec3A::new(0.2, 0.3, 0.0), Vec3A::X, 0.0, 10.0).is_none());
+        let d = Prepared::new(Vec3A::ZERO, Vec3A::X, Vec3A::X * 2.0);
+        assert!(intersect(&d, Vec3A::new(0.5, 0.0, 1.0), Vec3A::NEG_Z, 0.0, 10.0).is_none());
     }
 }
