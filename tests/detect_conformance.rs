@@ -8,7 +8,7 @@
 //! model, settings and image. Skipped, loudly, only when `../shared` does not exist.
 
 use cac::detect::raw::{relative_error, RawDump};
-use cac::detect::{self, Detector};
+use cac::detect;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
