@@ -14,10 +14,15 @@ use burn::tensor::{Device, Tensor, TensorData};
 use std::collections::HashMap;
 
 /// A float tensor of logical rank 0..=4, stored as a rank-4 burn tensor with leading 1s.
+///
+/// A rank-4 NHWC value produced by a convolution may be held physically as NCHW
+/// (`nchw = true`: `t` is the logical tensor permuted by `[0, 3, 1, 2]`), so that chains of
+/// convolutions and elementwise ops never copy between layouts.
 #[derive(Clone, Debug)]
 pub struct FloatValue {
     pub t: Tensor<4>,
     pub shape: Vec<usize>,
+    pub nchw: bool,
 }
 
 impl FloatValue {
@@ -26,12 +31,50 @@ impl FloatValue {
         debug_assert_eq!(t.dims().iter().product::<usize>(), shape.iter().product::<usize>());
         let padded = pad4(&shape);
         let t = if t.dims() == padded { t } else { t.reshape(padded) };
-        FloatValue { t, shape }
+        FloatValue {
+            t,
+            shape,
+            nchw: false,
+        }
+    }
+    /// A logical NHWC value from its physical NCHW tensor.
+    pub fn from_nchw(t: Tensor<4>) -> Self {
+        let [n, c, h, w] = t.dims();
+        FloatValue {
+            t,
+            shape: vec![n, h, w, c],
+            nchw: true,
+        }
+    }
+    /// The physical NCHW tensor of a rank-4 NHWC value (also aligns a broadcastable
+    /// lower-rank value, padded to rank 4, with NCHW-held values).
+    pub fn to_nchw(&self) -> Tensor<4> {
+        if self.nchw {
+            self.t.clone()
+        } else {
+            self.t.clone().permute([0, 3, 1, 2])
+        }
+    }
+    /// This value with `t` in plain logical layout.
+    pub fn logical(self) -> Self {
+        if self.nchw {
+            FloatValue {
+                t: self.t.permute([0, 2, 3, 1]),
+                shape: self.shape,
+                nchw: false,
+            }
+        } else {
+            self
+        }
     }
     /// A rank-4 value as it is.
     pub fn from4(t: Tensor<4>) -> Self {
         let shape = t.dims().to_vec();
-        FloatValue { t, shape }
+        FloatValue {
+            t,
+            shape,
+            nchw: false,
+        }
     }
     pub fn rank(&self) -> usize {
         self.shape.len()
@@ -43,6 +86,8 @@ impl FloatValue {
     /// Host copy of the values (row-major, logical shape).
     pub fn to_host(&self) -> Result<HostTensor> {
         let v: Vec<f32> = self
+            .clone()
+            .logical()
             .t
             .to_data()
             .convert::<f32>()
@@ -256,7 +301,10 @@ impl Graph {
             last_use[i] = usize::MAX;
         }
         let mut values: HashMap<usize, Vec<Value>> = HashMap::new();
+        let profile = std::env::var_os("CAC_PROFILE_GRAPH").is_some();
+        let mut op_ms: HashMap<String, f64> = HashMap::new();
         for (step, &i) in order.iter().enumerate() {
+            let started = std::time::Instant::now();
             let node = &self.nodes[i];
             let out = if node.op() == "Placeholder" {
                 let t = feeds
@@ -293,12 +341,24 @@ impl Graph {
                     )
                 })?
             };
+            if profile {
+                if let Some(Value::Float(f)) = out.first() {
+                    let _ = f.t.clone().slice([0..1, 0..1, 0..1, 0..1]).into_data();
+                }
+                *op_ms.entry(node.op().to_string()).or_default() +=
+                    started.elapsed().as_secs_f64() * 1e3;
+            }
             values.insert(i, out);
             for &(j, _) in &node.inputs {
                 if last_use[j] == step {
                     values.remove(&j);
                 }
             }
+        }
+        if profile {
+            let mut v: Vec<_> = op_ms.into_iter().collect();
+            v.sort_by(|a, b| b.1.total_cmp(&a.1));
+            eprintln!("graph profile (ms per op type): {v:.1?}");
         }
         wanted
             .iter()
@@ -308,6 +368,10 @@ impl Graph {
                     .get(&i)
                     .and_then(|v| v.get(k))
                     .cloned()
+                    .map(|v| match v {
+                        Value::Float(f) => Value::Float(f.logical()),
+                        h => h,
+                    })
                     .ok_or_else(|| anyhow!("{}: node {name:?} has no output {k}", self.source))
             })
             .collect()

@@ -85,11 +85,17 @@ fn float_arg(g: &Graph, args: &[&Value], k: usize) -> Result<FloatValue> {
     float(g, arg(args, k)?)
 }
 
+/// A float input in plain logical layout.
+fn logical_arg(g: &Graph, args: &[&Value], k: usize) -> Result<FloatValue> {
+    Ok(float_arg(g, args, k)?.logical())
+}
+
 fn unary(g: &Graph, args: &[&Value], f: impl Fn(Tensor<4>) -> Tensor<4>) -> Result<Vec<Value>> {
     let x = float_arg(g, args, 0)?;
     Ok(vec![Value::Float(FloatValue {
         t: f(x.t),
         shape: x.shape,
+        nchw: x.nchw,
     })])
 }
 
@@ -281,7 +287,7 @@ fn conv(g: &Graph, i: usize, args: &[&Value]) -> Result<FloatValue> {
             "BiasAdd" => {
                 let b = float_arg(g, args, 2)?;
                 ensure!(b.shape == [out_c], "bias shape {:?} != [{out_c}]", b.shape);
-                bias = Some(b.t.reshape([out_c]));
+                bias = Some(b.logical().t.reshape([out_c]));
             }
             "Relu" | "Relu6" | "LeakyRelu" | "Elu" | "Sigmoid" => activation_op = Some(f.clone()),
             other => bail!("fused op {other} is not supported (fused_ops {fused:?})"),
@@ -291,7 +297,7 @@ fn conv(g: &Graph, i: usize, args: &[&Value]) -> Result<FloatValue> {
         bail!("fused_ops {fused:?} is not supported (BiasAdd first expected)");
     }
     let options = ConvOptions::new_with_padding(stride, [ph, pw], dil, groups);
-    let y = conv2d(x.t.permute([0, 3, 1, 2]), w, bias, options);
+    let y = conv2d(x.to_nchw(), w, bias, options);
     let y = match activation_op.as_deref() {
         None => y,
         Some("Relu") => activation::relu(y),
@@ -303,7 +309,7 @@ fn conv(g: &Graph, i: usize, args: &[&Value]) -> Result<FloatValue> {
             activation::leaky_relu(y, alpha)
         }
     };
-    Ok(FloatValue::from4(y.permute([0, 2, 3, 1])))
+    Ok(FloatValue::from_nchw(y))
 }
 
 // ---------------------------------------------------------------- elementwise
@@ -336,9 +342,17 @@ fn binary(g: &Graph, op: &str, a: &Value, b: &Value) -> Result<Value> {
         Value::Host(h) if h.len() == 1 => Some(h.as_f32()[0]),
         _ => None,
     };
+    // An operand held as NCHW makes the op run in NCHW; the others are aligned to it.
+    let nchw = [a, b]
+        .iter()
+        .any(|v| matches!(v, Value::Float(f) if f.nchw));
+    let phys = |v: &Value| -> Result<Tensor<4>> {
+        let f = float(g, v)?;
+        Ok(if nchw { f.to_nchw() } else { f.t })
+    };
     let t = match (scalar(a), scalar(b)) {
         (_, Some(s)) => {
-            let x = float(g, a)?.t;
+            let x = phys(a)?;
             match op {
                 "Add" | "AddV2" => x.add_scalar(s),
                 "Sub" => x.sub_scalar(s),
@@ -349,7 +363,7 @@ fn binary(g: &Graph, op: &str, a: &Value, b: &Value) -> Result<Value> {
             }
         }
         (Some(s), _) if op != "Sub" && op != "RealDiv" && op != "Div" => {
-            let x = float(g, b)?.t;
+            let x = phys(b)?;
             match op {
                 "Add" | "AddV2" => x.add_scalar(s),
                 "Mul" => x.mul_scalar(s),
@@ -358,7 +372,7 @@ fn binary(g: &Graph, op: &str, a: &Value, b: &Value) -> Result<Value> {
             }
         }
         _ => {
-            let (x, y) = (float(g, a)?.t, float(g, b)?.t);
+            let (x, y) = (phys(a)?, phys(b)?);
             match op {
                 "Add" | "AddV2" => x + y,
                 "Sub" => x - y,
@@ -369,6 +383,10 @@ fn binary(g: &Graph, op: &str, a: &Value, b: &Value) -> Result<Value> {
             }
         }
     };
+    if nchw {
+        ensure!(shape.len() == 4, "NCHW-held result of rank {}", shape.len());
+        return Ok(Value::Float(FloatValue { t, shape, nchw }));
+    }
     Ok(Value::Float(FloatValue::new(t, shape)))
 }
 
@@ -441,7 +459,10 @@ fn norm_axis(axis: i64, rank: usize) -> Result<usize> {
 }
 
 fn mean(g: &Graph, node: &super::graph::Node, args: &[&Value]) -> Result<FloatValue> {
-    let x = float_arg(g, args, 0)?;
+    let mut x = float_arg(g, args, 0)?;
+    if x.nchw && !attr_b(node, "keep_dims") {
+        x = x.logical();
+    }
     let mut axes: Vec<usize> = host(args, 1)?
         .as_i64()
         .iter()
@@ -450,8 +471,19 @@ fn mean(g: &Graph, node: &super::graph::Node, args: &[&Value]) -> Result<FloatVa
     axes.sort();
     axes.dedup();
     let off = x.offset();
-    let phys: Vec<usize> = axes.iter().map(|a| a + off).collect();
+    let phys: Vec<usize> = if x.nchw {
+        axes.iter().map(|&a| [0, 2, 3, 1][a]).collect()
+    } else {
+        axes.iter().map(|a| a + off).collect()
+    };
     let t = x.t.mean_dims(&phys);
+    if x.nchw {
+        let mut shape = x.shape.clone();
+        for &a in &axes {
+            shape[a] = 1;
+        }
+        return Ok(FloatValue { t, shape, nchw: true });
+    }
     let mut shape = x.shape.clone();
     for &a in &axes {
         shape[a] = 1;
@@ -486,9 +518,20 @@ fn concat(g: &Graph, args: &[&Value]) -> Result<Value> {
     }
     let mut shape = parts[0].shape().to_vec();
     shape[axis] = parts.iter().map(|p| p.shape()[axis]).sum();
+    let all_nchw = parts
+        .iter()
+        .all(|p| matches!(p, Value::Float(f) if f.nchw));
+    if all_nchw {
+        let ts: Vec<Tensor<4>> = parts
+            .iter()
+            .map(|p| float(g, p).map(|f| f.t))
+            .collect::<Result<_>>()?;
+        let t = Tensor::cat(ts, [0, 2, 3, 1][axis]);
+        return Ok(Value::Float(FloatValue { t, shape, nchw: true }));
+    }
     let ts: Vec<Tensor<4>> = parts
         .iter()
-        .map(|p| float(g, p).map(|f| f.t))
+        .map(|p| float(g, p).map(|f| f.logical().t))
         .collect::<Result<_>>()?;
     let t = Tensor::cat(ts, axis + 4 - rank);
     Ok(Value::Float(FloatValue::new(t, shape)))
@@ -530,7 +573,7 @@ fn reshape(x: &Value, target: &[i64]) -> Result<Value> {
         }),
         Value::Float(f) => {
             ensure!(shape.len() <= 4, "rank {} > 4 is not supported", shape.len());
-            Value::Float(FloatValue::new(f.t.clone(), shape))
+            Value::Float(FloatValue::new(f.clone().logical().t, shape))
         }
     })
 }
@@ -545,7 +588,7 @@ fn expand_dims(x: &Value, axis: i64) -> Result<Value> {
 }
 
 fn transpose(g: &Graph, args: &[&Value]) -> Result<FloatValue> {
-    let x = float_arg(g, args, 0)?;
+    let x = logical_arg(g, args, 0)?;
     let perm = host(args, 1)?.as_i64();
     let r = x.rank();
     ensure!(perm.len() == r, "perm {perm:?} does not match rank {r}");
@@ -562,11 +605,12 @@ fn transpose(g: &Graph, args: &[&Value]) -> Result<FloatValue> {
     Ok(FloatValue {
         t: x.t.permute(p),
         shape,
+        nchw: false,
     })
 }
 
 fn pad(g: &Graph, op: &str, args: &[&Value]) -> Result<FloatValue> {
-    let x = float_arg(g, args, 0)?;
+    let x = logical_arg(g, args, 0)?;
     let p = host(args, 1)?;
     ensure!(
         p.shape == [x.rank(), 2],
@@ -590,6 +634,7 @@ fn pad(g: &Graph, op: &str, args: &[&Value]) -> Result<FloatValue> {
     Ok(FloatValue {
         t: x.t.pad(pairs, PadMode::Constant(value)),
         shape,
+        nchw: false,
     })
 }
 
@@ -605,8 +650,7 @@ fn max_pool(g: &Graph, node: &super::graph::Node, args: &[&Value]) -> Result<Flo
     let opts = MaxPoolOptions::new(k)
         .with_stride(s)
         .with_padding_pairs([ph, pw]);
-    let y = max_pool2d(x.t.permute([0, 3, 1, 2]), opts);
-    Ok(FloatValue::from4(y.permute([0, 2, 3, 1])))
+    Ok(FloatValue::from_nchw(max_pool2d(x.to_nchw(), opts)))
 }
 
 fn resize(g: &Graph, node: &super::graph::Node, args: &[&Value]) -> Result<FloatValue> {
@@ -617,12 +661,12 @@ fn resize(g: &Graph, node: &super::graph::Node, args: &[&Value]) -> Result<Float
     let (h, w) = (size[0] as usize, size[1] as usize);
     let align = attr_b(node, "align_corners");
     let half = attr_b(node, "half_pixel_centers");
-    let t = resize_bilinear(x.t, 1, 2, h, w, align, half);
-    Ok(FloatValue::from4(t))
+    let t = resize_bilinear(x.to_nchw(), 2, 3, h, w, align, half);
+    Ok(FloatValue::from_nchw(t))
 }
 
 fn split_v(g: &Graph, args: &[&Value]) -> Result<Vec<Value>> {
-    let x = float_arg(g, args, 0)?;
+    let x = logical_arg(g, args, 0)?;
     let axis = norm_axis(host(args, 2)?.as_i64()[0], x.rank())?;
     let mut sizes = host(args, 1)?.as_i64();
     let total = x.shape[axis] as i64;
@@ -643,7 +687,11 @@ fn split_v(g: &Graph, args: &[&Value]) -> Result<Vec<Value>> {
         .map(|(t, s)| {
             let mut shape = x.shape.clone();
             shape[axis] = s;
-            Value::Float(FloatValue { t, shape })
+            Value::Float(FloatValue {
+                t,
+                shape,
+                nchw: false,
+            })
         })
         .collect())
 }
