@@ -10,6 +10,7 @@
 //! chosen once at the edge (the `cac` binary, the tests, the benchmarks).
 
 pub mod config;
+pub mod detect;
 pub mod environment;
 pub mod io;
 pub mod render;

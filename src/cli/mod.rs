@@ -3,11 +3,14 @@
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 
+pub mod bench;
 pub mod bench_render;
 pub mod config;
 pub mod demo;
+pub mod detect;
 pub mod device;
 pub mod meshes;
+pub mod models;
 pub mod render;
 
 /// Learn, fabricate and physically test coated adversarial camouflages.
@@ -24,26 +27,21 @@ pub enum Command {
     Demo(demo::Args),
     /// Render one view, or a contact sheet of sampled views.
     Render(render::Args),
+    /// Detect COCO objects in images (CenterNet or NanoDet, TFJS models on burn).
+    Detect(detect::DetectArgs),
+    /// Fetch or locate the detector model files.
+    Models {
+        #[command(subcommand)]
+        cmd: models::ModelsCmd,
+    },
     /// The built-in default objects.
     #[command(subcommand)]
     Meshes(meshes::Cmd),
-    /// Benchmarks (print a table, write CSV).
-    #[command(subcommand)]
-    Bench(BenchCmd),
     /// Print the default scene config (TOML), or check a config file.
     Config(config::Args),
-}
-
-pub fn run(cli: Cli) -> Result<()> {
-    match cli.command {
-        Command::Demo(a) => demo::run(a),
-        Command::Render(a) => render::run(a),
-        Command::Meshes(c) => meshes::run(c),
-        Command::Config(a) => config::run(a),
-        Command::Bench(b) => match b {
-            BenchCmd::Render(a) => bench_render::run(a),
-        },
-    }
+    /// Benchmarks: print a table and write CSV (timings are measured here, never in tests).
+    #[command(subcommand)]
+    Bench(BenchCmd),
 }
 
 /// The benchmarks.
@@ -51,4 +49,19 @@ pub fn run(cli: Cli) -> Result<()> {
 pub enum BenchCmd {
     /// BVH build, rays/s (1 and 2 threads, against Embree), anti-aliasing error against time.
     Render(bench_render::Args),
+    /// The COCO detectors (burn) against the TFJS wasm runtime.
+    Detect(bench::DetectBench),
+}
+
+pub fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Demo(a) => demo::run(a),
+        Command::Render(a) => render::run(a),
+        Command::Detect(a) => detect::run(a),
+        Command::Models { cmd } => models::run(cmd),
+        Command::Meshes(c) => meshes::run(c),
+        Command::Config(a) => config::run(a),
+        Command::Bench(BenchCmd::Render(a)) => bench_render::run(a),
+        Command::Bench(BenchCmd::Detect(a)) => bench::run(bench::BenchCmd::Detect(a)),
+    }
 }

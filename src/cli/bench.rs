@@ -1,0 +1,163 @@
+//! `cac bench detect`: forward and forward+backward time of both detectors at native
+//! resolution, batch 1 and 4, and the TFJS reference runner's wasm backend timed in the same
+//! run. Prints a table and writes a CSV. A benchmark, not a test: it asserts nothing.
+
+use anyhow::{Context, Result};
+use burn::tensor::{Distribution, Tensor};
+use cac::detect;
+use clap::{Args, Subcommand};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+#[derive(Subcommand, Debug)]
+pub enum BenchCmd {
+    /// Time the COCO detectors (burn) against the TFJS wasm runtime.
+    Detect(DetectBench),
+}
+
+#[derive(Args, Debug)]
+pub struct DetectBench {
+    /// Timed runs per measurement (after one warm-up run).
+    #[arg(long, default_value_t = 5)]
+    pub runs: usize,
+    /// CSV output file.
+    #[arg(long, default_value = "bench-detect.csv")]
+    pub csv: PathBuf,
+    /// Installed TFJS reference runner folder (default: $CAC_TFJS_RUNNER, else target/tfjsref).
+    #[arg(long)]
+    pub runner: Option<PathBuf>,
+    /// Image for the TFJS runner (default: a reference image from ../shared, else a noise PNG).
+    #[arg(long)]
+    pub image: Option<PathBuf>,
+}
+
+pub fn run(cmd: BenchCmd) -> Result<()> {
+    match cmd {
+        BenchCmd::Detect(a) => bench_detect(a),
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn time(runs: usize, mut f: impl FnMut() -> Result<()>) -> Result<f64> {
+    f()?; // warm-up
+    let mut t = Vec::with_capacity(runs);
+    for _ in 0..runs {
+        let s = Instant::now();
+        f()?;
+        t.push(s.elapsed().as_secs_f64() * 1e3);
+    }
+    Ok(median(t))
+}
+
+/// Median ms of the TFJS wasm runner, from its `--time` report; None when it cannot run.
+fn tfjs_wasm(runner: &Path, model: &str, image: &Path, models: &Path, runs: usize) -> Option<f64> {
+    let out = Command::new("node")
+        .arg(runner.join("detect.mjs"))
+        .args([model, &image.display().to_string(), "--backend", "wasm"])
+        .args(["--time", &runs.to_string()])
+        .arg("--models")
+        .arg(models)
+        .output()
+        .ok()?;
+    let err = String::from_utf8_lossy(&out.stderr);
+    let line = err.lines().find(|l| l.contains("\"median_ms\""))?;
+    let v: serde_json::Value = serde_json::from_str(line.trim()).ok()?;
+    v["median_ms"].as_f64()
+}
+
+fn bench_detect(a: DetectBench) -> Result<()> {
+    let models = detect::fetch::ensure_models()?;
+    let inference = super::device::inference();
+    let training = super::device::training();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let runner = a
+        .runner
+        .clone()
+        .or_else(|| std::env::var_os("CAC_TFJS_RUNNER").map(PathBuf::from))
+        .unwrap_or_else(|| root.join("target/tfjsref"));
+    let tmp = tempfile::tempdir()?;
+    let image = match &a.image {
+        Some(i) => i.clone(),
+        None => {
+            let shared = root.join("../shared/reference/images/astronaut.png");
+            if shared.exists() {
+                shared
+            } else {
+                let p = tmp.path().join("noise.png");
+                let img = image::RgbImage::from_fn(512, 512, |x, y| {
+                    image::Rgb([(x * 7 + y) as u8, (y * 13) as u8, (x ^ y) as u8])
+                });
+                cac::io::save_png_atomic(&p, &img)?;
+                p
+            }
+        }
+    };
+    let have_runner = runner.join("detect.mjs").exists();
+    if !have_runner {
+        eprintln!(
+            "note: no TFJS reference runner at {} (set --runner or CAC_TFJS_RUNNER): tfjs column is n/a",
+            runner.display()
+        );
+    }
+    let mut rows = Vec::new();
+    println!(
+        "{:10} {:>5} {:>12} {:>16} {:>16} {:>14}",
+        "model", "batch", "forward_ms", "fwd+bwd_ms", "tfjs_wasm_ms", "fwd/tfjs"
+    );
+    for name in detect::MODELS {
+        let det = detect::load(name, &models, &inference)?;
+        let (w, h) = det.input_size();
+        let tfjs = if have_runner {
+            tfjs_wasm(&runner, name, &image, &models, a.runs.max(3))
+        } else {
+            None
+        };
+        for batch in [1usize, 4] {
+            let x = Tensor::<4>::random([batch, 3, h, w], Distribution::Uniform(0.0, 1.0), &inference);
+            let fwd = time(a.runs, || {
+                let c = det.candidates(x.clone())?;
+                let _ = c.scores.sum().into_scalar::<f32>();
+                Ok(())
+            })?;
+            let xa = Tensor::<4>::random([batch, 3, h, w], Distribution::Uniform(0.0, 1.0), &training);
+            let bwd = time(a.runs, || {
+                let x = xa.clone().require_grad();
+                let c = det.candidates(x.clone())?;
+                let loss = c.logits.max_dim(2).sum();
+                let g = loss.backward();
+                let grad = x.grad(&g).context("no gradient")?;
+                let _ = grad.sum().into_scalar::<f32>();
+                Ok(())
+            })?;
+            let t = if batch == 1 { tfjs } else { None };
+            let ratio = t.map(|t| fwd / t);
+            let f = |v: Option<f64>, p: usize| v.map(|v| format!("{v:.p$}")).unwrap_or("n/a".into());
+            println!(
+                "{:10} {:>5} {:>12.1} {:>16.1} {:>16} {:>14}",
+                name,
+                batch,
+                fwd,
+                bwd,
+                f(t, 1),
+                f(ratio, 3)
+            );
+            rows.push(format!(
+                "{name},{batch},{fwd:.2},{bwd:.2},{},{}",
+                f(t, 2),
+                f(ratio, 4)
+            ));
+        }
+    }
+    let csv = format!(
+        "model,batch,forward_ms,forward_backward_ms,tfjs_wasm_ms,forward_over_tfjs\n{}\n",
+        rows.join("\n")
+    );
+    cac::io::write_atomic(&a.csv, csv.as_bytes())?;
+    println!("wrote {}", a.csv.display());
+    Ok(())
+}

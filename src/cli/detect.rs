@@ -1,0 +1,144 @@
+//! `cac detect IMAGE... --model centernet|nanodet`: run a COCO detector on images, print the
+//! detections (text or one JSON object per line), optionally dump raw tensors in the TFJS
+//! reference runner's schema and draw the boxes.
+
+use anyhow::{bail, Result};
+use cac::detect::{self, Detection};
+use clap::{Args, ValueEnum};
+use std::path::{Path, PathBuf};
+
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Model {
+    Centernet,
+    Nanodet,
+}
+
+#[derive(Args, Debug)]
+pub struct DetectArgs {
+    /// Input images (PNG or JPEG).
+    #[arg(required = true)]
+    pub images: Vec<PathBuf>,
+    #[arg(long, value_enum, default_value = "centernet")]
+    pub model: Model,
+    /// NanoDet only: @vladmandic/human's pre-/post-processing (RGB/255 input, argmax boxes),
+    /// for parity checks; the default is the model's real BGR mean/std input and DFL decoding.
+    #[arg(long)]
+    pub human: bool,
+    /// One JSON object per detection: {image, label, class_id, score, box:[x1,y1,x2,y2]}.
+    #[arg(long)]
+    pub json: bool,
+    /// Write the network input and raw outputs (reference runner schema) to this file
+    /// (with several images, the image name is appended to the file name).
+    #[arg(long)]
+    pub raw: Option<PathBuf>,
+    /// Write the image with the detection boxes drawn to this PNG.
+    #[arg(long)]
+    pub draw: Option<PathBuf>,
+    /// Folder holding the model files (default: the cache, fetched on first use).
+    #[arg(long)]
+    pub models: Option<PathBuf>,
+}
+
+/// `out.ext` → `out-<image stem>.ext` when there are several images.
+fn per_image(path: &Path, image: &Path, many: bool) -> PathBuf {
+    if !many {
+        return path.to_path_buf();
+    }
+    let stem = path.file_stem().unwrap_or_default().to_string_lossy();
+    let img = image.file_stem().unwrap_or_default().to_string_lossy();
+    let ext = path.extension().map(|e| format!(".{}", e.to_string_lossy())).unwrap_or_default();
+    path.with_file_name(format!("{stem}-{img}{ext}"))
+}
+
+pub fn run(a: DetectArgs) -> Result<()> {
+    if a.human && a.model != Model::Nanodet {
+        bail!("--human only applies to --model nanodet");
+    }
+    let dir = match &a.models {
+        Some(d) => d.clone(),
+        None => detect::fetch::ensure_models()?,
+    };
+    let name = match (a.model, a.human) {
+        (Model::Centernet, _) => "centernet",
+        (Model::Nanodet, false) => "nanodet",
+        (Model::Nanodet, true) => "nanodet-human",
+    };
+    let device = super::device::inference();
+    let det = detect::load(name, &dir, &device)?;
+    let many = a.images.len() > 1;
+    for path in &a.images {
+        let img = cac::io::load_rgb(path)?;
+        let x = detect::preprocess::image_to_tensor(&img, &device);
+        let dets = det.detect(x.clone())?.remove(0);
+        print_detections(path, &dets, a.json);
+        if let Some(raw) = &a.raw {
+            let mut dump = det.raw(x)?;
+            dump.image.path = Some(path.display().to_string());
+            dump.write(&per_image(raw, path, many))?;
+        }
+        if let Some(out) = &a.draw {
+            cac::io::save_png_atomic(&per_image(out, path, many), &draw(img, &dets))?;
+        }
+    }
+    Ok(())
+}
+
+fn print_detections(image: &Path, dets: &[Detection], json: bool) {
+    for d in dets {
+        if json {
+            let o = serde_json::json!({
+                "image": image.display().to_string(),
+                "label": d.label,
+                "class_id": d.class_id,
+                "score": d.score,
+                "box": d.bbox,
+            });
+            println!("{o}");
+        } else {
+            let b = d.bbox;
+            println!(
+                "{}: {} {:.3} [{:.1}, {:.1}, {:.1}, {:.1}]",
+                image.display(),
+                d.label,
+                d.score,
+                b[0],
+                b[1],
+                b[2],
+                b[3]
+            );
+        }
+    }
+    if dets.is_empty() && !json {
+        println!("{}: no detections", image.display());
+    }
+}
+
+/// Draws 2-px boxes, one colour per class.
+fn draw(mut img: image::RgbImage, dets: &[Detection]) -> image::RgbImage {
+    let (w, h) = (img.width() as i64, img.height() as i64);
+    for d in dets {
+        let c = d.class_id as u32;
+        let colour = image::Rgb([
+            (50 + c * 97 % 206) as u8,
+            (255 - c * 53 % 200) as u8,
+            (c * 31 % 256) as u8,
+        ]);
+        let [x1, y1, x2, y2] = d.bbox.map(|v| v.round() as i64);
+        let mut put = |x: i64, y: i64| {
+            if x >= 0 && y >= 0 && x < w && y < h {
+                img.put_pixel(x as u32, y as u32, colour);
+            }
+        };
+        for t in 0..2 {
+            for x in x1..=x2 {
+                put(x, y1 + t);
+                put(x, y2 - t);
+            }
+            for y in y1..=y2 {
+                put(x1 + t, y);
+                put(x2 - t, y);
+            }
+        }
+    }
+    img
+}

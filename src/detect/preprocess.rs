@@ -1,0 +1,109 @@
+//! Differentiable image pre-processing shared by the detectors and the graph executor:
+//! bilinear resize with the exact tfjs-cpu index formula, image ↔ tensor conversion.
+//!
+//! The resize is two gathers (`select`) and two lerps per axis, so gradients flow back to the
+//! source image. Index and weight tables are computed in f64 like tfjs-cpu; the lerps run in f32
+//! on the device (tfjs-cpu runs them in f64 and rounds once: the difference is ~1 ulp).
+
+use burn::tensor::{Device, Int, Tensor, TensorData};
+
+/// Source indices (floor, ceil) and fractional weights of one resized axis, tfjs-cpu formula.
+pub fn resize_table(
+    input: usize,
+    output: usize,
+    align_corners: bool,
+    half_pixel_centers: bool,
+) -> (Vec<i64>, Vec<i64>, Vec<f32>) {
+    let (eff_in, eff_out) = if align_corners && output > 1 {
+        (input - 1, output - 1)
+    } else {
+        (input, output)
+    };
+    let ratio = eff_in as f64 / eff_out as f64;
+    let mut lo = Vec::with_capacity(output);
+    let mut hi = Vec::with_capacity(output);
+    let mut frac = Vec::with_capacity(output);
+    for r in 0..output {
+        let src = if half_pixel_centers {
+            ratio * (r as f64 + 0.5) - 0.5
+        } else {
+            ratio * r as f64
+        };
+        let floor = src.floor().max(0.0);
+        let ceil = (src.ceil() as i64).min(input as i64 - 1);
+        lo.push(floor as i64);
+        hi.push(ceil.max(0));
+        frac.push((src - floor) as f32);
+    }
+    (lo, hi, frac)
+}
+
+/// Bilinear resize of the axes `h_axis`, `w_axis` of a rank-4 tensor to `(out_h, out_w)`,
+/// with TF `align_corners` / `half_pixel_centers` semantics (tfjs-cpu index formula).
+pub fn resize_bilinear(
+    x: Tensor<4>,
+    h_axis: usize,
+    w_axis: usize,
+    out_h: usize,
+    out_w: usize,
+    align_corners: bool,
+    half_pixel_centers: bool,
+) -> Tensor<4> {
+    let x = resize_axis(x, w_axis, out_w, align_corners, half_pixel_centers);
+    resize_axis(x, h_axis, out_h, align_corners, half_pixel_centers)
+}
+
+fn resize_axis(x: Tensor<4>, axis: usize, out: usize, align: bool, half: bool) -> Tensor<4> {
+    let input = x.dims()[axis];
+    if input == out {
+        return x; // every formula reduces to the identity
+    }
+    let device = x.device();
+    let (lo, hi, frac) = resize_table(input, out, align, half);
+    let idx = |v: Vec<i64>| Tensor::<1, Int>::from_data(TensorData::new(v, [out]), &device);
+    let a = x.clone().select(axis, idx(lo));
+    let b = x.select(axis, idx(hi));
+    let mut wshape = [1usize; 4];
+    wshape[axis] = out;
+    let w = Tensor::<1>::from_data(TensorData::new(frac, [out]), &device).reshape(wshape);
+    a.clone() + (b - a) * w
+}
+
+/// An 8-bit RGB image as a `[1, 3, H, W]` tensor in [0, 1] (value / 255).
+pub fn image_to_tensor(img: &image::RgbImage, device: &Device) -> Tensor<4> {
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let mut data = vec![0f32; 3 * h * w];
+    for (x, y, p) in img.enumerate_pixels() {
+        for c in 0..3 {
+            data[(c * h + y as usize) * w + x as usize] = p.0[c] as f32 / 255.0;
+        }
+    }
+    Tensor::from_data(TensorData::new(data, [1, 3, h, w]), device)
+}
+
+/// Stacks several images of the same size into one `[B, 3, H, W]` tensor in [0, 1].
+pub fn images_to_tensor(imgs: &[image::RgbImage], device: &Device) -> Tensor<4> {
+    Tensor::cat(imgs.iter().map(|i| image_to_tensor(i, device)).collect(), 0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn resize_tables_follow_tfjs_cpu() {
+        // Downscale 4 -> 2, no half pixel: src = 0, 2.
+        let (lo, hi, f) = resize_table(4, 2, false, false);
+        assert_eq!((lo, hi, f), (vec![0, 2], vec![0, 2], vec![0.0, 0.0]));
+        // Upscale 2 -> 4: src = 0, .5, 1, 1.5 ; ceil clamped to 1.
+        let (lo, hi, f) = resize_table(2, 4, false, false);
+        assert_eq!(lo, vec![0, 0, 1, 1]);
+        assert_eq!(hi, vec![0, 1, 1, 1]);
+        assert_eq!(f, vec![0.0, 0.5, 0.0, 0.5]);
+        // Half pixel, upscale 2 -> 4: src = -.25, .25, .75, 1.25 ; floor clamped to 0.
+        let (lo, hi, f) = resize_table(2, 4, false, true);
+        assert_eq!(lo, vec![0, 0, 0, 1]);
+        assert_eq!(hi, vec![0, 1, 1, 1]);
+        assert_eq!(f, vec![-0.25, 0.25, 0.75, 0.25]);
+    }
+}

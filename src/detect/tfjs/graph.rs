@@ -1,0 +1,441 @@
+//! Executor for an imported TFJS graph: resolves node inputs, plans the ancestors of the
+//! requested outputs, and evaluates them as burn tensor ops (see `ops.rs`).
+//!
+//! Float activations are burn tensors (differentiable, on the caller's device); shape, axis and
+//! size arguments and other small integer tensors stay on the host. Only the nodes needed for
+//! the requested outputs run, so a graph whose decode tail uses unsupported ops can still serve
+//! its dense outputs. The graph is traced at batch 1; batch > 1 flows through because the
+//! executor treats a leading 1 in a Reshape target as the batch dimension.
+
+use super::model::{GraphModel, HostData, HostTensor, NodeDef};
+use super::ops;
+use anyhow::{anyhow, bail, Context, Result};
+use burn::tensor::{Device, Tensor, TensorData};
+use std::collections::HashMap;
+
+/// A float tensor of logical rank 0..=4, stored as a rank-4 burn tensor with leading 1s.
+///
+/// A rank-4 NHWC value produced by a convolution may be held physically as NCHW
+/// (`nchw = true`: `t` is the logical tensor permuted by `[0, 3, 1, 2]`), so that chains of
+/// convolutions and elementwise ops never copy between layouts.
+#[derive(Clone, Debug)]
+pub struct FloatValue {
+    pub t: Tensor<4>,
+    pub shape: Vec<usize>,
+    pub nchw: bool,
+}
+
+impl FloatValue {
+    /// Wraps a tensor whose logical shape is `shape` (rank <= 4); reshapes to padded rank 4.
+    pub fn new(t: Tensor<4>, shape: Vec<usize>) -> Self {
+        debug_assert_eq!(t.dims().iter().product::<usize>(), shape.iter().product::<usize>());
+        let padded = pad4(&shape);
+        let t = if t.dims() == padded { t } else { t.reshape(padded) };
+        FloatValue {
+            t,
+            shape,
+            nchw: false,
+        }
+    }
+    /// A logical NHWC value from its physical NCHW tensor.
+    pub fn from_nchw(t: Tensor<4>) -> Self {
+        let [n, c, h, w] = t.dims();
+        FloatValue {
+            t,
+            shape: vec![n, h, w, c],
+            nchw: true,
+        }
+    }
+    /// The physical NCHW tensor of a rank-4 NHWC value (also aligns a broadcastable
+    /// lower-rank value, padded to rank 4, with NCHW-held values).
+    pub fn to_nchw(&self) -> Tensor<4> {
+        if self.nchw {
+            self.t.clone()
+        } else {
+            self.t.clone().permute([0, 3, 1, 2])
+        }
+    }
+    /// This value with `t` in plain logical layout.
+    pub fn logical(self) -> Self {
+        if self.nchw {
+            FloatValue {
+                t: self.t.permute([0, 2, 3, 1]),
+                shape: self.shape,
+                nchw: false,
+            }
+        } else {
+            self
+        }
+    }
+    /// A rank-4 value as it is.
+    pub fn from4(t: Tensor<4>) -> Self {
+        let shape = t.dims().to_vec();
+        FloatValue {
+            t,
+            shape,
+            nchw: false,
+        }
+    }
+    pub fn rank(&self) -> usize {
+        self.shape.len()
+    }
+    /// Offset of logical axis 0 in the physical rank-4 tensor.
+    pub fn offset(&self) -> usize {
+        4 - self.rank()
+    }
+    /// Host copy of the values (row-major, logical shape).
+    pub fn to_host(&self) -> Result<HostTensor> {
+        let v: Vec<f32> = self
+            .clone()
+            .logical()
+            .t
+            .to_data()
+            .convert::<f32>()
+            .try_into_vec::<f32>()
+            .map_err(|e| anyhow!("cannot read tensor values: {e:?}"))?;
+        Ok(HostTensor {
+            shape: self.shape.clone(),
+            data: HostData::F32(v),
+        })
+    }
+}
+
+/// Pads a shape of rank <= 4 with leading 1s to rank 4.
+pub fn pad4(shape: &[usize]) -> [usize; 4] {
+    let mut out = [1usize; 4];
+    let off = 4 - shape.len();
+    out[off..].copy_from_slice(shape);
+    out
+}
+
+/// A value flowing along a graph edge.
+#[derive(Clone, Debug)]
+pub enum Value {
+    Float(FloatValue),
+    Host(HostTensor),
+}
+
+impl Value {
+    pub fn shape(&self) -> &[usize] {
+        match self {
+            Value::Float(f) => &f.shape,
+            Value::Host(h) => &h.shape,
+        }
+    }
+}
+
+/// A resolved node: its op, its inputs as (node index, output index), its attributes.
+#[derive(Debug)]
+pub struct Node {
+    pub def: NodeDef,
+    pub inputs: Vec<(usize, usize)>,
+}
+
+impl Node {
+    pub fn name(&self) -> &str {
+        &self.def.name
+    }
+    pub fn op(&self) -> &str {
+        &self.def.op
+    }
+}
+
+/// A graph ready to run on one device: nodes in file order, constants already on the device.
+pub struct Graph {
+    pub source: String,
+    pub nodes: Vec<Node>,
+    index: HashMap<String, usize>,
+    consts: HashMap<usize, Value>,
+    /// Convolution weights pre-arranged to burn's OIHW layout, keyed by the conv node.
+    pub(crate) conv_weights: HashMap<usize, Tensor<4>>,
+    pub device: Device,
+}
+
+impl Graph {
+    /// Builds the executable graph: resolves every input reference, uploads float constants.
+    pub fn new(model: GraphModel, device: &Device) -> Result<Self> {
+        let source = model.path.display().to_string();
+        let mut index = HashMap::new();
+        for (i, n) in model.nodes.iter().enumerate() {
+            if index.insert(n.name.clone(), i).is_some() {
+                bail!("{source}: node name {:?} appears twice", n.name);
+            }
+        }
+        let mut nodes = Vec::with_capacity(model.nodes.len());
+        for def in model.nodes.iter() {
+            let mut inputs = Vec::new();
+            for r in &def.input {
+                if r.starts_with('^') {
+                    continue; // control dependency: no data
+                }
+                let (name, out) = parse_ref(r);
+                let j = *index.get(name).ok_or_else(|| {
+                    anyhow!("{source}: node {:?} reads missing node {r:?}", def.name)
+                })?;
+                inputs.push((j, out));
+            }
+            nodes.push(Node {
+                def: def.clone(),
+                inputs,
+            });
+        }
+        let mut consts = HashMap::new();
+        for (i, n) in nodes.iter().enumerate() {
+            if n.op() != "Const" {
+                continue;
+            }
+            let h = match model.weights.get(n.name()) {
+                Some(h) => h.clone(),
+                None => inline_const(&n.def)
+                    .with_context(|| format!("{source}: constant node {:?}", n.name()))?,
+            };
+            let v = match &h.data {
+                HostData::F32(v) if h.len() > 16 => {
+                    let t = Tensor::<1>::from_data(TensorData::new(v.clone(), [v.len()]), device);
+                    Value::Float(FloatValue::new(t.reshape(pad4(&h.shape)), h.shape.clone()))
+                }
+                _ => Value::Host(h),
+            };
+            consts.insert(i, v);
+        }
+        let mut g = Graph {
+            source,
+            nodes,
+            index,
+            consts,
+            conv_weights: HashMap::new(),
+            device: device.clone(),
+        };
+        ops::prepare_conv_weights(&mut g)?;
+        Ok(g)
+    }
+
+    /// The index of a node by name (a `name:k` output reference is accepted).
+    pub fn node_index(&self, name: &str) -> Option<usize> {
+        self.index.get(parse_ref(name).0).copied()
+    }
+
+    /// The reference (`name` or `name:k`) of input `k` of node `i`.
+    pub fn input_ref(&self, i: usize, k: usize) -> Option<String> {
+        let &(j, out) = self.nodes[i].inputs.get(k)?;
+        let name = self.nodes[j].name();
+        Some(if out == 0 { name.to_string() } else { format!("{name}:{out}") })
+    }
+
+    /// Follows `Identity` nodes back from `output` to a `Sigmoid` and returns the reference of
+    /// the sigmoid's input: the pre-sigmoid logits behind a probability output.
+    pub fn sigmoid_input(&self, output: &str) -> Result<String> {
+        let mut i = self
+            .node_index(output)
+            .ok_or_else(|| anyhow!("{}: no node named {output:?}", self.source))?;
+        while self.nodes[i].op() == "Identity" {
+            i = self.nodes[i].inputs.first().map(|x| x.0).unwrap_or(i);
+        }
+        if self.nodes[i].op() != "Sigmoid" {
+            bail!("{}: {output:?} is not a sigmoid output", self.source);
+        }
+        self.input_ref(i, 0)
+            .ok_or_else(|| anyhow!("{}: sigmoid {:?} has no input", self.source, self.nodes[i].name()))
+    }
+
+    /// A constant node's value.
+    pub(crate) fn const_value(&self, node: usize) -> Option<&Value> {
+        self.consts.get(&node)
+    }
+
+    /// The names of the graph inputs (Placeholder nodes).
+    pub fn inputs(&self) -> Vec<&str> {
+        self.nodes
+            .iter()
+            .filter(|n| n.op() == "Placeholder")
+            .map(|n| n.name())
+            .collect()
+    }
+
+    /// Runs the graph: `feeds` by Placeholder name, returns the values of `outputs`
+    /// (node names, optionally `name:k` for the k-th output of a multi-output node).
+    pub fn run(&self, feeds: &[(&str, Tensor<4>)], outputs: &[&str]) -> Result<Vec<Value>> {
+        let mut wanted = Vec::new();
+        for o in outputs {
+            let (name, k) = parse_ref(o);
+            let i = self
+                .node_index(name)
+                .ok_or_else(|| anyhow!("{}: no node named {name:?}", self.source))?;
+            wanted.push((i, k));
+        }
+        // Plan: ancestors of the wanted nodes, in a valid evaluation order (iterative DFS).
+        let mut order = Vec::new();
+        let mut state = vec![0u8; self.nodes.len()]; // 0 new, 1 on stack, 2 done
+        for &(root, _) in &wanted {
+            let mut stack = vec![(root, false)];
+            while let Some((i, expanded)) = stack.pop() {
+                if expanded {
+                    state[i] = 2;
+                    order.push(i);
+                    continue;
+                }
+                match state[i] {
+                    2 => continue,
+                    1 => bail!("{}: the graph has a cycle at {:?}", self.source, self.nodes[i].name()),
+                    _ => {}
+                }
+                state[i] = 1;
+                stack.push((i, true));
+                for &(j, _) in &self.nodes[i].inputs {
+                    if state[j] == 0 {
+                        stack.push((j, false));
+                    } else if state[j] == 1 {
+                        bail!("{}: the graph has a cycle at {:?}", self.source, self.nodes[j].name());
+                    }
+                }
+            }
+        }
+        // Last use of each node, to free activations early.
+        let mut last_use = vec![0usize; self.nodes.len()];
+        for (step, &i) in order.iter().enumerate() {
+            for &(j, _) in &self.nodes[i].inputs {
+                last_use[j] = step;
+            }
+        }
+        for &(i, _) in &wanted {
+            last_use[i] = usize::MAX;
+        }
+        let mut values: HashMap<usize, Vec<Value>> = HashMap::new();
+        let profile = std::env::var_os("CAC_PROFILE_GRAPH").is_some();
+        let mut op_ms: HashMap<String, f64> = HashMap::new();
+        for (step, &i) in order.iter().enumerate() {
+            let started = std::time::Instant::now();
+            let node = &self.nodes[i];
+            let out = if node.op() == "Placeholder" {
+                let t = feeds
+                    .iter()
+                    .find(|(n, _)| *n == node.name())
+                    .map(|(_, t)| t.clone())
+                    .ok_or_else(|| {
+                        anyhow!("{}: no value fed for input {:?}", self.source, node.name())
+                    })?;
+                vec![Value::Float(FloatValue::from4(t))]
+            } else if let Some(c) = self.consts.get(&i) {
+                vec![c.clone()]
+            } else {
+                let args: Vec<&Value> = node
+                    .inputs
+                    .iter()
+                    .map(|&(j, k)| {
+                        values.get(&j).and_then(|v| v.get(k)).ok_or_else(|| {
+                            anyhow!(
+                                "{}: node {:?} reads output {k} of {:?}, which does not exist",
+                                self.source,
+                                node.name(),
+                                self.nodes[j].name()
+                            )
+                        })
+                    })
+                    .collect::<Result<_>>()?;
+                ops::eval(self, i, &args).with_context(|| {
+                    format!(
+                        "{}: node {:?} (op {})",
+                        self.source,
+                        node.name(),
+                        node.op()
+                    )
+                })?
+            };
+            if profile {
+                if let Some(Value::Float(f)) = out.first() {
+                    let _ = f.t.clone().slice([0..1, 0..1, 0..1, 0..1]).into_data();
+                }
+                *op_ms.entry(node.op().to_string()).or_default() +=
+                    started.elapsed().as_secs_f64() * 1e3;
+            }
+            values.insert(i, out);
+            for &(j, _) in &node.inputs {
+                if last_use[j] == step {
+                    values.remove(&j);
+                }
+            }
+        }
+        if profile {
+            let mut v: Vec<_> = op_ms.into_iter().collect();
+            v.sort_by(|a, b| b.1.total_cmp(&a.1));
+            eprintln!("graph profile (ms per op type): {v:.1?}");
+        }
+        wanted
+            .iter()
+            .zip(outputs)
+            .map(|(&(i, k), name)| {
+                values
+                    .get(&i)
+                    .and_then(|v| v.get(k))
+                    .cloned()
+                    .map(|v| match v {
+                        Value::Float(f) => Value::Float(f.logical()),
+                        h => h,
+                    })
+                    .ok_or_else(|| anyhow!("{}: node {name:?} has no output {k}", self.source))
+            })
+            .collect()
+    }
+}
+
+/// Splits `name:k` into (name, k); a plain name is output 0.
+pub fn parse_ref(r: &str) -> (&str, usize) {
+    if let Some((name, k)) = r.rsplit_once(':') {
+        if let Ok(k) = k.parse() {
+            return (name, k);
+        }
+    }
+    (r, 0)
+}
+
+/// A constant whose value is inline in the node attributes (small scalars, some converters).
+fn inline_const(def: &NodeDef) -> Result<HostTensor> {
+    let t = def
+        .attr
+        .get("value")
+        .and_then(|v| v.get("tensor"))
+        .ok_or_else(|| anyhow!("has no value: neither in the weights manifest nor inline"))?;
+    let dims: Vec<usize> = t
+        .get("tensorShape")
+        .and_then(|s| s.get("dim"))
+        .and_then(|d| d.as_array())
+        .map(|d| {
+            d.iter()
+                .map(|x| {
+                    x.get("size")
+                        .and_then(|s| s.as_str().and_then(|s| s.parse().ok()).or(s.as_u64().map(|u| u as usize)))
+                        .unwrap_or(1)
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    let n: usize = dims.iter().product();
+    let dtype = t.get("dtype").and_then(|d| d.as_str()).unwrap_or("");
+    let list = |key: &str| t.get(key).and_then(|v| v.as_array()).cloned();
+    let data = if dtype == "DT_FLOAT" {
+        let v: Vec<f32> = list("floatVal")
+            .unwrap_or_default()
+            .iter()
+            .filter_map(|x| x.as_f64().map(|f| f as f32))
+            .collect();
+        HostData::F32(broadcast_fill(v, n)?)
+    } else {
+        let v: Vec<i64> = list("intVal")
+            .or_else(|| list("int64Val"))
+            .unwrap_or_default()
+            .iter()
+            .filter_map(|x| x.as_i64().or(x.as_str().and_then(|s| s.parse().ok())))
+            .collect();
+        HostData::I64(broadcast_fill(v, n)?)
+    };
+    Ok(HostTensor { shape: dims, data })
+}
+
+fn broadcast_fill<T: Clone>(v: Vec<T>, n: usize) -> Result<Vec<T>> {
+    match v.len() {
+        len if len == n => Ok(v),
+        1 => Ok(vec![v[0].clone(); n]),
+        0 if n == 0 => Ok(v),
+        len => bail!("inline value has {len} elements, shape needs {n}"),
+    }
+}

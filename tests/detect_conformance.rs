@@ -1,0 +1,207 @@
+//! Conformance of the burn detectors with the TensorFlow.js runtime (the reference runner
+//! `../shared/reference/tfjs/detect.mjs`, cpu backend, is the oracle).
+//!
+//! For every image of `../shared/reference/images`: raw outputs within
+//! `max|a-b| / max|b| <= 1e-4` per tensor, and the same final detections (labels, boxes within
+//! 0.5 px, scores within 1e-4). The runner is installed (npm install in a copy under the target
+//! folder, or `$CAC_TFJS_RUNNER`) and its dumps are cached under `target/tfjs-oracle`, keyed by
+//! model, settings and image. Skipped, loudly, only when `../shared` does not exist.
+
+use cac::detect::raw::{relative_error, RawDump};
+use cac::detect;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+const REL_TOL: f64 = 1e-4;
+const BOX_TOL: f64 = 0.5;
+const SCORE_TOL: f64 = 1e-4;
+
+fn shared_dir() -> Option<PathBuf> {
+    let d = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
+    if d.join("reference/tfjs/detect.mjs").exists() {
+        Some(d)
+    } else {
+        eprintln!(
+            "\n!!!!!!!! SKIPPED: {} does not exist: detector conformance NOT checked !!!!!!!!\n",
+            d.display()
+        );
+        None
+    }
+}
+
+/// `target/` (the folder above `release/deps/<this test>`).
+fn target_dir() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    exe.ancestors().nth(3).unwrap().to_path_buf()
+}
+
+/// The installed reference runner folder (installs it on first use).
+fn runner(shared: &Path) -> &'static PathBuf {
+    static RUNNER: OnceLock<PathBuf> = OnceLock::new();
+    RUNNER.get_or_init(|| {
+        let dir = std::env::var_os("CAC_TFJS_RUNNER")
+            .map(PathBuf::from)
+            .unwrap_or_else(|| target_dir().join("tfjsref"));
+        if !dir.join("node_modules/@tensorflow/tfjs").exists() {
+            std::fs::create_dir_all(&dir).unwrap();
+            for e in std::fs::read_dir(shared.join("reference/tfjs")).unwrap() {
+                let p = e.unwrap().path();
+                if p.is_file() {
+                    std::fs::copy(&p, dir.join(p.file_name().unwrap())).unwrap();
+                }
+            }
+            eprintln!("installing the TFJS reference runner in {}", dir.display());
+            let st = Command::new("npm")
+                .args(["install", "--no-audit", "--no-fund", "--silent"])
+                .current_dir(&dir)
+                .status()
+                .expect("npm is needed to install the TFJS reference runner");
+            assert!(st.success(), "npm install of the reference runner failed");
+        }
+        dir
+    })
+}
+
+fn models() -> &'static PathBuf {
+    static M: OnceLock<PathBuf> = OnceLock::new();
+    M.get_or_init(|| detect::fetch::ensure_models().expect("detector models"))
+}
+
+fn images(shared: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(shared.join("reference/images"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "png" || e == "jpg"))
+        .collect();
+    v.sort();
+    v
+}
+
+/// The oracle's raw dump and detection list for one case (cached).
+fn oracle(shared: &Path, model: &str, norm: &str, decode: &str, image: &Path) -> (PathBuf, PathBuf) {
+    let dir = target_dir().join("tfjs-oracle");
+    std::fs::create_dir_all(&dir).unwrap();
+    let stem = image.file_stem().unwrap().to_string_lossy();
+    let base = dir.join(format!("{model}-{norm}-{decode}-{stem}"));
+    let raw = base.with_extension("raw.json");
+    let dets = base.with_extension("dets.json");
+    if raw.exists() && dets.exists() {
+        return (raw, dets);
+    }
+    let run = runner(shared);
+    let tmp_raw = base.with_extension("raw.json.tmp");
+    let out = Command::new("node")
+        .arg(run.join("detect.mjs"))
+        .args([model, image.to_str().unwrap(), "--norm", norm, "--decode", decode])
+        .arg("--raw")
+        .arg(&tmp_raw)
+        .arg("--models")
+        .arg(models())
+        .output()
+        .expect("node is needed to run the TFJS reference runner");
+    assert!(
+        out.status.success(),
+        "reference runner failed on {}: {}",
+        image.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    std::fs::write(base.with_extension("dets.json.tmp"), &out.stdout).unwrap();
+    std::fs::rename(&tmp_raw, &raw).unwrap();
+    std::fs::rename(base.with_extension("dets.json.tmp"), &dets).unwrap();
+    (raw, dets)
+}
+
+#[derive(serde::Deserialize)]
+struct RefDetection {
+    label: String,
+    class_id: usize,
+    score: f64,
+    #[serde(rename = "box")]
+    bbox: [f64; 4],
+}
+
+/// Runs one model configuration over all images; panics listing every violation.
+fn conformance(model: &str, norm: &str, decode: &str, detector_name: &str, only: Option<&[&str]>) {
+    let Some(shared) = shared_dir() else { return };
+    let device = burn::tensor::Device::from(burn::backend::FlexDevice);
+    let det = detect::load(detector_name, models(), &device).unwrap();
+    let mut failures = Vec::new();
+    let mut worst: Vec<(String, f64)> = Vec::new();
+    for image in images(&shared) {
+        let stem = image.file_stem().unwrap().to_string_lossy().to_string();
+        if only.is_some_and(|o| !o.contains(&stem.as_str())) {
+            continue;
+        }
+        let (raw_path, dets_path) = oracle(&shared, model, norm, decode, &image);
+        let want = RawDump::read(&raw_path).unwrap();
+        let img = cac::io::load_rgb(&image).unwrap();
+        let x = detect::preprocess::image_to_tensor(&img, &device);
+        let got = det.raw(x.clone()).unwrap();
+        let input_err = relative_error(&got.input.values, &want.input.values);
+        eprintln!("{model}/{norm}/{decode} {stem}: input rel err {input_err:.2e}");
+        if input_err > REL_TOL {
+            failures.push(format!("{stem}: input rel err {input_err:.3e}"));
+        }
+        for (name, w) in &want.outputs {
+            let Some(g) = got.outputs.get(name) else {
+                failures.push(format!("{stem}: output {name} missing"));
+                continue;
+            };
+            assert_eq!(g.shape, w.shape, "{stem}: {name} shape");
+            let e = relative_error(&g.values, &w.values);
+            eprintln!("  {name:24} rel err {e:.2e}");
+            match worst.iter_mut().find(|(n, _)| n == name) {
+                Some(x) => x.1 = x.1.max(e),
+                None => worst.push((name.clone(), e)),
+            }
+            if e > REL_TOL {
+                failures.push(format!("{stem}: {name} rel err {e:.3e} > {REL_TOL:e}"));
+            }
+        }
+        let want_dets: Vec<RefDetection> =
+            serde_json::from_str(&std::fs::read_to_string(&dets_path).unwrap()).unwrap();
+        let got_dets = det.detect(x).unwrap().remove(0);
+        if got_dets.len() != want_dets.len() {
+            failures.push(format!(
+                "{stem}: {} detections, oracle has {}",
+                got_dets.len(),
+                want_dets.len()
+            ));
+        }
+        for (k, (g, w)) in got_dets.iter().zip(&want_dets).enumerate() {
+            let box_err = (0..4).map(|i| (g.bbox[i] as f64 - w.bbox[i]).abs()).fold(0.0, f64::max);
+            let score_err = (g.score as f64 - w.score).abs();
+            if g.label != w.label || g.class_id != w.class_id || box_err > BOX_TOL || score_err > SCORE_TOL {
+                failures.push(format!(
+                    "{stem} #{k}: got {} {:.5} {:?}, oracle {} {:.5} {:?}",
+                    g.label, g.score, g.bbox, w.label, w.score, w.bbox
+                ));
+            }
+        }
+        eprintln!("  {} detections, oracle {}", got_dets.len(), want_dets.len());
+    }
+    eprintln!("WORST {model}/{norm}/{decode}: {worst:?}");
+    assert!(failures.is_empty(), "conformance failures:\n{}", failures.join("\n"));
+}
+
+#[test]
+fn centernet_matches_tfjs() {
+    conformance("centernet", "human", "human", "centernet", None);
+}
+
+#[test]
+fn nanodet_matches_tfjs() {
+    conformance("nanodet", "nanodet", "dfl", "nanodet", None);
+}
+
+#[test]
+fn nanodet_human_mode_matches_tfjs() {
+    conformance(
+        "nanodet",
+        "human",
+        "human",
+        "nanodet-human",
+        Some(&["astronaut", "motorcycle_left", "chelsea"]),
+    );
+}
