@@ -15,3 +15,5 @@ pub mod environment;
 pub mod io;
 pub mod render;
 pub mod scene;
+pub mod attack;
+pub mod eval;

@@ -1,0 +1,289 @@
+//! The CAC attack (Algorithm 1 of the paper): learn a camouflage atlas under expectation over
+//! transformations with the dense-proposals loss.
+//!
+//! Each iteration draws a batch of environment conditions (seeded by the run seed and the
+//! iteration number, so a resumed run draws the same batches), renders them differentiably, runs
+//! every source detector, fixes its top-n proposals after NMS, and takes an Adam step on the atlas
+//! that lowers the mean loss over all fixed proposals ([`loss`]); the atlas is clipped to [0, 1].
+//! Only texels that paintable surfaces sample ever receive a gradient, so only they change.
+//!
+//! Long runs checkpoint every K iterations into the run folder; [`Trainer::resume`] continues
+//! exactly where the last checkpoint left off.
+
+pub mod adam;
+pub mod loss;
+
+use crate::detect::Detector;
+use crate::environment::{self, Brightness, Condition, Environment, ViewpointSet};
+use crate::render::{self, Renderer};
+use crate::scene::Texture;
+use adam::Adam;
+use anyhow::{bail, Context, Result};
+use burn::tensor::{Device, Tensor, TensorData};
+use loss::Goal;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Attack settings (the `[attack]` table; `cac train --help` documents each flag).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AttackConfig {
+    /// Source detectors (an ensemble when several).
+    pub models: Vec<String>,
+    /// COCO class every proposal is pushed towards; ignored with `hide`.
+    pub target: String,
+    /// Non-targeted mode: suppress every class.
+    pub hide: bool,
+    /// Fixed proposals per image (the paper's n).
+    pub top_n: usize,
+    /// IoU of the class-agnostic NMS that picks the proposals.
+    pub nms_iou: f64,
+    pub batch: usize,
+    pub iterations: usize,
+    pub lr: f32,
+    pub seed: u64,
+    /// Write a checkpoint every this many iterations (0: only at the end).
+    pub checkpoint_every: usize,
+    pub viewpoints: ViewpointSet,
+}
+
+impl Default for AttackConfig {
+    fn default() -> Self {
+        AttackConfig {
+            models: vec!["nanodet".into()],
+            target: "person".into(),
+            hide: false,
+            top_n: 300,
+            nms_iou: 0.7,
+            batch: 2,
+            iterations: 200,
+            lr: 0.02,
+            seed: 0,
+            checkpoint_every: 10,
+            viewpoints: ViewpointSet::Free,
+        }
+    }
+}
+
+impl AttackConfig {
+    pub fn goal(&self) -> Result<Goal> {
+        if self.hide {
+            return Ok(Goal::Hide);
+        }
+        match crate::detect::labels::class_id(&self.target) {
+            Some(c) => Ok(Goal::Targeted(c)),
+            None => bail!("unknown target class {:?} (use a COCO-80 label such as \"person\" or \"stop sign\")", self.target),
+        }
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        if self.models.is_empty() {
+            bail!("at least one source model is needed");
+        }
+        if self.batch == 0 || self.top_n == 0 {
+            bail!("batch and top_n must be positive");
+        }
+        if !(self.lr > 0.0 && self.lr.is_finite()) {
+            bail!("learning rate must be positive");
+        }
+        self.goal().map(|_| ())
+    }
+}
+
+/// One iteration's record in `run.json`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct IterationLog {
+    pub iteration: usize,
+    pub loss: f64,
+    pub grad_norm: f64,
+    pub proposals: usize,
+    pub ms_render: f64,
+    pub ms_forward: f64,
+    pub ms_backward: f64,
+    pub ms_optimiser: f64,
+}
+
+/// Everything needed to continue a run.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Checkpoint {
+    pub iteration: usize,
+    pub atlas_res: usize,
+    pub adam: Adam,
+    pub atlas: Vec<f32>,
+    pub log: Vec<IterationLog>,
+}
+
+/// A training run bound to a renderer, an environment and its source detectors.
+pub struct Trainer<'a> {
+    pub config: AttackConfig,
+    pub renderer: &'a Renderer,
+    pub env: &'a Environment,
+    pub detectors: Vec<&'a dyn Detector>,
+    /// An autodiff device.
+    pub device: Device,
+    pub state: Checkpoint,
+    pub run_dir: Option<PathBuf>,
+}
+
+impl<'a> Trainer<'a> {
+    /// Starts from `init` (the object's texture or a chosen initial atlas).
+    pub fn new(config: AttackConfig, renderer: &'a Renderer, env: &'a Environment, detectors: Vec<&'a dyn Detector>, device: Device, init: &Texture) -> Result<Self> {
+        config.validate()?;
+        if detectors.len() != config.models.len() {
+            bail!("{} detectors given for {} configured models", detectors.len(), config.models.len());
+        }
+        let res = renderer.settings.atlas_res;
+        let init = if init.width != res || init.height != res { init.resized(res, res) } else { init.clone() };
+        let atlas: Vec<f32> = init.texels.iter().flatten().copied().collect();
+        let state = Checkpoint { iteration: 0, atlas_res: res, adam: Adam::new(atlas.len(), config.lr), atlas, log: vec![] };
+        Ok(Trainer { config, renderer, env, detectors, device, state, run_dir: None })
+    }
+
+    /// Continues from the checkpoint in `run_dir`.
+    pub fn resume(mut self, run_dir: &Path) -> Result<Self> {
+        let ck = load_checkpoint(run_dir)?;
+        if ck.atlas_res != self.renderer.settings.atlas_res {
+            bail!("{}: checkpoint atlas is {}², the config asks for {}²", run_dir.display(), ck.atlas_res, self.renderer.settings.atlas_res);
+        }
+        self.state = ck;
+        Ok(self)
+    }
+
+    /// The conditions of iteration `i` (a pure function of the seed and `i`).
+    pub fn conditions(&self, i: usize) -> Vec<Condition> {
+        let mut rng = ChaCha8Rng::seed_from_u64(self.config.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (i as u64).wrapping_add(1));
+        (0..self.config.batch)
+            .map(|k| {
+                let b = if k % 2 == 0 { Brightness::Bright } else { Brightness::Dark };
+                self.env.sample(self.config.viewpoints, b, &mut rng)
+            })
+            .collect()
+    }
+
+    /// The current atlas as a texture.
+    pub fn atlas(&self) -> Texture {
+        let r = self.state.atlas_res;
+        Texture { width: r, height: r, texels: self.state.atlas.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect() }
+    }
+
+    /// One iteration: render, detect, loss, backward, Adam step.
+    pub fn step(&mut self) -> Result<IterationLog> {
+        let i = self.state.iteration;
+        let goal = self.config.goal()?;
+        let conds = self.conditions(i);
+        let t0 = Instant::now();
+        let plans = conds
+            .iter()
+            .map(|c| self.renderer.plan(&c.viewpoint, &self.env.lighting(c), &self.env.backdrop(c)))
+            .collect::<Result<Vec<_>>>()?;
+        let r = self.state.atlas_res;
+        let atlas = Tensor::<4>::from_data(TensorData::new(self.state.atlas.clone(), [1, r, r, 3]), &self.device).require_grad();
+        let images = environment::photometric(render::composite(&plans, environment::print_error(atlas.clone(), &conds)), &conds);
+        let ms_render = t0.elapsed().as_secs_f64() * 1e3;
+        let t1 = Instant::now();
+        let mut total: Option<Tensor<1>> = None;
+        let mut proposals = 0;
+        for det in &self.detectors {
+            let c = det.candidates(images.clone())?;
+            let sel = loss::select_proposals(&c, self.config.top_n, self.config.nms_iou)?;
+            proposals += sel.iter().map(Vec::len).sum::<usize>();
+            let l = loss::proposals_loss(c.logits, &sel, goal)?;
+            total = Some(match total {
+                Some(t) => t + l,
+                None => l,
+            });
+        }
+        let loss = total.context("no detector")? / self.detectors.len() as f64;
+        let loss_value = loss.clone().into_data().convert::<f64>().try_to_vec::<f64>().map_err(|e| anyhow::anyhow!("{e:?}"))?[0];
+        let ms_forward = t1.elapsed().as_secs_f64() * 1e3;
+        let t2 = Instant::now();
+        let grads = loss.backward();
+        let g = atlas
+            .grad(&grads)
+            .context("no gradient reached the atlas")?
+            .into_data()
+            .convert::<f32>()
+            .try_to_vec::<f32>()
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        let ms_backward = t2.elapsed().as_secs_f64() * 1e3;
+        let t3 = Instant::now();
+        let grad_norm = g.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
+        if !loss_value.is_finite() {
+            bail!("iteration {i}: the loss is not finite ({loss_value})");
+        }
+        self.state.adam.step(&mut self.state.atlas, &g);
+        let ms_optimiser = t3.elapsed().as_secs_f64() * 1e3;
+        let log = IterationLog { iteration: i, loss: loss_value, grad_norm, proposals, ms_render, ms_forward, ms_backward, ms_optimiser };
+        self.state.log.push(log.clone());
+        self.state.iteration += 1;
+        Ok(log)
+    }
+}
+
+const CHECKPOINT: &str = "checkpoint";
+
+/// Writes the checkpoint into `run_dir/checkpoint/` atomically (a new folder renamed into place).
+pub fn save_checkpoint(run_dir: &Path, ck: &Checkpoint) -> Result<()> {
+    std::fs::create_dir_all(run_dir).with_context(|| format!("cannot create run folder {}", run_dir.display()))?;
+    let tmp = run_dir.join(format!("{CHECKPOINT}.tmp"));
+    let _ = std::fs::remove_dir_all(&tmp);
+    std::fs::create_dir_all(&tmp)?;
+    let bin = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+    crate::io::write_atomic(&tmp.join("atlas.f32"), &bin(&ck.atlas))?;
+    crate::io::write_atomic(&tmp.join("adam_m.f32"), &bin(&ck.adam.m))?;
+    crate::io::write_atomic(&tmp.join("adam_v.f32"), &bin(&ck.adam.v))?;
+    let meta = serde_json::json!({
+        "iteration": ck.iteration, "atlas_res": ck.atlas_res,
+        "adam": {"lr": ck.adam.lr, "beta1": ck.adam.beta1, "beta2": ck.adam.beta2, "eps": ck.adam.eps, "t": ck.adam.t},
+        "log": ck.log,
+    });
+    crate::io::write_atomic(&tmp.join("state.json"), serde_json::to_string(&meta)?.as_bytes())?;
+    let dst = run_dir.join(CHECKPOINT);
+    let old = run_dir.join(format!("{CHECKPOINT}.old"));
+    let _ = std::fs::remove_dir_all(&old);
+    if dst.exists() {
+        std::fs::rename(&dst, &old)?;
+    }
+    std::fs::rename(&tmp, &dst)?;
+    let _ = std::fs::remove_dir_all(&old);
+    Ok(())
+}
+
+/// Reads the newest complete checkpoint of a run folder.
+pub fn load_checkpoint(run_dir: &Path) -> Result<Checkpoint> {
+    let dir = [CHECKPOINT, "checkpoint.old"]
+        .iter()
+        .map(|n| run_dir.join(n))
+        .find(|d| d.join("state.json").is_file())
+        .with_context(|| format!("{} holds no checkpoint to resume from", run_dir.display()))?;
+    let meta: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("state.json"))?)
+        .with_context(|| format!("{}: malformed checkpoint state", dir.display()))?;
+    let f32s = |name: &str| -> Result<Vec<f32>> {
+        let b = std::fs::read(dir.join(name)).with_context(|| format!("{}: missing {name}", dir.display()))?;
+        if b.len() % 4 != 0 {
+            bail!("{}: {name} is truncated", dir.display());
+        }
+        Ok(b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
+    };
+    let res = meta["atlas_res"].as_u64().context("checkpoint lacks atlas_res")? as usize;
+    let atlas = f32s("atlas.f32")?;
+    let (m, v) = (f32s("adam_m.f32")?, f32s("adam_v.f32")?);
+    if atlas.len() != res * res * 3 || m.len() != atlas.len() || v.len() != atlas.len() {
+        bail!("{}: checkpoint arrays do not match a {res}² atlas", dir.display());
+    }
+    let a = &meta["adam"];
+    let adam = Adam {
+        lr: a["lr"].as_f64().context("adam.lr")? as f32,
+        beta1: a["beta1"].as_f64().context("adam.beta1")? as f32,
+        beta2: a["beta2"].as_f64().context("adam.beta2")? as f32,
+        eps: a["eps"].as_f64().context("adam.eps")? as f32,
+        t: a["t"].as_u64().context("adam.t")?,
+        m,
+        v,
+    };
+    let log: Vec<IterationLog> = serde_json::from_value(meta["log"].clone()).context("checkpoint log")?;
+    Ok(Checkpoint { iteration: meta["iteration"].as_u64().context("iteration")? as usize, atlas_res: res, adam, atlas, log })
+}

@@ -1,0 +1,99 @@
+//! Evaluation metrics: per image and model, a *hit* is a true-class detection with IoU >= 0.5
+//! against the ground-truth box at confidence >= 0.3; P@0.5 = hits / images. Targeted success is
+//! the same test for the target class. Drop = P@0.5(original) − P@0.5(texture).
+
+use crate::detect::{nms::iou, Detection};
+use serde::{Deserialize, Serialize};
+
+/// The protocol's thresholds and classes (stated in every report).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Protocol {
+    /// COCO-80 ids that count as the true class (default: car, truck).
+    pub true_classes: Vec<usize>,
+    /// COCO-80 id of the attack's target class, if any.
+    pub target: Option<usize>,
+    pub iou: f64,
+    pub confidence: f32,
+}
+
+impl Default for Protocol {
+    fn default() -> Self {
+        Protocol { true_classes: vec![2, 7], target: None, iou: 0.5, confidence: 0.3 }
+    }
+}
+
+/// One image's outcome for one model.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ImageScore {
+    pub hit: bool,
+    pub targeted: bool,
+    /// Highest true-class confidence among detections with IoU >= the threshold (0 if none).
+    pub best_true_conf: f32,
+}
+
+fn iou_xyxy(a: &[f32; 4], b: &[f32; 4]) -> f64 {
+    // nms::iou takes [y1, x1, y2, x2]; IoU is symmetric in the axes, so xyxy works as well.
+    iou(a, b)
+}
+
+/// Scores one image's detections against its ground-truth box.
+pub fn score_image(dets: &[Detection], gt: &[f32; 4], p: &Protocol) -> ImageScore {
+    let mut s = ImageScore { hit: false, targeted: false, best_true_conf: 0.0 };
+    for d in dets {
+        let o = iou_xyxy(&d.bbox, gt);
+        if o < p.iou {
+            continue;
+        }
+        if p.true_classes.contains(&d.class_id) {
+            s.best_true_conf = s.best_true_conf.max(d.score);
+            if d.score >= p.confidence {
+                s.hit = true;
+            }
+        }
+        if Some(d.class_id) == p.target && d.score >= p.confidence {
+            s.targeted = true;
+        }
+    }
+    s
+}
+
+/// P@0.5, targeted success and mean best true-class confidence over images.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Summary {
+    pub images: usize,
+    pub p_at_05: f64,
+    pub targeted_success: f64,
+    pub mean_best_true_conf: f64,
+}
+
+pub fn summarise(scores: &[ImageScore]) -> Summary {
+    let n = scores.len().max(1) as f64;
+    Summary {
+        images: scores.len(),
+        p_at_05: scores.iter().filter(|s| s.hit).count() as f64 / n,
+        targeted_success: scores.iter().filter(|s| s.targeted).count() as f64 / n,
+        mean_best_true_conf: scores.iter().map(|s| s.best_true_conf as f64).sum::<f64>() / n,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn det(c: usize, s: f32, b: [f32; 4]) -> Detection {
+        Detection { class_id: c, label: crate::detect::labels::COCO80[c], score: s, bbox: b }
+    }
+
+    #[test]
+    fn hit_needs_true_class_iou_and_confidence() {
+        let gt = [10.0, 10.0, 110.0, 60.0];
+        let p = Protocol { target: Some(0), ..Default::default() };
+        assert!(score_image(&[det(7, 0.31, [12.0, 11.0, 108.0, 62.0])], &gt, &p).hit);
+        assert!(!score_image(&[det(7, 0.29, [12.0, 11.0, 108.0, 62.0])], &gt, &p).hit, "confidence");
+        assert!(!score_image(&[det(7, 0.9, [60.0, 10.0, 160.0, 60.0])], &gt, &p).hit, "IoU 1/3");
+        assert!(!score_image(&[det(5, 0.9, gt)], &gt, &p).hit, "bus is not a true class by default");
+        let s = score_image(&[det(0, 0.5, gt), det(2, 0.2, gt)], &gt, &p);
+        assert!(s.targeted && !s.hit && (s.best_true_conf - 0.2).abs() < 1e-6);
+        assert_eq!(summarise(&[]).p_at_05, 0.0, "no images: no NaN");
+    }
+}
