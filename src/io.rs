@@ -33,6 +33,12 @@ pub fn write_atomic_with(
         w.flush()
             .with_context(|| format!("while writing {}", path.display()))?;
     }
+    // Temporary files are created 0600; a finished output file gets ordinary permissions.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let _ = tmp.as_file().set_permissions(std::fs::Permissions::from_mode(0o644));
+    }
     tmp.as_file()
         .sync_all()
         .with_context(|| format!("while syncing {}", path.display()))?;

@@ -7,8 +7,8 @@
 //! folder, or `$CAC_TFJS_RUNNER`) and its dumps are cached under `target/tfjs-oracle`, keyed by
 //! model, settings and image. Skipped, loudly, only when `../shared` does not exist.
 
-use cac::detect::raw::{relative_error, RawDump};
 use cac::detect;
+use cac::detect::raw::{relative_error, RawDump};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
@@ -79,7 +79,13 @@ fn images(shared: &Path) -> Vec<PathBuf> {
 }
 
 /// The oracle's raw dump and detection list for one case (cached).
-fn oracle(shared: &Path, model: &str, norm: &str, decode: &str, image: &Path) -> (PathBuf, PathBuf) {
+fn oracle(
+    shared: &Path,
+    model: &str,
+    norm: &str,
+    decode: &str,
+    image: &Path,
+) -> (PathBuf, PathBuf) {
     let dir = target_dir().join("tfjs-oracle");
     std::fs::create_dir_all(&dir).unwrap();
     let stem = image.file_stem().unwrap().to_string_lossy();
@@ -93,7 +99,14 @@ fn oracle(shared: &Path, model: &str, norm: &str, decode: &str, image: &Path) ->
     let tmp_raw = base.with_extension("raw.json.tmp");
     let out = Command::new("node")
         .arg(run.join("detect.mjs"))
-        .args([model, image.to_str().unwrap(), "--norm", norm, "--decode", decode])
+        .args([
+            model,
+            image.to_str().unwrap(),
+            "--norm",
+            norm,
+            "--decode",
+            decode,
+        ])
         .arg("--raw")
         .arg(&tmp_raw)
         .arg("--models")
@@ -170,19 +183,33 @@ fn conformance(model: &str, norm: &str, decode: &str, detector_name: &str, only:
             ));
         }
         for (k, (g, w)) in got_dets.iter().zip(&want_dets).enumerate() {
-            let box_err = (0..4).map(|i| (g.bbox[i] as f64 - w.bbox[i]).abs()).fold(0.0, f64::max);
+            let box_err = (0..4)
+                .map(|i| (g.bbox[i] as f64 - w.bbox[i]).abs())
+                .fold(0.0, f64::max);
             let score_err = (g.score as f64 - w.score).abs();
-            if g.label != w.label || g.class_id != w.class_id || box_err > BOX_TOL || score_err > SCORE_TOL {
+            if g.label != w.label
+                || g.class_id != w.class_id
+                || box_err > BOX_TOL
+                || score_err > SCORE_TOL
+            {
                 failures.push(format!(
                     "{stem} #{k}: got {} {:.5} {:?}, oracle {} {:.5} {:?}",
                     g.label, g.score, g.bbox, w.label, w.score, w.bbox
                 ));
             }
         }
-        eprintln!("  {} detections, oracle {}", got_dets.len(), want_dets.len());
+        eprintln!(
+            "  {} detections, oracle {}",
+            got_dets.len(),
+            want_dets.len()
+        );
     }
     eprintln!("WORST {model}/{norm}/{decode}: {worst:?}");
-    assert!(failures.is_empty(), "conformance failures:\n{}", failures.join("\n"));
+    assert!(
+        failures.is_empty(),
+        "conformance failures:\n{}",
+        failures.join("\n")
+    );
 }
 
 #[test]

@@ -24,7 +24,8 @@ fn inputs(device: &Device) -> Vec<(&'static str, Tensor<4>)> {
     let shape = [1, 3, 96, 128];
     let noise = Tensor::<4>::random(shape, Distribution::Uniform(0.0, 1.0), device);
     let saturated = Tensor::<4>::random(shape, Distribution::Bernoulli(0.5), device);
-    let clipped = Tensor::<4>::random(shape, Distribution::Normal(0.5, 2.0), device).clamp(0.0, 1.0);
+    let clipped =
+        Tensor::<4>::random(shape, Distribution::Normal(0.5, 2.0), device).clamp(0.0, 1.0);
     vec![
         ("black", Tensor::zeros(shape, device)),
         ("white", Tensor::ones(shape, device)),
@@ -48,7 +49,10 @@ fn check_stable(name: &str) {
         let grads = loss.backward();
         let g = x.grad(&grads).expect("gradient reaches the input image");
         let gv: Vec<f32> = g.to_data().iter::<f32>().collect();
-        assert!(gv.iter().all(|v| v.is_finite()), "{name}/{what}: non-finite gradient");
+        assert!(
+            gv.iter().all(|v| v.is_finite()),
+            "{name}/{what}: non-finite gradient"
+        );
         assert!(gv.iter().any(|&v| v != 0.0), "{name}/{what}: zero gradient");
         let dets = det.detect(x.detach()).unwrap();
         for d in &dets[0] {
@@ -70,7 +74,10 @@ fn nanodet_is_stable_and_differentiable() {
 #[test]
 fn candidates_have_documented_shapes_and_batches() {
     let device = inference();
-    for (name, n) in [("centernet", 128 * 128), ("nanodet", 52 * 52 + 26 * 26 + 13 * 13)] {
+    for (name, n) in [
+        ("centernet", 128 * 128),
+        ("nanodet", 52 * 52 + 26 * 26 + 13 * 13),
+    ] {
         let det = detect::load(name, models(), &device).unwrap();
         let x = Tensor::<4>::random([2, 3, 64, 80], Distribution::Uniform(0.0, 1.0), &device);
         let c = det.candidates(x.clone()).unwrap();
@@ -78,12 +85,28 @@ fn candidates_have_documented_shapes_and_batches() {
         assert_eq!(c.scores.dims(), [2, n, 80], "{name}");
         // Batch entries are independent: image 1 alone gives the same scores.
         let single = det.candidates(x.slice([1..2])).unwrap();
-        let a: Vec<f32> = c.scores.clone().slice([1..2]).to_data().iter::<f32>().collect();
+        let a: Vec<f32> = c
+            .scores
+            .clone()
+            .slice([1..2])
+            .to_data()
+            .iter::<f32>()
+            .collect();
         let b: Vec<f32> = single.scores.to_data().iter::<f32>().collect();
-        let diff = a.iter().zip(&b).map(|(p, q)| (p - q).abs()).fold(0.0, f32::max);
-        assert!(diff < 1e-5, "{name}: batch of 2 differs from single image by {diff}");
+        let diff = a
+            .iter()
+            .zip(&b)
+            .map(|(p, q)| (p - q).abs())
+            .fold(0.0, f32::max);
+        assert!(
+            diff < 1e-5,
+            "{name}: batch of 2 differs from single image by {diff}"
+        );
         // sigmoid(logits) == scores
-        let s: Vec<f32> = burn::tensor::activation::sigmoid(c.logits).to_data().iter::<f32>().collect();
+        let s: Vec<f32> = burn::tensor::activation::sigmoid(c.logits)
+            .to_data()
+            .iter::<f32>()
+            .collect();
         let t: Vec<f32> = c.scores.to_data().iter::<f32>().collect();
         assert!(s.iter().zip(&t).all(|(p, q)| (p - q).abs() < 1e-6));
     }
@@ -114,15 +137,26 @@ fn corrupted_or_truncated_model_files_are_clear_errors() {
     let bin = dir.path().join("nanodet.bin");
     let bytes = std::fs::read(&bin).unwrap();
     std::fs::write(&bin, &bytes[..bytes.len() - 1000]).unwrap();
-    let e = format!("{:#}", detect::load("nanodet", dir.path(), &device).err().unwrap());
+    let e = format!(
+        "{:#}",
+        detect::load("nanodet", dir.path(), &device).err().unwrap()
+    );
     assert!(e.contains("nanodet") && e.contains("truncated"), "{e}");
     assert!(format!("{:#}", detect::fetch::verify(dir.path()).unwrap_err()).contains("SHA-256"));
     // Truncated JSON
     let json = dir.path().join("centernet.json");
     let text = std::fs::read_to_string(&json).unwrap();
     std::fs::write(&json, &text[..text.len() / 2]).unwrap();
-    let e = format!("{:#}", detect::load("centernet", dir.path(), &device).err().unwrap());
-    assert!(e.contains("centernet.json") && e.contains("not a valid"), "{e}");
+    let e = format!(
+        "{:#}",
+        detect::load("centernet", dir.path(), &device)
+            .err()
+            .unwrap()
+    );
+    assert!(
+        e.contains("centernet.json") && e.contains("not a valid"),
+        "{e}"
+    );
     // A graph with an op the importer does not know: the error names node and op.
     let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
     for n in v["modelTopology"]["node"].as_array_mut().unwrap() {
@@ -132,9 +166,21 @@ fn corrupted_or_truncated_model_files_are_clear_errors() {
     }
     std::fs::write(&json, serde_json::to_string(&v).unwrap()).unwrap();
     let det = detect::load("centernet", dir.path(), &device).unwrap();
-    let e = format!("{:#}", det.detect(Tensor::zeros([1, 3, 32, 32], &device)).unwrap_err());
-    assert!(e.contains("tower_0/CenternetHead/Relu") && e.contains("unsupported op Erf"), "{e}");
+    let e = format!(
+        "{:#}",
+        det.detect(Tensor::zeros([1, 3, 32, 32], &device))
+            .unwrap_err()
+    );
+    assert!(
+        e.contains("tower_0/CenternetHead/Relu") && e.contains("unsupported op Erf"),
+        "{e}"
+    );
     // Missing files
-    let e = format!("{:#}", detect::load("nanodet", Path::new("/nonexistent"), &device).err().unwrap());
+    let e = format!(
+        "{:#}",
+        detect::load("nanodet", Path::new("/nonexistent"), &device)
+            .err()
+            .unwrap()
+    );
     assert!(e.contains("/nonexistent/nanodet.json"), "{e}");
 }

@@ -118,13 +118,18 @@ fn bench_detect(a: DetectBench) -> Result<()> {
             None
         };
         for batch in [1usize, 4] {
-            let x = Tensor::<4>::random([batch, 3, h, w], Distribution::Uniform(0.0, 1.0), &inference);
+            let x = Tensor::<4>::random(
+                [batch, 3, h, w],
+                Distribution::Uniform(0.0, 1.0),
+                &inference,
+            );
             let fwd = time(a.runs, || {
                 let c = det.candidates(x.clone())?;
                 let _ = c.scores.sum().into_scalar::<f32>();
                 Ok(())
             })?;
-            let xa = Tensor::<4>::random([batch, 3, h, w], Distribution::Uniform(0.0, 1.0), &training);
+            let xa =
+                Tensor::<4>::random([batch, 3, h, w], Distribution::Uniform(0.0, 1.0), &training);
             let bwd = time(a.runs, || {
                 let x = xa.clone().require_grad();
                 let c = det.candidates(x.clone())?;
@@ -136,7 +141,8 @@ fn bench_detect(a: DetectBench) -> Result<()> {
             })?;
             let t = if batch == 1 { tfjs } else { None };
             let ratio = t.map(|t| fwd / t);
-            let f = |v: Option<f64>, p: usize| v.map(|v| format!("{v:.p$}")).unwrap_or("n/a".into());
+            let f =
+                |v: Option<f64>, p: usize| v.map(|v| format!("{v:.p$}")).unwrap_or("n/a".into());
             println!(
                 "{:10} {:>5} {:>12.1} {:>16.1} {:>16} {:>14}",
                 name,

@@ -128,7 +128,14 @@ pub fn decode_tail(kp: &[f32], wh: &[f32], grid: usize, classes: usize) -> Vec<[
             let (x, y) = ((cell % grid) as f32, (cell / grid) as f32);
             let w = &wh[cell * 4..cell * 4 + 4];
             let (cx, cy) = (stride * x, stride * y);
-            [cx - w[0], cy - w[1], cx + w[2], cy + w[3], score, (idx % classes) as f32]
+            [
+                cx - w[0],
+                cy - w[1],
+                cx + w[2],
+                cy + w[3],
+                score,
+                (idx % classes) as f32,
+            ]
         })
         .collect()
 }
@@ -204,9 +211,13 @@ impl Detector for CenterNet {
             centres.extend([x, y, x, y]);
         }
         let centres = Tensor::<3>::from_data(TensorData::new(centres, [1, n, 4]), &device);
-        let sign = Tensor::<3>::from_data(TensorData::new(vec![-1f32, -1., 1., 1.], [1, 1, 4]), &device);
+        let sign = Tensor::<3>::from_data(
+            TensorData::new(vec![-1f32, -1., 1., 1.], [1, 1, 4]),
+            &device,
+        );
         let (sx, sy) = (w as f32 / SIZE as f32, h as f32 / SIZE as f32);
-        let scale = Tensor::<3>::from_data(TensorData::new(vec![sx, sy, sx, sy], [1, 1, 4]), &device);
+        let scale =
+            Tensor::<3>::from_data(TensorData::new(vec![sx, sy, sx, sy], [1, 1, 4]), &device);
         let boxes = (centres + wh * sign) * scale;
         Ok(Candidates {
             boxes,
@@ -236,7 +247,10 @@ impl Detector for CenterNet {
         outputs.insert(WH.into(), RawTensor::new(None, vec![1, g, g, 4], wh));
         outputs.insert(KEYPOINTS.into(), RawTensor::new(None, vec![1, g, g, c], kp));
         let det: Vec<f32> = rows.iter().flatten().copied().collect();
-        outputs.insert(DETECTIONS.into(), RawTensor::new(None, vec![1, rows.len(), 6], det));
+        outputs.insert(
+            DETECTIONS.into(),
+            RawTensor::new(None, vec![1, rows.len(), 6], det),
+        );
         Ok(RawDump {
             model: "centernet".into(),
             backend: "burn".into(),

@@ -115,7 +115,11 @@ impl NanoDet {
             .filter(|&i| graph.nodes[i].op() == "Sigmoid")
             .filter_map(|i| graph.input_ref(i, 0))
             .collect();
-        let names: Vec<&str> = outputs.iter().chain(&sigmoids).map(|s| s.as_str()).collect();
+        let names: Vec<&str> = outputs
+            .iter()
+            .chain(&sigmoids)
+            .map(|s| s.as_str())
+            .collect();
         let zeros = Tensor::<4>::zeros([1, 3, SIZE, SIZE], device);
         let vals = graph.run(&[(input.as_str(), zeros)], &names)?;
         let shape_of = |k: usize| vals[k].shape().to_vec();
@@ -128,7 +132,11 @@ impl NanoDet {
             }
             let n = s[1];
             let base = (n as f64).sqrt().round() as usize;
-            ensure!(base * base == n && SIZE % base == 0, "{}: output {name} has shape {s:?}", graph.source);
+            ensure!(
+                base * base == n && SIZE % base == 0,
+                "{}: output {name} has shape {s:?}",
+                graph.source
+            );
             let reg = outputs
                 .iter()
                 .enumerate()
@@ -156,7 +164,11 @@ impl NanoDet {
                 logits,
             });
         }
-        ensure!(!levels.is_empty(), "{}: no NanoDet output levels found", graph.source);
+        ensure!(
+            !levels.is_empty(),
+            "{}: no NanoDet output levels found",
+            graph.source
+        );
         levels.sort_by_key(|l| l.stride);
         Ok(NanoDet {
             graph,
@@ -216,7 +228,12 @@ impl NanoDet {
     }
 
     /// DFL decoding (reference runner `--decode dfl`), one image.
-    fn decode_dfl(&self, dense: &[(&[f32], &[f32])], width: usize, height: usize) -> Vec<Detection> {
+    fn decode_dfl(
+        &self,
+        dense: &[(&[f32], &[f32])],
+        width: usize,
+        height: usize,
+    ) -> Vec<Detection> {
         let nb = self.bins;
         let (w, h, s) = (width as f64, height as f64, SIZE as f64);
         let mut cand: Vec<(usize, f32, [f64; 4])> = Vec::new();
@@ -237,7 +254,10 @@ impl NanoDet {
                             let m = l.iter().fold(f64::NEG_INFINITY, |m, &v| m.max(v as f64));
                             let e: Vec<f64> = l.iter().map(|&v| (v as f64 - m).exp()).collect();
                             let z: f64 = e.iter().fold(0.0, |a, b| a + b);
-                            e.iter().enumerate().fold(0.0, |a, (b, v)| a + (v / z) * b as f64) * stride
+                            e.iter()
+                                .enumerate()
+                                .fold(0.0, |a, (b, v)| a + (v / z) * b as f64)
+                                * stride
                         })
                     });
                     let x1 = (cx - d[0]).max(0.0);
@@ -271,7 +291,12 @@ impl NanoDet {
     }
 
     /// `@vladmandic/human`'s decoding, quirks included (SPEC.md §4.2), one image.
-    fn decode_human(&self, dense: &[(&[f32], &[f32])], width: usize, height: usize) -> Vec<Detection> {
+    fn decode_human(
+        &self,
+        dense: &[(&[f32], &[f32])],
+        width: usize,
+        height: usize,
+    ) -> Vec<Detection> {
         let nb = self.bins;
         let (w, h) = (width as f64, height as f64);
         // (class, raw score, rounded score, boxRaw [x, y, w, h])
@@ -326,7 +351,8 @@ impl NanoDet {
                     class_id: c,
                     label: COCO80[c],
                     score,
-                    bbox: [r[0] * w, r[1] * h, (r[0] + r[2]) * w, (r[1] + r[3]) * h].map(|v| v as f32),
+                    bbox: [r[0] * w, r[1] * h, (r[0] + r[2]) * w, (r[1] + r[3]) * h]
+                        .map(|v| v as f32),
                 }
             })
             .collect()
@@ -355,8 +381,12 @@ impl Detector for NanoDet {
         let bins: Vec<f32> = (0..nb).map(|k| k as f32).collect();
         let bins = Tensor::<4>::from_data(TensorData::new(bins, [1, 1, 1, nb]), &device);
         let (sx, sy) = (w as f32 / SIZE as f32, h as f32 / SIZE as f32);
-        let scale = Tensor::<3>::from_data(TensorData::new(vec![sx, sy, sx, sy], [1, 1, 4]), &device);
-        let sign = Tensor::<3>::from_data(TensorData::new(vec![-1f32, -1., 1., 1.], [1, 1, 4]), &device);
+        let scale =
+            Tensor::<3>::from_data(TensorData::new(vec![sx, sy, sx, sy], [1, 1, 4]), &device);
+        let sign = Tensor::<3>::from_data(
+            TensorData::new(vec![-1f32, -1., 1., 1.], [1, 1, 4]),
+            &device,
+        );
         let (mut all_boxes, mut all_logits) = (Vec::new(), Vec::new());
         for (level, pair) in self.levels.iter().zip(vals.chunks(2)) {
             let n = level.base * level.base;
@@ -369,7 +399,10 @@ impl Detector for NanoDet {
             let st = level.stride as f32;
             let mut centres = Vec::with_capacity(n * 4);
             for i in 0..n {
-                let (x, y) = (((i % level.base) as f32 + 0.5) * st, ((i / level.base) as f32 + 0.5) * st);
+                let (x, y) = (
+                    ((i % level.base) as f32 + 0.5) * st,
+                    ((i / level.base) as f32 + 0.5) * st,
+                );
                 centres.extend([x, y, x, y]);
             }
             let centres = Tensor::<3>::from_data(TensorData::new(centres, [1, n, 4]), &device);
@@ -416,7 +449,10 @@ impl Detector for NanoDet {
         for (l, (c, r)) in self.levels.iter().zip(per) {
             let n = l.base * l.base;
             outputs.insert(l.cls.clone(), RawTensor::new(None, vec![1, n, CLASSES], c));
-            outputs.insert(l.reg.clone(), RawTensor::new(None, vec![1, n, 4 * self.bins], r));
+            outputs.insert(
+                l.reg.clone(),
+                RawTensor::new(None, vec![1, n, 4 * self.bins], r),
+            );
         }
         Ok(RawDump {
             model: "nanodet".into(),

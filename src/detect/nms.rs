@@ -43,8 +43,18 @@ pub fn non_max_suppression(
 pub fn iou(a: &[f32; 4], b: &[f32; 4]) -> f64 {
     let a: [f64; 4] = a.map(f64::from);
     let b: [f64; 4] = b.map(f64::from);
-    let (ay1, ax1, ay2, ax2) = (a[0].min(a[2]), a[1].min(a[3]), a[0].max(a[2]), a[1].max(a[3]));
-    let (by1, bx1, by2, bx2) = (b[0].min(b[2]), b[1].min(b[3]), b[0].max(b[2]), b[1].max(b[3]));
+    let (ay1, ax1, ay2, ax2) = (
+        a[0].min(a[2]),
+        a[1].min(a[3]),
+        a[0].max(a[2]),
+        a[1].max(a[3]),
+    );
+    let (by1, bx1, by2, bx2) = (
+        b[0].min(b[2]),
+        b[1].min(b[3]),
+        b[0].max(b[2]),
+        b[1].max(b[3]),
+    );
     let area_a = (ay2 - ay1) * (ax2 - ax1);
     let area_b = (by2 - by1) * (bx2 - bx1);
     if area_a <= 0.0 || area_b <= 0.0 {
@@ -70,21 +80,36 @@ mod tests {
             [20.0, 20.0, 30.0, 30.0],
             [50.0, 50.0, 60.0, 60.0],
         ];
-        let scores = [0.9, 0.95, 0.5, 0.2];
+        let scores = [0.9, 0.95, 0.5, 0.19];
         let keep = non_max_suppression(&boxes, &scores, 10, 0.4, 0.2);
         assert_eq!(keep, vec![1, 2]); // 0 overlaps 1; 3 is not > 0.2
+                                      // f32 0.2 is 0.200000003 > 0.2 (f64): it passes, as in tfjs.
+        assert_eq!(
+            non_max_suppression(&boxes[3..], &[0.2], 10, 0.4, 0.2),
+            vec![0]
+        );
     }
 
     #[test]
     fn ties_go_to_the_lower_index_and_max_output_stops() {
-        let boxes = [[0.0, 0.0, 1.0, 1.0], [5.0, 5.0, 6.0, 6.0], [9.0, 9.0, 10.0, 10.0]];
+        let boxes = [
+            [0.0, 0.0, 1.0, 1.0],
+            [5.0, 5.0, 6.0, 6.0],
+            [9.0, 9.0, 10.0, 10.0],
+        ];
         let scores = [0.5, 0.5, 0.5];
-        assert_eq!(non_max_suppression(&boxes, &scores, 2, 0.4, 0.0), vec![0, 1]);
+        assert_eq!(
+            non_max_suppression(&boxes, &scores, 2, 0.4, 0.0),
+            vec![0, 1]
+        );
     }
 
     #[test]
     fn degenerate_boxes_never_suppress() {
         let boxes = [[0.0, 0.0, 0.0, 10.0], [0.0, 0.0, 0.0, 10.0]];
-        assert_eq!(non_max_suppression(&boxes, &[0.9, 0.8], 10, 0.4, 0.0), vec![0, 1]);
+        assert_eq!(
+            non_max_suppression(&boxes, &[0.9, 0.8], 10, 0.4, 0.0),
+            vec![0, 1]
+        );
     }
 }

@@ -68,9 +68,7 @@ impl RawDump {
 
     /// Writes the dump atomically.
     pub fn write(&self, path: &Path) -> Result<()> {
-        crate::io::write_atomic_with(path, |w| {
-            serde_json::to_writer(w, self).map_err(Into::into)
-        })
+        crate::io::write_atomic_with(path, |w| serde_json::to_writer(w, self).map_err(Into::into))
     }
 }
 

@@ -28,9 +28,16 @@ pub struct FloatValue {
 impl FloatValue {
     /// Wraps a tensor whose logical shape is `shape` (rank <= 4); reshapes to padded rank 4.
     pub fn new(t: Tensor<4>, shape: Vec<usize>) -> Self {
-        debug_assert_eq!(t.dims().iter().product::<usize>(), shape.iter().product::<usize>());
+        debug_assert_eq!(
+            t.dims().iter().product::<usize>(),
+            shape.iter().product::<usize>()
+        );
         let padded = pad4(&shape);
-        let t = if t.dims() == padded { t } else { t.reshape(padded) };
+        let t = if t.dims() == padded {
+            t
+        } else {
+            t.reshape(padded)
+        };
         FloatValue {
             t,
             shape,
@@ -219,7 +226,11 @@ impl Graph {
     pub fn input_ref(&self, i: usize, k: usize) -> Option<String> {
         let &(j, out) = self.nodes[i].inputs.get(k)?;
         let name = self.nodes[j].name();
-        Some(if out == 0 { name.to_string() } else { format!("{name}:{out}") })
+        Some(if out == 0 {
+            name.to_string()
+        } else {
+            format!("{name}:{out}")
+        })
     }
 
     /// Follows `Identity` nodes back from `output` to a `Sigmoid` and returns the reference of
@@ -234,8 +245,13 @@ impl Graph {
         if self.nodes[i].op() != "Sigmoid" {
             bail!("{}: {output:?} is not a sigmoid output", self.source);
         }
-        self.input_ref(i, 0)
-            .ok_or_else(|| anyhow!("{}: sigmoid {:?} has no input", self.source, self.nodes[i].name()))
+        self.input_ref(i, 0).ok_or_else(|| {
+            anyhow!(
+                "{}: sigmoid {:?} has no input",
+                self.source,
+                self.nodes[i].name()
+            )
+        })
     }
 
     /// A constant node's value.
@@ -276,7 +292,11 @@ impl Graph {
                 }
                 match state[i] {
                     2 => continue,
-                    1 => bail!("{}: the graph has a cycle at {:?}", self.source, self.nodes[i].name()),
+                    1 => bail!(
+                        "{}: the graph has a cycle at {:?}",
+                        self.source,
+                        self.nodes[i].name()
+                    ),
                     _ => {}
                 }
                 state[i] = 1;
@@ -285,7 +305,11 @@ impl Graph {
                     if state[j] == 0 {
                         stack.push((j, false));
                     } else if state[j] == 1 {
-                        bail!("{}: the graph has a cycle at {:?}", self.source, self.nodes[j].name());
+                        bail!(
+                            "{}: the graph has a cycle at {:?}",
+                            self.source,
+                            self.nodes[j].name()
+                        );
                     }
                 }
             }
@@ -333,12 +357,7 @@ impl Graph {
                     })
                     .collect::<Result<_>>()?;
                 ops::eval(self, i, &args).with_context(|| {
-                    format!(
-                        "{}: node {:?} (op {})",
-                        self.source,
-                        node.name(),
-                        node.op()
-                    )
+                    format!("{}: node {:?} (op {})", self.source, node.name(), node.op())
                 })?
             };
             if profile {
@@ -403,7 +422,11 @@ fn inline_const(def: &NodeDef) -> Result<HostTensor> {
             d.iter()
                 .map(|x| {
                     x.get("size")
-                        .and_then(|s| s.as_str().and_then(|s| s.parse().ok()).or(s.as_u64().map(|u| u as usize)))
+                        .and_then(|s| {
+                            s.as_str()
+                                .and_then(|s| s.parse().ok())
+                                .or(s.as_u64().map(|u| u as usize))
+                        })
                         .unwrap_or(1)
                 })
                 .collect()

@@ -137,9 +137,12 @@ impl GraphModel {
             let shard_names = group.paths.join(",");
             let mut offset = 0usize;
             for w in &group.weights {
-                let (t, used) = decode_weight(w, &bytes[offset.min(bytes.len())..])
-                    .with_context(|| {
-                        format!("{name}: weight {:?} in {shard_names} (at byte {offset})", w.name)
+                let (t, used) =
+                    decode_weight(w, &bytes[offset.min(bytes.len())..]).with_context(|| {
+                        format!(
+                            "{name}: weight {:?} in {shard_names} (at byte {offset})",
+                            w.name
+                        )
                     })?;
                 offset += used;
                 weights.insert(w.name.clone(), t);

@@ -45,7 +45,10 @@ pub fn eval(g: &Graph, i: usize, args: &[&Value]) -> Result<Vec<Value>> {
         "MaxPool" => one(max_pool(g, node, args)?),
         "ResizeBilinear" => one(resize(g, node, args)?),
         "SplitV" => split_v(g, args),
-        "ExpandDims" => Ok(vec![expand_dims(arg(args, 0)?, host(args, 1)?.as_i64()[0])?]),
+        "ExpandDims" => Ok(vec![expand_dims(
+            arg(args, 0)?,
+            host(args, 1)?.as_i64()[0],
+        )?]),
         "Cast" => cast(node, arg(args, 0)?),
         "SparseToDense" => Ok(vec![Value::Host(sparse_to_dense(args)?)]),
         op => bail!("unsupported op {op}"),
@@ -70,7 +73,11 @@ fn float(g: &Graph, v: &Value) -> Result<FloatValue> {
     match v {
         Value::Float(f) => Ok(f.clone()),
         Value::Host(h) => {
-            ensure!(h.shape.len() <= 4, "rank {} > 4 is not supported", h.shape.len());
+            ensure!(
+                h.shape.len() <= 4,
+                "rank {} > 4 is not supported",
+                h.shape.len()
+            );
             let data = h.as_f32();
             let t = Tensor::<1>::from_data(TensorData::new(data, [h.len()]), &g.device);
             Ok(FloatValue::new(
@@ -176,7 +183,13 @@ fn nhwc_only(node: &super::graph::Node) -> Result<()> {
 }
 
 /// TF padding (begin, end) for one spatial axis.
-fn tf_padding(padding: &str, input: usize, k: usize, stride: usize, dil: usize) -> Result<(usize, usize)> {
+fn tf_padding(
+    padding: &str,
+    input: usize,
+    k: usize,
+    stride: usize,
+    dil: usize,
+) -> Result<(usize, usize)> {
     let k_eff = (k - 1) * dil + 1;
     match padding {
         "VALID" => Ok((0, 0)),
@@ -263,8 +276,16 @@ fn conv(g: &Graph, i: usize, args: &[&Value]) -> Result<FloatValue> {
     let node = &g.nodes[i];
     nhwc_only(node)?;
     let x = float_arg(g, args, 0)?;
-    ensure!(x.rank() == 4, "input has shape {:?}, a 4-D NHWC tensor is needed", x.shape);
-    let w = g.conv_weights.get(&i).context("filter was not prepared")?.clone();
+    ensure!(
+        x.rank() == 4,
+        "input has shape {:?}, a 4-D NHWC tensor is needed",
+        x.shape
+    );
+    let w = g
+        .conv_weights
+        .get(&i)
+        .context("filter was not prepared")?
+        .clone();
     let [out_c, in_per_group, kh, kw] = w.dims();
     let depthwise = node.op().contains("Depthwise");
     let channels = x.shape[3];
@@ -319,8 +340,16 @@ fn broadcast_shape(a: &[usize], b: &[usize]) -> Result<Vec<usize>> {
     let r = a.len().max(b.len());
     let mut out = vec![0; r];
     for k in 0..r {
-        let da = if k + a.len() >= r { a[k + a.len() - r] } else { 1 };
-        let db = if k + b.len() >= r { b[k + b.len() - r] } else { 1 };
+        let da = if k + a.len() >= r {
+            a[k + a.len() - r]
+        } else {
+            1
+        };
+        let db = if k + b.len() >= r {
+            b[k + b.len() - r]
+        } else {
+            1
+        };
         out[k] = match (da, db) {
             (x, y) if x == y => x,
             (1, y) => y,
@@ -336,7 +365,11 @@ fn binary(g: &Graph, op: &str, a: &Value, b: &Value) -> Result<Value> {
         return host_binary(op, x, y).map(Value::Host);
     }
     let shape = broadcast_shape(a.shape(), b.shape())?;
-    ensure!(shape.len() <= 4, "rank {} > 4 is not supported", shape.len());
+    ensure!(
+        shape.len() <= 4,
+        "rank {} > 4 is not supported",
+        shape.len()
+    );
     // Scalar constants become scalar ops (exact same f32 arithmetic, no upload).
     let scalar = |v: &Value| match v {
         Value::Host(h) if h.len() == 1 => Some(h.as_f32()[0]),
@@ -454,7 +487,10 @@ fn host_binary(op: &str, a: &HostTensor, b: &HostTensor) -> Result<HostTensor> {
 
 fn norm_axis(axis: i64, rank: usize) -> Result<usize> {
     let a = if axis < 0 { axis + rank as i64 } else { axis };
-    ensure!(a >= 0 && (a as usize) < rank, "axis {axis} out of range for rank {rank}");
+    ensure!(
+        a >= 0 && (a as usize) < rank,
+        "axis {axis} out of range for rank {rank}"
+    );
     Ok(a as usize)
 }
 
@@ -482,7 +518,11 @@ fn mean(g: &Graph, node: &super::graph::Node, args: &[&Value]) -> Result<FloatVa
         for &a in &axes {
             shape[a] = 1;
         }
-        return Ok(FloatValue { t, shape, nchw: true });
+        return Ok(FloatValue {
+            t,
+            shape,
+            nchw: true,
+        });
     }
     let mut shape = x.shape.clone();
     for &a in &axes {
@@ -500,7 +540,10 @@ fn mean(g: &Graph, node: &super::graph::Node, args: &[&Value]) -> Result<FloatVa
 }
 
 fn concat(g: &Graph, args: &[&Value]) -> Result<Value> {
-    ensure!(args.len() >= 2, "ConcatV2 needs at least one tensor and an axis");
+    ensure!(
+        args.len() >= 2,
+        "ConcatV2 needs at least one tensor and an axis"
+    );
     let axis_v = host(args, args.len() - 1)?.as_i64()[0];
     let parts = &args[..args.len() - 1];
     let rank = parts[0].shape().len();
@@ -518,16 +561,18 @@ fn concat(g: &Graph, args: &[&Value]) -> Result<Value> {
     }
     let mut shape = parts[0].shape().to_vec();
     shape[axis] = parts.iter().map(|p| p.shape()[axis]).sum();
-    let all_nchw = parts
-        .iter()
-        .all(|p| matches!(p, Value::Float(f) if f.nchw));
+    let all_nchw = parts.iter().all(|p| matches!(p, Value::Float(f) if f.nchw));
     if all_nchw {
         let ts: Vec<Tensor<4>> = parts
             .iter()
             .map(|p| float(g, p).map(|f| f.t))
             .collect::<Result<_>>()?;
         let t = Tensor::cat(ts, [0, 2, 3, 1][axis]);
-        return Ok(Value::Float(FloatValue { t, shape, nchw: true }));
+        return Ok(Value::Float(FloatValue {
+            t,
+            shape,
+            nchw: true,
+        }));
     }
     let ts: Vec<Tensor<4>> = parts
         .iter()
@@ -558,7 +603,11 @@ fn reshape(x: &Value, target: &[i64]) -> Result<Value> {
     }
     if let Some(k) = infer {
         let known: usize = shape.iter().product();
-        ensure!(known > 0 && n % known == 0, "cannot reshape {:?} to {target:?}", x.shape());
+        ensure!(
+            known > 0 && n % known == 0,
+            "cannot reshape {:?} to {target:?}",
+            x.shape()
+        );
         shape[k] = n / known;
     }
     ensure!(
@@ -572,7 +621,11 @@ fn reshape(x: &Value, target: &[i64]) -> Result<Value> {
             data: h.data.clone(),
         }),
         Value::Float(f) => {
-            ensure!(shape.len() <= 4, "rank {} > 4 is not supported", shape.len());
+            ensure!(
+                shape.len() <= 4,
+                "rank {} > 4 is not supported",
+                shape.len()
+            );
             Value::Float(FloatValue::new(f.clone().logical().t, shape))
         }
     })
@@ -641,7 +694,11 @@ fn pad(g: &Graph, op: &str, args: &[&Value]) -> Result<FloatValue> {
 fn max_pool(g: &Graph, node: &super::graph::Node, args: &[&Value]) -> Result<FloatValue> {
     nhwc_only(node)?;
     let x = float_arg(g, args, 0)?;
-    ensure!(x.rank() == 4, "input has shape {:?}, NHWC expected", x.shape);
+    ensure!(
+        x.rank() == 4,
+        "input has shape {:?}, NHWC expected",
+        x.shape
+    );
     let k = spatial(attr_ints(node, "ksize"), "ksize")?;
     let s = spatial(attr_ints(node, "strides"), "strides")?;
     let padding = attr_s(node, "padding").unwrap_or_else(|| "VALID".into());
@@ -655,9 +712,16 @@ fn max_pool(g: &Graph, node: &super::graph::Node, args: &[&Value]) -> Result<Flo
 
 fn resize(g: &Graph, node: &super::graph::Node, args: &[&Value]) -> Result<FloatValue> {
     let x = float_arg(g, args, 0)?;
-    ensure!(x.rank() == 4, "input has shape {:?}, NHWC expected", x.shape);
+    ensure!(
+        x.rank() == 4,
+        "input has shape {:?}, NHWC expected",
+        x.shape
+    );
     let size = host(args, 1)?.as_i64();
-    ensure!(size.len() == 2 && size.iter().all(|&s| s > 0), "size {size:?} is invalid");
+    ensure!(
+        size.len() == 2 && size.iter().all(|&s| s > 0),
+        "size {size:?} is invalid"
+    );
     let (h, w) = (size[0] as usize, size[1] as usize);
     let align = attr_b(node, "align_corners");
     let half = attr_b(node, "half_pixel_centers");
@@ -717,7 +781,11 @@ fn cast(node: &super::graph::Node, x: &Value) -> Result<Vec<Value>> {
 
 fn sparse_to_dense(args: &[&Value]) -> Result<HostTensor> {
     let indices = host(args, 0)?;
-    let out_shape: Vec<usize> = host(args, 1)?.as_i64().iter().map(|&d| d as usize).collect();
+    let out_shape: Vec<usize> = host(args, 1)?
+        .as_i64()
+        .iter()
+        .map(|&d| d as usize)
+        .collect();
     let values = host(args, 2)?;
     let default = host(args, 3)?;
     let n: usize = out_shape.iter().product();
@@ -740,7 +808,10 @@ fn sparse_to_dense(args: &[&Value]) -> Result<HostTensor> {
         let mut flat = 0usize;
         for k in 0..rank {
             let c = idx[e * rank + k];
-            ensure!(c >= 0 && (c as usize) < out_shape[k], "index {c} out of range");
+            ensure!(
+                c >= 0 && (c as usize) < out_shape[k],
+                "index {c} out of range"
+            );
             flat = flat * out_shape[k] + c as usize;
         }
         let v = if vals.len() == 1 { vals[0] } else { vals[e] };
@@ -783,8 +854,12 @@ mod tests {
             shape: vec![3],
             data: HostData::I64(vec![0, 0, 0]),
         };
-        assert_eq!(host_binary("AddV2", &a, &b).unwrap().as_i64(), vec![1, 80, -1]);
+        assert_eq!(
+            host_binary("AddV2", &a, &b).unwrap().as_i64(),
+            vec![1, 80, -1]
+        );
         assert!(broadcast_shape(&[2, 3], &[4]).is_err());
-        assert_eq!(broadcast_shape(&[1, 4, 1], &[3, 1]).unwrap(), vec![1, 4, 3]);
+        assert_eq!(broadcast_shape(&[1, 4, 1], &[3]).unwrap(), vec![1, 4, 3]);
+        assert!(broadcast_shape(&[1, 4, 1], &[3, 1]).is_err());
     }
 }
