@@ -9,11 +9,11 @@
 //! Library code never names a concrete compute backend: tensors live on a [`burn::tensor::Device`]
 //! chosen once at the edge (the `cac` binary, the tests, the benchmarks).
 
+pub mod attack;
 pub mod config;
 pub mod detect;
 pub mod environment;
+pub mod eval;
 pub mod io;
 pub mod render;
 pub mod scene;
-pub mod attack;
-pub mod eval;

@@ -17,7 +17,15 @@ pub struct Adam {
 
 impl Adam {
     pub fn new(n: usize, lr: f32) -> Self {
-        Adam { lr, beta1: 0.9, beta2: 0.999, eps: 1e-8, t: 0, m: vec![0.0; n], v: vec![0.0; n] }
+        Adam {
+            lr,
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-8,
+            t: 0,
+            m: vec![0.0; n],
+            v: vec![0.0; n],
+        }
     }
 
     /// One step on `x` with gradient `g`, then clip `x` to [0, 1]. Non-finite gradient entries
@@ -55,7 +63,10 @@ mod tests {
         let mut a = Adam::new(3, 0.1);
         let mut x = vec![0.5, 0.5, 0.5];
         a.step(&mut x, &[1.0, -2.0, 0.0]);
-        assert!((x[0] - 0.4).abs() < 1e-6 && (x[1] - 0.6).abs() < 1e-6 && x[2] == 0.5, "{x:?}");
+        assert!(
+            (x[0] - 0.4).abs() < 1e-6 && (x[1] - 0.6).abs() < 1e-6 && x[2] == 0.5,
+            "{x:?}"
+        );
         let mut y = vec![0.99];
         let mut b = Adam::new(1, 0.5);
         b.step(&mut y, &[-1.0]);

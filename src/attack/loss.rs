@@ -35,7 +35,12 @@ pub fn select_proposals(c: &Candidates, n: usize, iou: f64) -> Result<Vec<Vec<us
     let mut out = Vec::with_capacity(b);
     for k in 0..b {
         let best: Vec<f32> = (0..num)
-            .map(|i| scores[(k * num + i) * classes..(k * num + i + 1) * classes].iter().copied().fold(f32::MIN, f32::max))
+            .map(|i| {
+                scores[(k * num + i) * classes..(k * num + i + 1) * classes]
+                    .iter()
+                    .copied()
+                    .fold(f32::MIN, f32::max)
+            })
             .collect();
         // tfjs NMS takes [y1, x1, y2, x2].
         let bx: Vec<[f32; 4]> = (0..num)
@@ -44,13 +49,22 @@ pub fn select_proposals(c: &Candidates, n: usize, iou: f64) -> Result<Vec<Vec<us
                 [q[1], q[0], q[3], q[2]]
             })
             .collect();
-        out.push(nms::non_max_suppression(&bx, &best, n, iou, f64::NEG_INFINITY));
+        out.push(nms::non_max_suppression(
+            &bx,
+            &best,
+            n,
+            iou,
+            f64::NEG_INFINITY,
+        ));
     }
     Ok(out)
 }
 
 fn host<const D: usize>(t: &Tensor<D>) -> Result<Vec<f32>> {
-    t.to_data().convert::<f32>().try_into_vec::<f32>().map_err(|e| anyhow::anyhow!("cannot read tensor: {e:?}"))
+    t.to_data()
+        .convert::<f32>()
+        .try_into_vec::<f32>()
+        .map_err(|e| anyhow::anyhow!("cannot read tensor: {e:?}"))
 }
 
 /// Numerically stable softplus.
@@ -64,7 +78,11 @@ pub fn proposals_loss(logits: Tensor<3>, sel: &[Vec<usize>], goal: Goal) -> Resu
     if sel.len() != b {
         bail!("{} proposal sets for {b} images", sel.len());
     }
-    let rows: Vec<i64> = sel.iter().enumerate().flat_map(|(k, s)| s.iter().map(move |&i| (k * n + i) as i64)).collect();
+    let rows: Vec<i64> = sel
+        .iter()
+        .enumerate()
+        .flat_map(|(k, s)| s.iter().map(move |&i| (k * n + i) as i64))
+        .collect();
     let device = logits.device();
     if rows.is_empty() {
         // No proposal at all: a zero loss that still depends on the logits (zero gradient).
@@ -100,10 +118,23 @@ mod tests {
         let t = Tensor::<3>::from_data(TensorData::new(z.clone(), [1, 2, 3]), &d).require_grad();
         let l = proposals_loss(t.clone(), &[vec![0, 1]], Goal::Targeted(1)).unwrap();
         let sp = |x: f64| x.max(0.0) + (-x.abs()).exp().ln_1p();
-        let want = ((sp(2.0) + sp(-1.0) + sp(0.5) - (-1.0)) + (sp(1e4) + sp(-1e4) + sp(3.0) - (-1e4))) / 2.0;
-        let got = l.clone().into_data().convert::<f64>().try_to_vec::<f64>().unwrap()[0];
+        let want = ((sp(2.0) + sp(-1.0) + sp(0.5) - (-1.0))
+            + (sp(1e4) + sp(-1e4) + sp(3.0) - (-1e4)))
+            / 2.0;
+        let got = l
+            .clone()
+            .into_data()
+            .convert::<f64>()
+            .try_to_vec::<f64>()
+            .unwrap()[0];
         assert!((got - want).abs() / want < 1e-5, "{got} vs {want}");
-        let g = t.grad(&l.backward()).unwrap().into_data().convert::<f32>().try_to_vec::<f32>().unwrap();
+        let g = t
+            .grad(&l.backward())
+            .unwrap()
+            .into_data()
+            .convert::<f32>()
+            .try_to_vec::<f32>()
+            .unwrap();
         assert!(g.iter().all(|v| v.is_finite()));
         // d/dz of the target's term is σ(z) − 1 (< 0: raising z lowers the loss); others σ(z) > 0.
         assert!(g[1] < 0.0 && g[0] > 0.0 && g[2] > 0.0, "{g:?}");
@@ -112,9 +143,17 @@ mod tests {
     #[test]
     fn empty_proposal_sets_give_a_zero_loss() {
         let d = dev();
-        let t = Tensor::<3>::from_data(TensorData::new(vec![1.0f32; 6], [2, 1, 3]), &d).require_grad();
+        let t =
+            Tensor::<3>::from_data(TensorData::new(vec![1.0f32; 6], [2, 1, 3]), &d).require_grad();
         let l = proposals_loss(t.clone(), &[vec![], vec![]], Goal::Hide).unwrap();
-        assert_eq!(l.clone().into_data().convert::<f32>().try_to_vec::<f32>().unwrap()[0], 0.0);
+        assert_eq!(
+            l.clone()
+                .into_data()
+                .convert::<f32>()
+                .try_to_vec::<f32>()
+                .unwrap()[0],
+            0.0
+        );
         assert!(t.grad(&l.backward()).is_some());
     }
 }

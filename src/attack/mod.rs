@@ -130,23 +130,57 @@ pub struct Trainer<'a> {
 
 impl<'a> Trainer<'a> {
     /// Starts from `init` (the object's texture or a chosen initial atlas).
-    pub fn new(config: AttackConfig, renderer: &'a Renderer, env: &'a Environment, detectors: Vec<&'a dyn Detector>, device: Device, init: &Texture) -> Result<Self> {
+    pub fn new(
+        config: AttackConfig,
+        renderer: &'a Renderer,
+        env: &'a Environment,
+        detectors: Vec<&'a dyn Detector>,
+        device: Device,
+        init: &Texture,
+    ) -> Result<Self> {
         config.validate()?;
         if detectors.len() != config.models.len() {
-            bail!("{} detectors given for {} configured models", detectors.len(), config.models.len());
+            bail!(
+                "{} detectors given for {} configured models",
+                detectors.len(),
+                config.models.len()
+            );
         }
         let res = renderer.settings.atlas_res;
-        let init = if init.width != res || init.height != res { init.resized(res, res) } else { init.clone() };
+        let init = if init.width != res || init.height != res {
+            init.resized(res, res)
+        } else {
+            init.clone()
+        };
         let atlas: Vec<f32> = init.texels.iter().flatten().copied().collect();
-        let state = Checkpoint { iteration: 0, atlas_res: res, adam: Adam::new(atlas.len(), config.lr), atlas, log: vec![] };
-        Ok(Trainer { config, renderer, env, detectors, device, state, run_dir: None })
+        let state = Checkpoint {
+            iteration: 0,
+            atlas_res: res,
+            adam: Adam::new(atlas.len(), config.lr),
+            atlas,
+            log: vec![],
+        };
+        Ok(Trainer {
+            config,
+            renderer,
+            env,
+            detectors,
+            device,
+            state,
+            run_dir: None,
+        })
     }
 
     /// Continues from the checkpoint in `run_dir`.
     pub fn resume(mut self, run_dir: &Path) -> Result<Self> {
         let ck = load_checkpoint(run_dir)?;
         if ck.atlas_res != self.renderer.settings.atlas_res {
-            bail!("{}: checkpoint atlas is {}², the config asks for {}²", run_dir.display(), ck.atlas_res, self.renderer.settings.atlas_res);
+            bail!(
+                "{}: checkpoint atlas is {}², the config asks for {}²",
+                run_dir.display(),
+                ck.atlas_res,
+                self.renderer.settings.atlas_res
+            );
         }
         self.state = ck;
         Ok(self)
@@ -154,10 +188,16 @@ impl<'a> Trainer<'a> {
 
     /// The conditions of iteration `i` (a pure function of the seed and `i`).
     pub fn conditions(&self, i: usize) -> Vec<Condition> {
-        let mut rng = ChaCha8Rng::seed_from_u64(self.config.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (i as u64).wrapping_add(1));
+        let mut rng = ChaCha8Rng::seed_from_u64(
+            self.config.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (i as u64).wrapping_add(1),
+        );
         (0..self.config.batch)
             .map(|k| {
-                let b = if k % 2 == 0 { Brightness::Bright } else { Brightness::Dark };
+                let b = if k % 2 == 0 {
+                    Brightness::Bright
+                } else {
+                    Brightness::Dark
+                };
                 self.env.sample(self.config.viewpoints, b, &mut rng)
             })
             .collect()
@@ -166,7 +206,16 @@ impl<'a> Trainer<'a> {
     /// The current atlas as a texture.
     pub fn atlas(&self) -> Texture {
         let r = self.state.atlas_res;
-        Texture { width: r, height: r, texels: self.state.atlas.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect() }
+        Texture {
+            width: r,
+            height: r,
+            texels: self
+                .state
+                .atlas
+                .chunks_exact(3)
+                .map(|c| [c[0], c[1], c[2]])
+                .collect(),
+        }
     }
 
     /// One iteration: render, detect, loss, backward, Adam step.
@@ -177,11 +226,21 @@ impl<'a> Trainer<'a> {
         let t0 = Instant::now();
         let plans = conds
             .iter()
-            .map(|c| self.renderer.plan(&c.viewpoint, &self.env.lighting(c), &self.env.backdrop(c)))
+            .map(|c| {
+                self.renderer
+                    .plan(&c.viewpoint, &self.env.lighting(c), &self.env.backdrop(c))
+            })
             .collect::<Result<Vec<_>>>()?;
         let r = self.state.atlas_res;
-        let atlas = Tensor::<4>::from_data(TensorData::new(self.state.atlas.clone(), [1, r, r, 3]), &self.device).require_grad();
-        let images = environment::photometric(render::composite(&plans, environment::print_error(atlas.clone(), &conds)), &conds);
+        let atlas = Tensor::<4>::from_data(
+            TensorData::new(self.state.atlas.clone(), [1, r, r, 3]),
+            &self.device,
+        )
+        .require_grad();
+        let images = environment::photometric(
+            render::composite(&plans, environment::print_error(atlas.clone(), &conds)),
+            &conds,
+        );
         let ms_render = t0.elapsed().as_secs_f64() * 1e3;
         let t1 = Instant::now();
         let mut total: Option<Tensor<1>> = None;
@@ -197,7 +256,12 @@ impl<'a> Trainer<'a> {
             });
         }
         let loss = total.context("no detector")? / self.detectors.len() as f64;
-        let loss_value = loss.clone().into_data().convert::<f64>().try_to_vec::<f64>().map_err(|e| anyhow::anyhow!("{e:?}"))?[0];
+        let loss_value = loss
+            .clone()
+            .into_data()
+            .convert::<f64>()
+            .try_to_vec::<f64>()
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?[0];
         let ms_forward = t1.elapsed().as_secs_f64() * 1e3;
         let t2 = Instant::now();
         let grads = loss.backward();
@@ -216,7 +280,16 @@ impl<'a> Trainer<'a> {
         }
         self.state.adam.step(&mut self.state.atlas, &g);
         let ms_optimiser = t3.elapsed().as_secs_f64() * 1e3;
-        let log = IterationLog { iteration: i, loss: loss_value, grad_norm, proposals, ms_render, ms_forward, ms_backward, ms_optimiser };
+        let log = IterationLog {
+            iteration: i,
+            loss: loss_value,
+            grad_norm,
+            proposals,
+            ms_render,
+            ms_forward,
+            ms_backward,
+            ms_optimiser,
+        };
         self.state.log.push(log.clone());
         self.state.iteration += 1;
         Ok(log)
@@ -227,7 +300,8 @@ const CHECKPOINT: &str = "checkpoint";
 
 /// Writes the checkpoint into `run_dir/checkpoint/` atomically (a new folder renamed into place).
 pub fn save_checkpoint(run_dir: &Path, ck: &Checkpoint) -> Result<()> {
-    std::fs::create_dir_all(run_dir).with_context(|| format!("cannot create run folder {}", run_dir.display()))?;
+    std::fs::create_dir_all(run_dir)
+        .with_context(|| format!("cannot create run folder {}", run_dir.display()))?;
     let tmp = run_dir.join(format!("{CHECKPOINT}.tmp"));
     let _ = std::fs::remove_dir_all(&tmp);
     std::fs::create_dir_all(&tmp)?;
@@ -240,7 +314,10 @@ pub fn save_checkpoint(run_dir: &Path, ck: &Checkpoint) -> Result<()> {
         "adam": {"lr": ck.adam.lr, "beta1": ck.adam.beta1, "beta2": ck.adam.beta2, "eps": ck.adam.eps, "t": ck.adam.t},
         "log": ck.log,
     });
-    crate::io::write_atomic(&tmp.join("state.json"), serde_json::to_string(&meta)?.as_bytes())?;
+    crate::io::write_atomic(
+        &tmp.join("state.json"),
+        serde_json::to_string(&meta)?.as_bytes(),
+    )?;
     let dst = run_dir.join(CHECKPOINT);
     let old = run_dir.join(format!("{CHECKPOINT}.old"));
     let _ = std::fs::remove_dir_all(&old);
@@ -259,20 +336,29 @@ pub fn load_checkpoint(run_dir: &Path) -> Result<Checkpoint> {
         .map(|n| run_dir.join(n))
         .find(|d| d.join("state.json").is_file())
         .with_context(|| format!("{} holds no checkpoint to resume from", run_dir.display()))?;
-    let meta: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("state.json"))?)
-        .with_context(|| format!("{}: malformed checkpoint state", dir.display()))?;
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("state.json"))?)
+            .with_context(|| format!("{}: malformed checkpoint state", dir.display()))?;
     let f32s = |name: &str| -> Result<Vec<f32>> {
-        let b = std::fs::read(dir.join(name)).with_context(|| format!("{}: missing {name}", dir.display()))?;
+        let b = std::fs::read(dir.join(name))
+            .with_context(|| format!("{}: missing {name}", dir.display()))?;
         if b.len() % 4 != 0 {
             bail!("{}: {name} is truncated", dir.display());
         }
-        Ok(b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
+        Ok(b.chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect())
     };
-    let res = meta["atlas_res"].as_u64().context("checkpoint lacks atlas_res")? as usize;
+    let res = meta["atlas_res"]
+        .as_u64()
+        .context("checkpoint lacks atlas_res")? as usize;
     let atlas = f32s("atlas.f32")?;
     let (m, v) = (f32s("adam_m.f32")?, f32s("adam_v.f32")?);
     if atlas.len() != res * res * 3 || m.len() != atlas.len() || v.len() != atlas.len() {
-        bail!("{}: checkpoint arrays do not match a {res}² atlas", dir.display());
+        bail!(
+            "{}: checkpoint arrays do not match a {res}² atlas",
+            dir.display()
+        );
     }
     let a = &meta["adam"];
     let adam = Adam {
@@ -284,6 +370,13 @@ pub fn load_checkpoint(run_dir: &Path) -> Result<Checkpoint> {
         m,
         v,
     };
-    let log: Vec<IterationLog> = serde_json::from_value(meta["log"].clone()).context("checkpoint log")?;
-    Ok(Checkpoint { iteration: meta["iteration"].as_u64().context("iteration")? as usize, atlas_res: res, adam, atlas, log })
+    let log: Vec<IterationLog> =
+        serde_json::from_value(meta["log"].clone()).context("checkpoint log")?;
+    Ok(Checkpoint {
+        iteration: meta["iteration"].as_u64().context("iteration")? as usize,
+        atlas_res: res,
+        adam,
+        atlas,
+        log,
+    })
 }

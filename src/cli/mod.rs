@@ -12,6 +12,7 @@ pub mod device;
 pub mod meshes;
 pub mod models;
 pub mod render;
+pub mod train;
 
 /// Learn, fabricate and physically test coated adversarial camouflages.
 #[derive(Parser, Debug)]
@@ -25,6 +26,8 @@ pub struct Cli {
 pub enum Command {
     /// Run the main job on the embedded defaults.
     Demo(demo::Args),
+    /// Learn a coated adversarial camouflage (the dense-proposals attack).
+    Train(train::Args),
     /// Render one view, or a contact sheet of sampled views.
     Render(render::Args),
     /// Detect COCO objects in images (CenterNet or NanoDet, TFJS models on burn).
@@ -57,6 +60,7 @@ pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Demo(a) => demo::run(a),
         Command::Render(a) => render::run(a),
+        Command::Train(a) => train::run(a),
         Command::Detect(a) => detect::run(a),
         Command::Models { cmd } => models::run(cmd),
         Command::Meshes(c) => meshes::run(c),

@@ -2,6 +2,9 @@
 //! against the ground-truth box at confidence >= 0.3; P@0.5 = hits / images. Targeted success is
 //! the same test for the target class. Drop = P@0.5(original) − P@0.5(texture).
 
+mod views;
+pub use views::{evaluate, street_views, ViewResults};
+
 use crate::detect::{nms::iou, Detection};
 use serde::{Deserialize, Serialize};
 
@@ -18,7 +21,12 @@ pub struct Protocol {
 
 impl Default for Protocol {
     fn default() -> Self {
-        Protocol { true_classes: vec![2, 7], target: None, iou: 0.5, confidence: 0.3 }
+        Protocol {
+            true_classes: vec![2, 7],
+            target: None,
+            iou: 0.5,
+            confidence: 0.3,
+        }
     }
 }
 
@@ -38,7 +46,11 @@ fn iou_xyxy(a: &[f32; 4], b: &[f32; 4]) -> f64 {
 
 /// Scores one image's detections against its ground-truth box.
 pub fn score_image(dets: &[Detection], gt: &[f32; 4], p: &Protocol) -> ImageScore {
-    let mut s = ImageScore { hit: false, targeted: false, best_true_conf: 0.0 };
+    let mut s = ImageScore {
+        hit: false,
+        targeted: false,
+        best_true_conf: 0.0,
+    };
     for d in dets {
         let o = iou_xyxy(&d.bbox, gt);
         if o < p.iou {
@@ -81,17 +93,34 @@ mod tests {
     use super::*;
 
     fn det(c: usize, s: f32, b: [f32; 4]) -> Detection {
-        Detection { class_id: c, label: crate::detect::labels::COCO80[c], score: s, bbox: b }
+        Detection {
+            class_id: c,
+            label: crate::detect::labels::COCO80[c],
+            score: s,
+            bbox: b,
+        }
     }
 
     #[test]
     fn hit_needs_true_class_iou_and_confidence() {
         let gt = [10.0, 10.0, 110.0, 60.0];
-        let p = Protocol { target: Some(0), ..Default::default() };
+        let p = Protocol {
+            target: Some(0),
+            ..Default::default()
+        };
         assert!(score_image(&[det(7, 0.31, [12.0, 11.0, 108.0, 62.0])], &gt, &p).hit);
-        assert!(!score_image(&[det(7, 0.29, [12.0, 11.0, 108.0, 62.0])], &gt, &p).hit, "confidence");
-        assert!(!score_image(&[det(7, 0.9, [60.0, 10.0, 160.0, 60.0])], &gt, &p).hit, "IoU 1/3");
-        assert!(!score_image(&[det(5, 0.9, gt)], &gt, &p).hit, "bus is not a true class by default");
+        assert!(
+            !score_image(&[det(7, 0.29, [12.0, 11.0, 108.0, 62.0])], &gt, &p).hit,
+            "confidence"
+        );
+        assert!(
+            !score_image(&[det(7, 0.9, [60.0, 10.0, 160.0, 60.0])], &gt, &p).hit,
+            "IoU 1/3"
+        );
+        assert!(
+            !score_image(&[det(5, 0.9, gt)], &gt, &p).hit,
+            "bus is not a true class by default"
+        );
         let s = score_image(&[det(0, 0.5, gt), det(2, 0.2, gt)], &gt, &p);
         assert!(s.targeted && !s.hit && (s.best_true_conf - 0.2).abs() < 1e-6);
         assert_eq!(summarise(&[]).p_at_05, 0.0, "no images: no NaN");
