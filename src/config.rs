@@ -12,7 +12,7 @@ use std::path::Path;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ObjectConfig {
-    /// A built-in object (`jeep`, `barrel`, `container`) or a path to an OBJ/glTF/GLB file.
+    /// A built-in object (`pickup`, `jeep`, `barrel`, `container`) or a path to an OBJ/glTF/GLB file.
     pub mesh: String,
     /// Which materials the camouflage may paint.
     pub paint: PaintRule,

@@ -116,6 +116,28 @@ pub fn sample(tex: &Texture, uv: Vec2) -> [f32; 3] {
     out
 }
 
+/// The colour the environment shows in direction `r` (sky above the horizon, lit ground below),
+/// for reflections.
+fn environment_colour(
+    backdrop: &Backdrop,
+    light: &Lighting,
+    image_mean: [f32; 3],
+    r: Vec3,
+) -> [f32; 3] {
+    if r.y < 0.0 && backdrop.ground.is_some() {
+        let k = (light.ambient + light.sun * light.sun_dir.y.max(0.0)) * 0.35;
+        return [k; 3];
+    }
+    match &backdrop.background {
+        Background::Sky { horizon, zenith } => {
+            let t = r.y.max(0.0).sqrt();
+            [0, 1, 2].map(|i| horizon[i] * (1.0 - t) + zenith[i] * t)
+        }
+        Background::Color(c) => *c,
+        Background::Image(_) => image_mean,
+    }
+}
+
 /// Shades a G-buffer into a render plan for an atlas of `atlas_res x atlas_res`.
 pub fn plan(
     scene: &Scene,
@@ -129,6 +151,15 @@ pub fn plan(
     let inv_s = 1.0 / s as f32;
     let shadows = light.sun > 0.0;
     let eps = 1e-3 * (g.camera.eye.length() + 1.0);
+    let image_mean = match &backdrop.background {
+        Background::Image(img) => {
+            let n = img.texels.len().max(1) as f32;
+            img.texels.iter().fold([0.0f32; 3], |a, t| {
+                [a[0] + t[0] / n, a[1] + t[1] / n, a[2] + t[2] / n]
+            })
+        }
+        _ => [0.0; 3],
+    };
     struct Px {
         base: [f32; 3],
         taps: Vec<(u32, f32)>,
@@ -214,6 +245,16 @@ pub fn plan(
                             0.0
                         };
                         add(&mut base, [spec; 3], inv_s);
+                        // Mirror reflection of the environment on glossy parts (clear coat,
+                        // glass, chrome), weighted by Schlick's Fresnel term.
+                        let gloss = (mat.specular * 1.5).min(1.0);
+                        if gloss > 0.05 {
+                            let cos = (-sm.dir).dot(n).clamp(0.0, 1.0);
+                            let fresnel = 0.04 + 0.96 * (1.0 - cos).powi(5);
+                            let r = sm.dir - n * 2.0 * sm.dir.dot(n);
+                            let env = environment_colour(backdrop, light, image_mean, r);
+                            add(&mut base, env, gloss * fresnel * inv_s);
+                        }
                         if scene.is_paintable(tri) {
                             for (texel, w) in bilinear_taps(sm.uv, atlas_res, atlas_res) {
                                 if w > 0.0 {

@@ -357,7 +357,16 @@ pub fn value_noise(x: f32, y: f32, seed: u32) -> f32 {
 /// A jeep-like vehicle, 4.3 m long, front towards +X: body and cab (paintable), windows, wheels
 /// with rims, head and tail lights, grille, bumpers and a spare wheel.
 pub fn jeep() -> Scene {
-    let mut b = Builder::new("jeep");
+    vehicle(false)
+}
+
+/// A jeep-style pickup (short cab and a covered load bed), 4.3 m long, front towards +X.
+pub fn pickup() -> Scene {
+    vehicle(true)
+}
+
+fn vehicle(pickup: bool) -> Scene {
+    let mut b = Builder::new(if pickup { "pickup" } else { "jeep" });
     let body = b.material("body_paint", [1.0; 3], 0.25, 40.0, true);
     let glass = b.material("window_glass", [0.08, 0.10, 0.12], 0.9, 120.0, false);
     let tyre = b.material("wheel_tyre", [0.05, 0.05, 0.05], 0.03, 8.0, false);
@@ -367,18 +376,34 @@ pub fn jeep() -> Scene {
     let trim = b.material("trim_black", [0.07, 0.07, 0.075], 0.1, 16.0, false);
     let id = Mat4::IDENTITY;
     let (hw, zw) = (0.9f32, 0.006f32); // half width, panel thickness
-    let profile = [
-        v2(-2.15, 0.40),
-        v2(2.05, 0.40),
-        v2(2.15, 0.55),
-        v2(2.15, 0.92),
-        v2(2.05, 1.02),
-        v2(0.95, 1.10),
-        v2(0.38, 1.80),
-        v2(-1.95, 1.84),
-        v2(-2.12, 1.77),
-        v2(-2.15, 1.02),
-    ];
+    let profile: Vec<Vec2> = if pickup {
+        // Short cab, then a covered load bed at waist height.
+        vec![
+            v2(-2.15, 0.40),
+            v2(2.05, 0.40),
+            v2(2.15, 0.55),
+            v2(2.15, 0.92),
+            v2(2.05, 1.02),
+            v2(0.95, 1.10),
+            v2(0.38, 1.80),
+            v2(-0.72, 1.84),
+            v2(-0.80, 1.16),
+            v2(-2.15, 1.12),
+        ]
+    } else {
+        vec![
+            v2(-2.15, 0.40),
+            v2(2.05, 0.40),
+            v2(2.15, 0.55),
+            v2(2.15, 0.92),
+            v2(2.05, 1.02),
+            v2(0.95, 1.10),
+            v2(0.38, 1.80),
+            v2(-1.95, 1.84),
+            v2(-2.12, 1.77),
+            v2(-2.15, 1.02),
+        ]
+    };
     b.prism(&profile, -hw, hw, id, body, body, false);
     // Side windows (thin closed panels on both sides).
     let front_win = [
@@ -393,7 +418,12 @@ pub fn jeep() -> Scene {
         v2(-1.88, 1.76),
         v2(-1.88, 1.17),
     ];
-    for w in [&front_win[..], &rear_win[..]] {
+    let side_windows: Vec<&[Vec2]> = if pickup {
+        vec![&front_win[..]]
+    } else {
+        vec![&front_win[..], &rear_win[..]]
+    };
+    for w in side_windows {
         b.prism(w, hw, hw + zw, id, glass, glass, false);
         b.prism(w, -hw - zw, -hw, id, glass, glass, false);
     }
@@ -422,15 +452,27 @@ pub fn jeep() -> Scene {
         0.80,
         glass,
     );
-    panel_on(
-        &mut b,
-        v2(-2.12, 1.77),
-        v2(-2.15, 1.02),
-        0.06,
-        0.50,
-        0.72,
-        glass,
-    );
+    if pickup {
+        panel_on(
+            &mut b,
+            v2(-0.72, 1.84),
+            v2(-0.80, 1.16),
+            0.08,
+            0.55,
+            0.72,
+            glass,
+        );
+    } else {
+        panel_on(
+            &mut b,
+            v2(-2.12, 1.77),
+            v2(-2.15, 1.02),
+            0.06,
+            0.50,
+            0.72,
+            glass,
+        );
+    }
     // Lights, grille, bumpers.
     for s in [1.0f32, -1.0] {
         let (za, zb) = if s > 0.0 {
@@ -511,18 +553,22 @@ pub fn jeep() -> Scene {
             b.cylinder(0.22, r0, r1, 24, m, rim, rim);
         }
     }
-    // Spare wheel on the back.
+    // Spare wheel on the back (the jeep only).
+    if pickup {
+        return b.finish(512, body_paint);
+    }
     let m = Mat4::from_translation(Vec3::new(-2.15, 1.25, 0.0))
         * Mat4::from_rotation_y(std::f32::consts::FRAC_PI_2);
     b.cylinder(0.36, 0.0, 0.26, 28, m, tyre, tyre);
     b.cylinder(0.20, 0.26, 0.28, 20, m, rim, rim);
-    // Body colour: a painted red with faint mottling, like weathered paint.
-    b.finish(512, |u, v| {
-        let n =
-            value_noise(u * 40.0, v * 40.0, 7) * 0.5 + value_noise(u * 160.0, v * 160.0, 9) * 0.5;
-        let k = 0.92 + 0.16 * n;
-        [0.62 * k, 0.09 * k, 0.08 * k]
-    })
+    b.finish(512, body_paint)
+}
+
+/// Body colour: a painted red with faint mottling, like weathered paint.
+fn body_paint(u: f32, v: f32) -> [f32; 3] {
+    let n = value_noise(u * 40.0, v * 40.0, 7) * 0.5 + value_noise(u * 160.0, v * 160.0, 9) * 0.5;
+    let k = 0.92 + 0.16 * n;
+    [0.62 * k, 0.09 * k, 0.08 * k]
 }
 
 /// A 200-litre steel drum (0.58 m across, 0.88 m tall) with two rolling hoops; the shell is paintable.
@@ -572,6 +618,7 @@ pub fn container() -> Scene {
 pub fn by_name(name: &str) -> Option<Scene> {
     match name {
         "jeep" => Some(jeep()),
+        "pickup" => Some(pickup()),
         "barrel" => Some(barrel()),
         "container" => Some(container()),
         _ => None,
@@ -579,7 +626,7 @@ pub fn by_name(name: &str) -> Option<Scene> {
 }
 
 /// The names of the default objects.
-pub const DEFAULT_OBJECTS: [&str; 3] = ["jeep", "barrel", "container"];
+pub const DEFAULT_OBJECTS: [&str; 4] = ["jeep", "pickup", "barrel", "container"];
 
 #[cfg(test)]
 mod tests {
