@@ -10,3 +10,5 @@
 //! chosen once at the edge (the `cac` binary, the tests, the benchmarks).
 
 pub mod io;
+pub mod physical;
+pub mod sim;

@@ -32,6 +32,15 @@ pub struct LineAssembler {
     overflowed: bool,
 }
 
+impl fmt::Debug for LineAssembler {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("LineAssembler")
+            .field("pending", &self.len)
+            .field("overflowed", &self.overflowed)
+            .finish()
+    }
+}
+
 impl Default for LineAssembler {
     fn default() -> Self {
         Self::new()
