@@ -46,29 +46,55 @@ pub fn run_moves<T: Transport>(
         } else {
             (Axis::Turntable, rng.random_range(-24..=24) * 15_000)
         };
-        let rep = tt
-            .move_to(axis, target)
-            .unwrap_or_else(|e| panic!("move {i} ({axis} → {target}) failed: {e}; {:?}", tt.stats()));
-        assert_eq!(rep.position, target, "move {i}: driver reports the wrong position");
+        let rep = tt.move_to(axis, target).unwrap_or_else(|e| {
+            panic!("move {i} ({axis} → {target}) failed: {e}; {:?}", tt.stats())
+        });
+        assert_eq!(
+            rep.position, target,
+            "move {i}: driver reports the wrong position"
+        );
         let w = world.lock();
         let dev = w.device();
-        let recs: Vec<_> = dev.log().iter().filter(|r| r.seq == rep.seq.get()).collect();
+        let recs: Vec<_> = dev
+            .log()
+            .iter()
+            .filter(|r| r.seq == rep.seq.get())
+            .collect();
         // The driver's belief equals the device's, except right after a reset that followed the
         // DONE and whose BOOT banner has not reached the driver yet.
         let reset_since = recs.first().is_some_and(|r| r.boot < dev.boots());
         if !(reset_since && dev.position(axis).is_none()) {
-            assert_eq!(tt.position(axis), dev.position(axis), "move {i}: driver and device disagree");
+            assert_eq!(
+                tt.position(axis),
+                dev.position(axis),
+                "move {i}: driver and device disagree"
+            );
         }
         // The command that completed the move ran exactly once and reached the target.
-        assert_eq!(recs.len(), 1, "move {i}: seq {} started {} times", rep.seq, recs.len());
+        assert_eq!(
+            recs.len(),
+            1,
+            "move {i}: seq {} started {} times",
+            rep.seq,
+            recs.len()
+        );
         assert_eq!(recs[0].kind, MotionKind::Move);
         assert_eq!(recs[0].axis, axis);
-        assert_eq!(recs[0].end, Some((DoneEnd::Reached, target)), "move {i}: {:?}", recs[0]);
+        assert_eq!(
+            recs[0].end,
+            Some((DoneEnd::Reached, target)),
+            "move {i}: {:?}",
+            recs[0]
+        );
         accepted.push(rep.seq.get());
     }
     let w = world.lock();
     let dev = w.device();
-    assert_eq!(dev.max_starts_per_seq(), 1, "a retried command was executed twice");
+    assert_eq!(
+        dev.max_starts_per_seq(),
+        1,
+        "a retried command was executed twice"
+    );
     // Completed moves the driver did not accept must have been wiped out by a later reset and
     // commanded again: each reset can orphan at most one completed move per axis.
     let orphans: Vec<_> = dev
@@ -78,13 +104,20 @@ pub fn run_moves<T: Transport>(
         .filter(|r| matches!(r.end, Some((DoneEnd::Reached, _))))
         .collect();
     for o in &orphans {
-        assert!(o.boot < dev.boots(), "completed move {o:?} neither accepted nor followed by a reset");
+        assert!(
+            o.boot < dev.boots(),
+            "completed move {o:?} neither accepted nor followed by a reset"
+        );
     }
-    assert!(orphans.len() <= 2 * (dev.boots() as usize - 1), "too many orphaned moves: {orphans:?}");
+    assert!(
+        orphans.len() <= 2 * (dev.boots() as usize - 1),
+        "too many orphaned moves: {orphans:?}"
+    );
     // No move ended other than REACHED or by a reset (nobody sent STOP/ESTOP).
     for r in dev.log() {
         assert!(
-            r.end.is_none_or(|(end, _)| end == DoneEnd::Reached) && (r.end.is_some() || r.boot < dev.boots()),
+            r.end.is_none_or(|(end, _)| end == DoneEnd::Reached)
+                && (r.end.is_some() || r.boot < dev.boots()),
             "motion {r:?} ended abnormally"
         );
     }
