@@ -18,6 +18,8 @@ fn config() -> TurntableConfig {
         boot_wait: Duration::from_millis(150),
         reconnect_backoff: Duration::from_millis(20),
         done_slack: Duration::from_millis(150),
+        // The device reports ETAs in simulated time, which runs SPEEDUP times faster.
+        done_factor: 1.5 / SPEEDUP,
         ..TurntableConfig::default()
     }
 }

@@ -665,7 +665,10 @@ impl<T: Transport> Turntable<T> {
                         )));
                     }
                     if st.moving {
-                        until = (self.t.now() + eta / 4 + self.cfg.done_slack).min(deadline);
+                        until = (self.t.now()
+                            + eta.mul_f64(self.cfg.done_factor / 4.0)
+                            + self.cfg.done_slack)
+                            .min(deadline);
                         continue;
                     }
                     // It ended and its DONE was lost.

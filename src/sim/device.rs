@@ -388,7 +388,10 @@ impl SimDevice {
             self.emit_owned(ev);
         }
         if reset {
+            // The reply leaves the UART before the reboot.
+            let reply = std::mem::take(&mut self.out);
             self.reset(BootReason::Reset);
+            self.out = reply;
         }
     }
 
