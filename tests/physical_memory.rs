@@ -97,8 +97,8 @@ fn disconnects() {
 fn every_fault_kind_at_once_over_many_seeds() {
     let mut total = cac::sim::FaultCounts::default();
     let mut moves = 0;
-    for seed in 100..110 {
-        let r = session(&format!("mix seed {seed}"), FaultConfig::mix(seed), 150);
+    for seed in 100..140 {
+        let r = session(&format!("mix seed {seed}"), FaultConfig::mix(seed), 200);
         moves += r.moves;
         total.dropped += r.faults.dropped;
         total.garbled += r.faults.garbled;
@@ -109,6 +109,22 @@ fn every_fault_kind_at_once_over_many_seeds() {
     println!("[mix total] {moves} moves, all exactly once, surviving {total}");
     assert!(total.dropped > 0 && total.garbled > 0 && total.delayed > 0);
     assert!(total.resets > 0 && total.disconnects > 0);
+}
+
+#[test]
+fn resets_with_lost_banners_and_lost_lines() {
+    // Resets while bytes are lost: some BOOT banners and DONE events never arrive.
+    let f = FaultConfig {
+        drop_byte: 0.01,
+        garble_byte: 0.005,
+        ..FaultConfig::resets(16, 0.15)
+    };
+    let r = session("resets+losses", f, 300);
+    assert!(
+        r.faults.resets >= 10 && r.faults.dropped > 100,
+        "{}",
+        r.faults
+    );
 }
 
 #[test]

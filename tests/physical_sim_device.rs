@@ -22,6 +22,10 @@ fn booted(cfg: DeviceConfig) -> SimDevice {
         out[0].starts_with("! BOOT PROTO=1 FW=cacsim-0.1 REASON=POWERON *"),
         "{out:?}"
     );
+    assert!(matches!(
+        send(&mut d, 60_000, Command::Hello).0,
+        Reply::Hello(_)
+    ));
     d
 }
 
@@ -258,6 +262,51 @@ fn error_codes() {
 
 fn with_crc(s: &str) -> String {
     format!("{s} *{:04X}", firmware_protocol::crc16(s.as_bytes()))
+}
+
+#[test]
+fn after_boot_only_safe_commands_work_until_hello() {
+    let mut d = SimDevice::new(DeviceConfig::default(), Duration::ZERO, 0.0);
+    d.advance(Duration::from_secs(1));
+    lines(&mut d);
+    for cmd in [
+        Command::Home(Axis::Turntable),
+        Command::MoveAbs(Axis::Turntable, 0),
+        Command::MoveRel(Axis::Rail, 1),
+        Command::Speed(Axis::Turntable, 1),
+        Command::Accel(Axis::Turntable, 1),
+        Command::Clear,
+        Command::Reset,
+    ] {
+        assert_eq!(
+            send(&mut d, 1, cmd).0,
+            Reply::Err(ErrorCode::Booted),
+            "{cmd:?}"
+        );
+        // A different command under a new number each time (not a cache replay).
+        assert_eq!(send(&mut d, 2, Command::Ping).0, Reply::Ok);
+    }
+    assert!(matches!(
+        send(&mut d, 3, Command::Status(Axis::Rail)).0,
+        Reply::Status(_)
+    ));
+    assert_eq!(send(&mut d, 4, Command::Stop(None)).0, Reply::Ok);
+    assert!(matches!(send(&mut d, 5, Command::Hello).0, Reply::Hello(_)));
+    assert!(matches!(
+        send(&mut d, 6, Command::Home(Axis::Turntable)).0,
+        Reply::Moving { .. }
+    ));
+    assert!(d.log().len() == 1 && d.starts_for(6) == 1);
+    // A reboot locks it again.
+    assert_eq!(send(&mut d, 7, Command::Estop).0, Reply::Ok);
+    assert_eq!(send(&mut d, 8, Command::Clear).0, Reply::Ok);
+    assert_eq!(send(&mut d, 9, Command::Reset).0, Reply::Ok);
+    d.advance(d.now() + Duration::from_secs(1));
+    lines(&mut d);
+    assert_eq!(
+        send(&mut d, 10, Command::Home(Axis::Turntable)).0,
+        Reply::Err(ErrorCode::Booted)
+    );
 }
 
 #[test]

@@ -142,6 +142,19 @@ impl CommandKind {
         CommandKind::ALL.into_iter().find(|k| k.word() == w)
     }
 
+    /// Whether a freshly booted device accepts it before the host's `HELLO` (read-only and
+    /// safety commands); the others are answered `ERR BOOTED` until then.
+    pub const fn allowed_before_hello(self) -> bool {
+        matches!(
+            self,
+            CommandKind::Hello
+                | CommandKind::Ping
+                | CommandKind::Status
+                | CommandKind::Stop
+                | CommandKind::Estop
+        )
+    }
+
     /// Whether the command starts motion (and so ends with a `DONE` event).
     pub const fn is_motion(self) -> bool {
         matches!(

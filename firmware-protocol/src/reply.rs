@@ -26,6 +26,8 @@ pub enum ErrorCode {
     Estop,
     /// `FAULT`: another latched fault prevents motion; `STATUS` names it, `CLEAR` clears it.
     Fault,
+    /// `BOOTED`: the device has (re)booted since the last `HELLO`; send `HELLO` first.
+    Booted,
     /// A code this version does not know.
     Other,
 }
@@ -43,12 +45,13 @@ impl ErrorCode {
             ErrorCode::Busy => "BUSY",
             ErrorCode::Estop => "ESTOP",
             ErrorCode::Fault => "FAULT",
+            ErrorCode::Booted => "BOOTED",
             ErrorCode::Other => "OTHER",
         }
     }
 
     fn from_word(w: &str) -> ErrorCode {
-        const KNOWN: [ErrorCode; 9] = [
+        const KNOWN: [ErrorCode; 10] = [
             ErrorCode::BadCmd,
             ErrorCode::BadArg,
             ErrorCode::NoAxis,
@@ -58,6 +61,7 @@ impl ErrorCode {
             ErrorCode::Busy,
             ErrorCode::Estop,
             ErrorCode::Fault,
+            ErrorCode::Booted,
         ];
         KNOWN
             .into_iter()

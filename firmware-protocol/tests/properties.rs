@@ -73,6 +73,7 @@ fn error_code() -> impl Strategy<Value = ErrorCode> {
         Just(ErrorCode::Busy),
         Just(ErrorCode::Estop),
         Just(ErrorCode::Fault),
+        Just(ErrorCode::Booted),
     ]
 }
 

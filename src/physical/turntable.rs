@@ -48,6 +48,8 @@ pub struct Turntable<T: Transport> {
     fault: FaultCode,
     done: HashMap<u16, (Axis, i32, DoneEnd)>,
     stats: DriverStats,
+    /// The device rebooted since our last HELLO (it refuses most commands until one).
+    needs_hello: bool,
 }
 
 impl<T: Transport> std::fmt::Debug for Turntable<T> {
@@ -79,6 +81,7 @@ impl<T: Transport> Turntable<T> {
             fault: FaultCode::None,
             done: HashMap::new(),
             stats: DriverStats::default(),
+            needs_hello: true,
         };
         let deadline = tt.t.now() + tt.cfg.command_deadline + tt.cfg.boot_wait;
         if let Err(e) = tt.wait_for_boot(tt.cfg.boot_wait) {
@@ -86,15 +89,7 @@ impl<T: Transport> Turntable<T> {
         }
         tt.resync(deadline)?;
         let hello_deadline = tt.t.now() + tt.cfg.command_deadline;
-        match tt.transact(Command::Hello, hello_deadline)?.1 {
-            OwnedReply::Hello { proto, fw, rail } if proto == PROTOCOL_VERSION => {
-                tt.info.proto = proto;
-                tt.info.fw = fw;
-                tt.info.rail = rail;
-            }
-            OwnedReply::Hello { proto, .. } => return Err(TurntableError::Version(proto)),
-            r => return Err(unexpected("HELLO", r)),
-        }
+        tt.hello(hello_deadline)?;
         for axis in tt.axes_present() {
             let d = tt.t.now() + tt.cfg.command_deadline;
             tt.status_until(axis, d)?;
@@ -102,6 +97,25 @@ impl<T: Transport> Turntable<T> {
         // The banner awaited at open is not a reset.
         tt.stats.resets_seen = 0;
         Ok(tt)
+    }
+
+    /// HELLO: identify the device, check its protocol version, and end its post-boot lockout.
+    fn hello(&mut self, deadline: Duration) -> Result<()> {
+        match self.transact(Command::Hello, deadline)?.1 {
+            OwnedReply::Hello { proto, fw, rail } if proto == PROTOCOL_VERSION => {
+                if self.info.proto != 0 && self.info.rail != rail {
+                    return Err(TurntableError::Protocol(format!(
+                        "device changed its rail from {:?} to {rail:?} across a reboot",
+                        self.info.rail
+                    )));
+                }
+                self.info = DeviceInfo { proto, fw, rail };
+                self.needs_hello = false;
+                Ok(())
+            }
+            OwnedReply::Hello { proto, .. } => Err(TurntableError::Version(proto)),
+            r => Err(unexpected("HELLO", r)),
+        }
     }
 
     /// Firmware identification from HELLO.
@@ -428,10 +442,18 @@ impl<T: Transport> Turntable<T> {
         cmd: Command,
         deadline: Duration,
     ) -> Result<MotionOutcome> {
-        let epoch = self.boots;
+        if self.needs_hello {
+            self.hello(deadline)?;
+        }
+        let before = self.boots;
         let seq = self.next_seq();
         let eta = match self.transact_seq(seq, cmd, deadline) {
             Ok(OwnedReply::Moving(eta)) => Some(eta),
+            Ok(OwnedReply::Err(ErrorCode::Booted)) => {
+                // Rebooted and its BOOT banner was lost.
+                self.note_reset();
+                return Ok(MotionOutcome::Reset);
+            }
             Ok(OwnedReply::Err(code)) => return Ok(MotionOutcome::Refused(code)),
             Ok(r) => return Err(unexpected(cmd.kind().word(), r)),
             Err(TurntableError::Timeout { .. }) if self.t.now() < deadline => {
@@ -440,7 +462,7 @@ impl<T: Transport> Turntable<T> {
                 self.resync(deadline)?;
                 let st = self.status_until(axis, deadline)?;
                 if st.seq != Some(seq) {
-                    return Ok(if self.boots != epoch {
+                    return Ok(if self.boots != before {
                         MotionOutcome::Reset
                     } else {
                         MotionOutcome::NotAccepted
@@ -448,8 +470,12 @@ impl<T: Transport> Turntable<T> {
                 }
                 None
             }
+            Err(TurntableError::DeviceReset { .. }) => return Ok(MotionOutcome::Reset),
             Err(e) => return Err(e),
         };
+        // A BOOT read before the reply came before the command ran: the motion belongs to the
+        // device's current boot, so only later BOOTs interrupt it.
+        let epoch = self.boots;
         self.wait_motion(seq, axis, eta, epoch, deadline)
     }
 
@@ -497,10 +523,10 @@ impl<T: Transport> Turntable<T> {
                         return Ok(MotionOutcome::Reset);
                     }
                     if st.seq != Some(seq) {
-                        return Err(TurntableError::Protocol(format!(
-                            "STATUS {axis} reports motion {:?}, expected {seq}",
-                            st.seq.map(Seq::get)
-                        )));
+                        // Only a reboot makes the device forget the motion it was running: a
+                        // reset whose BOOT banner was lost.
+                        self.note_reset();
+                        return Ok(MotionOutcome::Reset);
                     }
                     if st.moving {
                         until = (self.t.now()

@@ -120,6 +120,7 @@ pub struct SimDevice {
     boots: u32,
     axes: [AxisSim; 2],
     fault: FaultCode,
+    greeted: bool,
     cache: Option<(Seq, u16, Vec<u8>)>,
     asm: LineAssembler,
     out: Vec<u8>,
@@ -152,6 +153,7 @@ impl SimDevice {
             booting_until: None,
             boots: 0,
             fault: FaultCode::None,
+            greeted: false,
             cache: None,
             asm: LineAssembler::new(),
             out: Vec::new(),
@@ -321,6 +323,7 @@ impl SimDevice {
             a.accel = cfg.default_accel[axis.index()];
         }
         self.fault = FaultCode::None;
+        self.greeted = false;
         self.cache = None;
         self.asm.clear();
         self.out.clear();
@@ -425,12 +428,18 @@ impl SimDevice {
                 return Reply::Err(ErrorCode::NoAxis);
             }
         }
+        if !self.greeted && !cmd.kind().allowed_before_hello() {
+            return Reply::Err(ErrorCode::Booted);
+        }
         match cmd {
-            Command::Hello => Reply::Hello(HelloInfo {
-                proto: PROTOCOL_VERSION,
-                fw: "",
-                rail: self.cfg.rail,
-            }),
+            Command::Hello => {
+                self.greeted = true;
+                Reply::Hello(HelloInfo {
+                    proto: PROTOCOL_VERSION,
+                    fw: "",
+                    rail: self.cfg.rail,
+                })
+            }
             Command::Ping => Reply::Ok,
             Command::Speed(axis, v) | Command::Accel(axis, v) => {
                 let i = axis.index();

@@ -90,6 +90,8 @@ pub fn run_moves<T: Transport>(
     }
     let w = world.lock();
     let dev = w.device();
+    // A retried command never runs twice: within a boot the reply cache replays it, and after a
+    // reboot the device refuses it (ERR BOOTED) until the driver has said HELLO.
     assert_eq!(
         dev.max_starts_per_seq(),
         1,

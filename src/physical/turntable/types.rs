@@ -142,6 +142,12 @@ pub enum TurntableError {
         /// How.
         end: DoneEnd,
     },
+    /// The device rebooted while the command was outstanding; it may or may not have run.
+    #[error("turntable rebooted while {cmd} was outstanding")]
+    DeviceReset {
+        /// Command word.
+        cmd: &'static str,
+    },
     /// Recovery did not converge.
     #[error("gave up on axis {axis} after {recoveries} recoveries: {last}")]
     GaveUp {

@@ -42,8 +42,21 @@ impl<T: Transport> Turntable<T> {
         cmd: Command,
         deadline: Duration,
     ) -> Result<(Seq, OwnedReply)> {
-        let seq = self.next_seq();
-        Ok((seq, self.transact_seq(seq, cmd, deadline)?))
+        loop {
+            if self.needs_hello && !cmd.kind().allowed_before_hello() {
+                self.hello(deadline)?;
+            }
+            let seq = self.next_seq();
+            match self.transact_seq(seq, cmd, deadline) {
+                // The device rebooted meanwhile: ask again under a new number.
+                Err(TurntableError::DeviceReset { .. }) => continue,
+                // It rebooted and the BOOT banner was lost: greet it, then ask again.
+                Ok(OwnedReply::Err(ErrorCode::Booted)) if self.t.now() < deadline => {
+                    self.note_reset();
+                }
+                r => return Ok((seq, r?)),
+            }
+        }
     }
 
     /// Send `cmd` as `seq` until its reply arrives, resending the identical line on silence.
@@ -58,8 +71,16 @@ impl<T: Transport> Turntable<T> {
             .map_err(|e| TurntableError::Protocol(format!("cannot encode {cmd:?}: {e}")))?;
         let start = self.t.now();
         let deadline = deadline.min(start + self.cfg.command_deadline);
+        let boots = self.boots;
         let mut attempts = 0u32;
         loop {
+            // After a BOOT the device's reply cache is empty: resending this line could run the
+            // command a second time, so it is abandoned (the caller re-evaluates).
+            if self.boots != boots {
+                return Err(TurntableError::DeviceReset {
+                    cmd: cmd.kind().word(),
+                });
+            }
             if self.t.now() >= deadline {
                 return Err(TurntableError::Timeout {
                     cmd: cmd.kind().word(),
@@ -85,6 +106,7 @@ impl<T: Transport> Turntable<T> {
                         break;
                     }
                     Ok(None) => break,
+                    Ok(Some(Msg::Event)) if self.boots != boots => break,
                     Ok(Some(Msg::Reply(s, body))) if s == seq => {
                         match Reply::parse(cmd.kind(), &body) {
                             Ok(r) => return Ok(own(r)),
@@ -211,6 +233,7 @@ impl<T: Transport> Turntable<T> {
 
     pub(super) fn note_reset(&mut self) {
         self.boots += 1;
+        self.needs_hello = true;
         self.stats.resets_seen += 1;
         for a in &mut self.axes {
             a.homed = false;
