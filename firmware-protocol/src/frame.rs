@@ -193,7 +193,7 @@ pub(crate) fn encode(
         return Err(EncodeError::InvalidText);
     }
     let crc = crc16(out.as_bytes());
-    let r = write!(out, " *{crc:04X}\n");
+    let r = writeln!(out, " *{crc:04X}");
     if r.is_err() || out.len() > crate::MAX_LINE + 1 {
         out.clear();
         return Err(EncodeError::TooLong);
@@ -223,7 +223,7 @@ mod tests {
 
     fn alloc_free_fmt(crc: u16) -> LineBuf {
         let mut b = LineBuf::new();
-        write!(b, "42 PING *{crc:04X}\n").unwrap();
+        writeln!(b, "42 PING *{crc:04X}").unwrap();
         b
     }
 

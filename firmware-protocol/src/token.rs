@@ -69,11 +69,10 @@ pub(crate) fn parse_flag(s: &str) -> Option<bool> {
 /// The value of `key` among `KEY=value` tokens (last one wins; other tokens are ignored).
 pub(crate) fn field<'a>(tokens: &'a str, key: &str) -> Option<&'a str> {
     tokens
-        .split(' ')
+        .rsplit(' ')
         .filter_map(|t| t.split_once('='))
-        .filter(|(k, _)| *k == key)
+        .find(|(k, _)| *k == key)
         .map(|(_, v)| v)
-        .last()
 }
 
 /// Parse a required field with `parse`, naming it in the error.
