@@ -15,5 +15,7 @@ pub mod detect;
 pub mod environment;
 pub mod eval;
 pub mod io;
+pub mod physical;
 pub mod render;
 pub mod scene;
+pub mod sim;
