@@ -9,5 +9,6 @@
 //! Library code never names a concrete compute backend: tensors live on a [`burn::tensor::Device`]
 //! chosen once at the edge (the `cac` binary, the tests, the benchmarks).
 
+pub mod export;
 pub mod io;
 pub mod scene;

@@ -4,6 +4,7 @@ use anyhow::Result;
 use clap::{Parser, Subcommand};
 
 pub mod device;
+pub mod export;
 
 /// Learn, fabricate and physically test coated adversarial camouflages.
 #[derive(Parser, Debug)]
@@ -14,8 +15,16 @@ pub struct Cli {
 }
 
 #[derive(Subcommand, Debug)]
-pub enum Command {}
+pub enum Command {
+    /// Bake a learned texture into 3MF, OBJ and paste-on sheets.
+    Export(export::Args),
+    /// Bake error against triangles and seconds for several subdivision limits.
+    BenchExport(export::BenchArgs),
+}
 
 pub fn run(cli: Cli) -> Result<()> {
-    match cli.command {}
+    match cli.command {
+        Command::Export(a) => export::run(a),
+        Command::BenchExport(a) => export::bench(a),
+    }
 }
