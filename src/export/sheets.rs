@@ -267,10 +267,10 @@ pub fn write_sheets(
     let mut placed: Vec<(usize, Placement)> = vec![];
     for i in order {
         let p = &pieces[i];
-        let (bw, bh) = (
-            p.w + 2.0 * opts.bleed_mm,
-            p.h + 2.0 * opts.bleed_mm + label_mm,
-        );
+        // The label ("P12 R1C2 180X75 MM", 2.6 mm capitals) must fit above the piece.
+        let label_w = (p.label.len() + 12) as f32 * 6.0 * 2.6 / 7.0;
+        let bw = (p.w + 2.0 * opts.bleed_mm).max(label_w);
+        let bh = p.h + 2.0 * opts.bleed_mm + label_mm;
         if x > 0.0 && x + bw > avail.0 {
             x = 0.0;
             y += shelf_h + gap_mm;
@@ -456,24 +456,25 @@ fn render_piece(
             }
         }
     }
-    // Bleed: square dilation by bleed_px (two separable passes).
+    // Bleed: square dilation by bleed_px (two separable passes, sliding-window counts).
     let dilate = |m: &[bool], horizontal: bool| -> Vec<bool> {
         let mut out = vec![false; m.len()];
-        for yy in 0..h {
-            for xx in 0..w {
-                if !m[(yy * w + xx) as usize] {
-                    continue;
-                }
-                for d in -bleed_px..=bleed_px {
-                    let (x, y) = if horizontal {
-                        (xx + d, yy)
-                    } else {
-                        (xx, yy + d)
-                    };
-                    if x >= 0 && y >= 0 && x < w && y < h {
-                        out[(y * w + x) as usize] = true;
-                    }
-                }
+        let (lines, len) = if horizontal { (h, w) } else { (w, h) };
+        let idx = |line: i64, k: i64| {
+            if horizontal {
+                (line * w + k) as usize
+            } else {
+                (k * w + line) as usize
+            }
+        };
+        let mut prefix = vec![0u32; len as usize + 1];
+        for line in 0..lines {
+            for k in 0..len {
+                prefix[k as usize + 1] = prefix[k as usize] + m[idx(line, k)] as u32;
+            }
+            for k in 0..len {
+                let (a, b) = ((k - bleed_px).max(0), (k + bleed_px + 1).min(len));
+                out[idx(line, k)] = prefix[b as usize] > prefix[a as usize];
             }
         }
         out

@@ -42,7 +42,9 @@ pub fn require(program: &str, probe: &[&str], what: &str) -> bool {
         if std::env::var("CI").is_ok_and(|v| v == "true") {
             panic!("{what} is required under CI but `{program}` is missing (see .ci/run)");
         }
-        eprintln!("SKIPPED: {what} not available (`{program}` missing); install it as .ci/run does");
+        eprintln!(
+            "SKIPPED: {what} not available (`{program}` missing); install it as .ci/run does"
+        );
     }
     ok
 }
