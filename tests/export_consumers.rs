@@ -109,9 +109,12 @@ fn prusaslicer_loads_every_geometry_file() {
 }
 
 /// Finds the triangle of `mesh` that contains `p` (on its plane, inside, facing like `n`),
-/// returning its index and the barycentric coordinates of `p`.
+/// returning its index and the barycentric coordinates of `p`. `None` when no triangle contains
+/// it, or when triangles of two different parts do (coplanar overlapping faces, such as the
+/// jeep's spare wheel against its back: the point's colour is ambiguous there).
 fn locate(mesh: &export::PrintMesh, p: Vec3, n: Vec3) -> Option<(usize, Vec3)> {
     let mut best: Option<(f32, usize, Vec3)> = None;
+    let mut parts = vec![];
     for (i, t) in mesh.tris.iter().enumerate() {
         let [a, b, c] = t.v.map(|k| mesh.positions[k as usize]);
         let nn = (b - a).cross(c - a);
@@ -127,9 +130,17 @@ fn locate(mesh: &export::PrintMesh, p: Vec3, n: Vec3) -> Option<(usize, Vec3)> {
         let w2 = (b - a).cross(p - a).dot(nn) / nn2;
         let w = Vec3::new(1.0 - w1 - w2, w1, w2);
         let outside = (-w.min_element()).max(0.0);
-        if outside < 1e-4 && best.is_none_or(|(o, _, _)| outside < o) {
-            best = Some((outside, i, w));
+        if outside < 1e-4 {
+            parts.push(t.part);
+            if best.is_none_or(|(o, _, _)| outside < o) {
+                best = Some((outside, i, w));
+            }
         }
+    }
+    parts.sort();
+    parts.dedup();
+    if parts.len() > 1 {
+        return None;
     }
     best.map(|(_, i, w)| (i, w))
 }
@@ -155,7 +166,8 @@ fn baked_3mf_round_trip_matches_the_texture() {
         .collect();
     let total: f32 = areas.iter().sum();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(42);
-    let (mut se, mut des, mut n_tex) = (0.0f64, vec![], 0usize);
+    let (mut se, mut se_tex, mut des, mut n_all) = (0.0f64, 0.0f64, vec![], 0usize);
+    let mut skipped = 0;
     let n = 3000;
     for _ in 0..n {
         let mut x = rng.random::<f32>() * total;
@@ -175,27 +187,40 @@ fn baked_3mf_round_trip_matches_the_texture() {
         let got: [f32; 3] = std::array::from_fn(|k| {
             (cc[0][k] as f32 * (1.0 - u - w) + cc[1][k] as f32 * u + cc[2][k] as f32 * w) / 255.0
         });
-        let (ti, bary) =
-            locate(&mesh, p, (b - a).cross(c - a)).expect("point not on the original mesh");
+        let Some((ti, bary)) = locate(&mesh, p, (b - a).cross(c - a)) else {
+            skipped += 1;
+            continue;
+        };
         let want = bake::reference_colour(&mesh, ti, bary);
-        if matches!(mesh.tris[ti].paint, Paint::Texture { .. }) {
-            n_tex += 1;
+        let textured = matches!(mesh.tris[ti].paint, Paint::Texture { .. });
+        n_all += 1;
+        let e2: f64 = (0..3)
+            .map(|k| ((got[k] - want[k]) as f64 * 255.0).powi(2))
+            .sum();
+        se += e2;
+        if textured {
+            se_tex += e2;
+            des.push(texture::delta_e(got, want));
         }
-        for k in 0..3 {
-            se += ((got[k] - want[k]) as f64 * 255.0).powi(2);
-        }
-        des.push(texture::delta_e(got, want));
     }
-    des.sort_by(|a, b| a.total_cmp(b));
-    let rmse = (se / (3 * n) as f64).sqrt();
-    let mean_de = des.iter().sum::<f32>() / n as f32;
-    let p95 = des[n * 95 / 100];
-    eprintln!("round trip: {n} points ({n_tex} textured), RMSE {rmse:.2}, mean dE {mean_de:.2}, p95 dE {p95:.2}");
+    // Ambiguous (coplanar overlapping parts) or off-mesh points: few, and counted.
+    assert!(skipped < n / 50, "{skipped} of {n} points not located");
+    let n_tex = des.len();
     assert!(n_tex > n / 2);
+    des.sort_by(|a, b| a.total_cmp(b));
+    let rmse = (se / (3 * n_all) as f64).sqrt();
+    let rmse_tex = (se_tex / (3 * n_tex) as f64).sqrt();
+    let mean_de = des.iter().sum::<f32>() / n_tex as f32;
+    let p95 = des[n_tex * 95 / 100];
+    eprintln!(
+        "round trip: {n_all} points ({n_tex} on the texture, {skipped} ambiguous skipped); \
+         RMSE {rmse:.2} (8-bit) on all, on the texture: RMSE {rmse_tex:.2}, mean dE76 {mean_de:.2}, p95 dE76 {p95:.2}"
+    );
     // Tolerance stated in docs/export.md for the default bake (2 texels per edge).
-    assert!(rmse < 6.0, "RMSE {rmse}");
-    assert!(mean_de < 2.0, "mean dE {mean_de}");
-    assert!(p95 < 6.0, "p95 dE {p95}");
+    assert!(rmse < 5.0, "RMSE {rmse}");
+    assert!(rmse_tex < 5.0, "RMSE on textured parts {rmse_tex}");
+    assert!(mean_de < 1.5, "mean dE {mean_de}");
+    assert!(p95 < 5.0, "p95 dE {p95}");
 }
 
 /// Round trip of the textured 3MF: same positions, the camouflage PNG unchanged, and every

@@ -98,6 +98,9 @@ pub struct BenchArgs {
     /// Edge limits in texels to try.
     #[arg(long, value_delimiter = ',', default_value = "16,8,4,2,1,0.5")]
     pub texels: Vec<f32>,
+    /// Edge limits in mm to try (texel limit off), e.g. 2,1,0.5.
+    #[arg(long, value_delimiter = ',')]
+    pub mm: Vec<f32>,
     /// Random surface samples for the error.
     #[arg(long, default_value_t = 200_000)]
     pub samples: usize,
@@ -122,6 +125,11 @@ pub fn bench(a: BenchArgs) -> Result<()> {
             max_edge_texels: t,
             ..Default::default()
         })
+        .chain(a.mm.iter().map(|&mm| BakeLimits {
+            max_edge_texels: f32::INFINITY,
+            max_edge_mm: mm,
+            ..Default::default()
+        }))
         .collect();
     let rows = benchmark::run(&mesh, &limits, a.samples, 3)?;
     println!(

@@ -88,6 +88,11 @@ pub fn markdown(rows: &[BenchRow]) -> String {
         "| max edge (texels) | max edge (mm) | triangles | bake (s) | RMSE (8-bit) | mean ΔE76 | p95 ΔE76 |\n|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for r in rows {
+        let tx = if r.max_edge_texels.is_finite() {
+            format!("{}", r.max_edge_texels)
+        } else {
+            "-".into()
+        };
         let mm = if r.max_edge_mm.is_finite() {
             format!("{}", r.max_edge_mm)
         } else {
@@ -96,13 +101,7 @@ pub fn markdown(rows: &[BenchRow]) -> String {
         let _ = writeln!(
             s,
             "| {} | {} | {} | {:.3} | {:.2} | {:.2} | {:.2} |",
-            r.max_edge_texels,
-            mm,
-            r.triangles,
-            r.seconds,
-            r.rmse_8bit,
-            r.mean_delta_e,
-            r.p95_delta_e
+            tx, mm, r.triangles, r.seconds, r.rmse_8bit, r.mean_delta_e, r.p95_delta_e
         );
     }
     s
