@@ -25,8 +25,9 @@ pub struct Args {
         value_delimiter = ','
     )]
     pub formats: Vec<Format>,
-    /// Object scale 1:N (real object N times larger than the print).
-    #[arg(long, default_value = "1:24")]
+    /// Object scale 1:N (real object N times larger than the print), e.g. 1:24; 1:1 for
+    /// paste-on sheets for the real object.
+    #[arg(long)]
     pub scale: Scale,
     /// Bake: longest edge of a textured triangle, in texels.
     #[arg(long, default_value_t = BakeLimits::default().max_edge_texels)]
