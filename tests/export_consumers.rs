@@ -339,6 +339,29 @@ fn sheets_are_at_true_physical_size() {
     let img = image::open(dir.join("page_01.png")).unwrap();
     // A4 at 300 dpi.
     assert_eq!((img.width(), img.height()), (2480, 3508));
+    // The scale bar is 100 mm: the longest run of black pixels in the header is 100 mm at 300 dpi.
+    let rgb = img.to_rgb8();
+    let header_rows = (40.0 / 25.4 * 300.0) as u32;
+    let longest = (0..header_rows)
+        .map(|y| {
+            let (mut best, mut run) = (0, 0);
+            for x in 0..rgb.width() {
+                run = if rgb.get_pixel(x, y).0 == [0, 0, 0] {
+                    run + 1
+                } else {
+                    0
+                };
+                best = best.max(run);
+            }
+            best
+        })
+        .max()
+        .unwrap();
+    let want = 100.0 / 25.4 * 300.0;
+    assert!(
+        (longest as f32 - want).abs() <= 4.0,
+        "scale bar {longest} px, want {want}"
+    );
     let pdf = std::fs::read(dir.join("sheets.pdf")).unwrap();
     assert!(pdf.starts_with(b"%PDF-"));
     assert_eq!(

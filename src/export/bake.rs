@@ -68,7 +68,8 @@ pub fn reference_colour(mesh: &PrintMesh, parent: usize, b: Vec3) -> [f32; 3] {
 
 /// Subdivides and colours the mesh.
 pub fn bake(mesh: &PrintMesh, limits: &BakeLimits) -> Result<Baked> {
-    if !(limits.max_edge_texels > 0.0) || !(limits.max_edge_mm > 0.0) {
+    let positive = |x: f32| x > 0.0; // false for NaN too
+    if !positive(limits.max_edge_texels) || !positive(limits.max_edge_mm) {
         bail!(
             "bake limits must be positive (max edge {} texels, {} mm)",
             limits.max_edge_texels,

@@ -281,8 +281,8 @@ pub fn prepare(scene: &Scene, camo: &Texture, scale: Scale) -> Result<PrintMesh>
                     None => {
                         let mut tx = scene.textures[ti].clone();
                         for c in &mut tx.texels {
-                            for k in 0..3 {
-                                c[k] *= m.base_color[k];
+                            for (ck, bk) in c.iter_mut().zip(m.base_color) {
+                                *ck *= bk;
                             }
                         }
                         textures.push(tx);

@@ -93,10 +93,10 @@ pub fn write_vertex_colour(baked: &Baked, path: &Path) -> Result<()> {
     let mut faces = String::new();
     for t in &baked.tris {
         let mut f = [0u32; 3];
-        for k in 0..3 {
+        for (k, fk) in f.iter_mut().enumerate() {
             let c = to_rgb8(t.colour[k]);
             let n = index.len() as u32 + 1;
-            f[k] = *index.entry((t.v[k], c)).or_insert_with(|| {
+            *fk = *index.entry((t.v[k], c)).or_insert_with(|| {
                 let p = baked.positions[t.v[k] as usize];
                 let _ = writeln!(
                     verts,

@@ -190,7 +190,7 @@ pub fn weld_and_check(raw: &[Vec3], tris: &mut Vec<PrintTri>) -> Result<(Vec<Vec
         |(l, h), &p| (l.min(p), h.max(p)),
     );
     let diag = (hi - lo).length();
-    if !(diag > 0.0) {
+    if diag.is_nan() || diag <= 0.0 {
         bail!("the mesh has no extent (all vertices coincide)");
     }
     let eps = (diag * 1e-6).max(1e-6);

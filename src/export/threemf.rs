@@ -266,8 +266,9 @@ pub fn write_textured(mesh: &PrintMesh, path: &Path) -> Result<()> {
     }
     let colour_id = next_id;
     let object_id = next_id + 1;
-    let mut coords: Vec<(Vec<Vec2>, HashMap<[u32; 2], u32>)> =
-        vec![(vec![], HashMap::new()); mesh.textures.len()];
+    // Per texture: its coordinates and their index by bit pattern.
+    type Coords = (Vec<Vec2>, HashMap<[u32; 2], u32>);
+    let mut coords: Vec<Coords> = vec![(vec![], HashMap::new()); mesh.textures.len()];
     let mut colours = Colours::default();
     let props: Vec<(u32, [u32; 3])> = mesh
         .tris
