@@ -104,3 +104,12 @@ pub fn prusa_info(file: &Path) -> std::collections::HashMap<String, String> {
         .map(|(k, v)| (k.trim().to_string(), v.trim().to_string()))
         .collect()
 }
+
+/// Poppler's pdfinfo present?
+pub fn have_pdfinfo() -> bool {
+    require(
+        "pdfinfo",
+        &["-v"],
+        "pdfinfo (apt-get install poppler-utils)",
+    )
+}
