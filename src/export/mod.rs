@@ -15,6 +15,7 @@ pub mod bake;
 pub mod benchmark;
 mod font;
 pub mod obj;
+pub mod pdf;
 pub mod printcheck;
 pub mod sheets;
 pub mod texture;
