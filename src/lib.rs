@@ -14,6 +14,7 @@ pub mod config;
 pub mod detect;
 pub mod environment;
 pub mod eval;
+pub mod export;
 pub mod io;
 pub mod physical;
 pub mod render;

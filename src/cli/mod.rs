@@ -9,6 +9,7 @@ pub mod config;
 pub mod demo;
 pub mod detect;
 pub mod device;
+pub mod export;
 pub mod meshes;
 pub mod models;
 pub mod render;
@@ -40,6 +41,8 @@ pub enum Command {
     /// The built-in default objects.
     #[command(subcommand)]
     Meshes(meshes::Cmd),
+    /// Bake a learned texture into 3MF, OBJ and paste-on sheets.
+    Export(export::Args),
     /// Print the default scene config (TOML), or check a config file.
     Config(config::Args),
     /// Benchmarks: print a table and write CSV (timings are measured here, never in tests).
@@ -54,6 +57,8 @@ pub enum BenchCmd {
     Render(bench_render::Args),
     /// The COCO detectors (burn) against the TFJS wasm runtime.
     Detect(bench::DetectBench),
+    /// Bake error against triangles and seconds for several subdivision limits.
+    Export(export::BenchArgs),
 }
 
 pub fn run(cli: Cli) -> Result<()> {
@@ -67,5 +72,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Config(a) => config::run(a),
         Command::Bench(BenchCmd::Render(a)) => bench_render::run(a),
         Command::Bench(BenchCmd::Detect(a)) => bench::run(bench::BenchCmd::Detect(a)),
+        Command::Export(a) => export::run(a),
+        Command::Bench(BenchCmd::Export(a)) => export::bench(a),
     }
 }

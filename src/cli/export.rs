@@ -1,0 +1,149 @@
+//! `cac export` (bake a learned texture into 3MF / OBJ / paste-on sheets) and `cac bench export`
+//! (the bake's colour error against triangles and seconds). Parses, calls `cac::export`, prints.
+
+use anyhow::{Context, Result};
+use cac::export::{self, benchmark, BakeLimits, ExportOptions, Format, Scale};
+use clap::Args as ClapArgs;
+use std::path::PathBuf;
+
+/// Bake the learned texture into files for full-colour 3D printing and paste-on sheets.
+#[derive(ClapArgs, Debug)]
+pub struct Args {
+    /// The object: an OBJ/glTF/GLB file, or a default object name (jeep, barrel, container).
+    #[arg(long)]
+    pub mesh: PathBuf,
+    /// The learned camouflage texture (PNG): the UV atlas of the paintable parts.
+    #[arg(long)]
+    pub texture: PathBuf,
+    /// Output folder.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Comma-separated: 3mf-texture, 3mf-color, obj, obj-vc, sheets.
+    #[arg(
+        long,
+        default_value = "3mf-texture,3mf-color,obj,obj-vc,sheets",
+        value_delimiter = ','
+    )]
+    pub formats: Vec<Format>,
+    /// Object scale 1:N (real object N times larger than the print), e.g. 1:24; 1:1 for
+    /// paste-on sheets for the real object.
+    #[arg(long)]
+    pub scale: Scale,
+    /// Bake: longest edge of a textured triangle, in texels.
+    #[arg(long, default_value_t = BakeLimits::default().max_edge_texels)]
+    pub max_edge_texels: f32,
+    /// Bake: longest edge of any triangle, in mm (default: no limit).
+    #[arg(long)]
+    pub max_edge_mm: Option<f32>,
+    /// Sheets: paper (a4 or letter).
+    #[arg(long, default_value = "a4")]
+    pub paper: export::sheets::Paper,
+    /// Sheets: resolution.
+    #[arg(long, default_value_t = 300)]
+    pub dpi: u32,
+    /// Also bundle the OBJ, MTL and PNGs into one zip.
+    #[arg(long)]
+    pub zip: bool,
+    /// Write geometry even if the mesh is open or non-manifold.
+    #[arg(long)]
+    pub allow_open: bool,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let mut opts = ExportOptions {
+        formats: a.formats,
+        scale: a.scale,
+        zip_obj: a.zip,
+        allow_open: a.allow_open,
+        ..Default::default()
+    };
+    opts.bake.max_edge_texels = a.max_edge_texels;
+    if let Some(mm) = a.max_edge_mm {
+        opts.bake.max_edge_mm = mm;
+    }
+    opts.sheets.paper = a.paper;
+    opts.sheets.dpi = a.dpi;
+    let s = export::export(&a.mesh, &a.texture, &a.out, &opts)?;
+    let r = &s.report;
+    println!(
+        "mesh: {} triangles, {} vertices after welding ({} before), {} shells, size {:.1} x {:.1} x {:.1} mm, volume {:.1} mm3, {} open edges",
+        r.triangles, r.welded_vertices, r.input_vertices, r.shells, r.size_mm[0], r.size_mm[1], r.size_mm[2], r.volume_mm3, r.open_edges
+    );
+    for n in &s.notes {
+        println!("{n}");
+    }
+    if let (Some(t), Some(e), Some(de)) = (s.baked_triangles, s.bake_rmse_8bit, s.bake_mean_delta_e)
+    {
+        println!("bake: {t} triangles, colour RMSE {e:.2} (8-bit), mean dE76 {de:.2}");
+    }
+    for f in &s.files {
+        println!("wrote {}", f.display());
+    }
+    Ok(())
+}
+
+/// Measure the bake's colour error against triangle count and seconds for several limits.
+#[derive(ClapArgs, Debug)]
+pub struct BenchArgs {
+    /// The object (file or default name).
+    #[arg(long, default_value = "jeep")]
+    pub mesh: PathBuf,
+    /// The texture; default: a synthetic camouflage at --res.
+    #[arg(long)]
+    pub texture: Option<PathBuf>,
+    /// Resolution of the synthetic camouflage.
+    #[arg(long, default_value_t = 512)]
+    pub res: usize,
+    #[arg(long, default_value = "1:24")]
+    pub scale: Scale,
+    /// Edge limits in texels to try.
+    #[arg(long, value_delimiter = ',', default_value = "16,8,4,2,1,0.5")]
+    pub texels: Vec<f32>,
+    /// Edge limits in mm to try (texel limit off), e.g. 2,1,0.5.
+    #[arg(long, value_delimiter = ',')]
+    pub mm: Vec<f32>,
+    /// Random surface samples for the error.
+    #[arg(long, default_value_t = 200_000)]
+    pub samples: usize,
+    /// CSV output.
+    #[arg(long, default_value = "bench_export.csv")]
+    pub csv: PathBuf,
+}
+
+pub fn bench(a: BenchArgs) -> Result<()> {
+    let load = Default::default();
+    let scene = export::load_mesh(&a.mesh, &load)?;
+    let camo = match &a.texture {
+        Some(p) => export::load_texture(p)?,
+        None => benchmark::synthetic_camouflage(a.res, 11),
+    };
+    let mesh = export::prepare(&scene, &camo, a.scale)
+        .with_context(|| format!("mesh {}", a.mesh.display()))?;
+    let limits: Vec<BakeLimits> = a
+        .texels
+        .iter()
+        .map(|&t| BakeLimits {
+            max_edge_texels: t,
+            ..Default::default()
+        })
+        .chain(a.mm.iter().map(|&mm| BakeLimits {
+            max_edge_texels: f32::INFINITY,
+            max_edge_mm: mm,
+            ..Default::default()
+        }))
+        .collect();
+    let rows = benchmark::run(&mesh, &limits, a.samples, 3)?;
+    println!(
+        "object {} at {} ({} triangles), texture {}x{}, {} samples",
+        mesh.name,
+        a.scale.denominator,
+        mesh.tris.len(),
+        camo.width,
+        camo.height,
+        a.samples
+    );
+    print!("{}", benchmark::markdown(&rows));
+    cac::io::write_atomic(&a.csv, benchmark::csv(&rows).as_bytes())?;
+    println!("wrote {}", a.csv.display());
+    Ok(())
+}
