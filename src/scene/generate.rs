@@ -376,34 +376,23 @@ fn vehicle(pickup: bool) -> Scene {
     let trim = b.material("trim_black", [0.07, 0.07, 0.075], 0.1, 16.0, false);
     let id = Mat4::IDENTITY;
     let (hw, zw) = (0.9f32, 0.006f32); // half width, panel thickness
-    let profile: Vec<Vec2> = if pickup {
+                                       // Side profile (x forward, y up), counter-clockwise: underbody, nose, hood, windshield, then
+                                       // the roof and back, which differ between the two styles.
+    let mut profile = vec![
+        v2(-2.15, 0.40),
+        v2(2.05, 0.40),
+        v2(2.15, 0.55),
+        v2(2.15, 0.92),
+        v2(2.05, 1.02),
+        v2(0.95, 1.10),
+        v2(0.38, 1.80),
+    ];
+    profile.extend(if pickup {
         // Short cab, then a covered load bed at waist height.
-        vec![
-            v2(-2.15, 0.40),
-            v2(2.05, 0.40),
-            v2(2.15, 0.55),
-            v2(2.15, 0.92),
-            v2(2.05, 1.02),
-            v2(0.95, 1.10),
-            v2(0.38, 1.80),
-            v2(-0.72, 1.84),
-            v2(-0.80, 1.16),
-            v2(-2.15, 1.12),
-        ]
+        [v2(-0.72, 1.84), v2(-0.80, 1.16), v2(-2.15, 1.12)]
     } else {
-        vec![
-            v2(-2.15, 0.40),
-            v2(2.05, 0.40),
-            v2(2.15, 0.55),
-            v2(2.15, 0.92),
-            v2(2.05, 1.02),
-            v2(0.95, 1.10),
-            v2(0.38, 1.80),
-            v2(-1.95, 1.84),
-            v2(-2.12, 1.77),
-            v2(-2.15, 1.02),
-        ]
-    };
+        [v2(-1.95, 1.84), v2(-2.12, 1.77), v2(-2.15, 1.02)]
+    });
     b.prism(&profile, -hw, hw, id, body, body, false);
     // Side windows (thin closed panels on both sides).
     let front_win = [
