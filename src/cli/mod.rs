@@ -4,6 +4,7 @@ use anyhow::Result;
 use clap::{Parser, Subcommand};
 
 pub mod bench;
+pub mod bench_attack;
 pub mod bench_render;
 pub mod config;
 pub mod demo;
@@ -12,6 +13,7 @@ pub mod device;
 pub mod meshes;
 pub mod models;
 pub mod render;
+pub mod texture;
 pub mod train;
 
 /// Learn, fabricate and physically test coated adversarial camouflages.
@@ -28,6 +30,8 @@ pub enum Command {
     Demo(demo::Args),
     /// Learn a coated adversarial camouflage (the dense-proposals attack).
     Train(train::Args),
+    /// Write a simple baseline texture (natural, naive, random) as a PNG.
+    Texture(texture::Args),
     /// Render one view, or a contact sheet of sampled views.
     Render(render::Args),
     /// Detect COCO objects in images (CenterNet or NanoDet, TFJS models on burn).
@@ -54,12 +58,15 @@ pub enum BenchCmd {
     Render(bench_render::Args),
     /// The COCO detectors (burn) against the TFJS wasm runtime.
     Detect(bench::DetectBench),
+    /// The attack: iteration time split, and white-box error against wall time.
+    Attack(bench_attack::Args),
 }
 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Demo(a) => demo::run(a),
         Command::Render(a) => render::run(a),
+        Command::Texture(a) => texture::run(a),
         Command::Train(a) => train::run(a),
         Command::Detect(a) => detect::run(a),
         Command::Models { cmd } => models::run(cmd),
@@ -67,5 +74,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Config(a) => config::run(a),
         Command::Bench(BenchCmd::Render(a)) => bench_render::run(a),
         Command::Bench(BenchCmd::Detect(a)) => bench::run(bench::BenchCmd::Detect(a)),
+        Command::Bench(BenchCmd::Attack(a)) => bench_attack::run(a),
     }
 }
