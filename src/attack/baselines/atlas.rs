@@ -11,7 +11,8 @@ use crate::scene::{Scene, Texture};
 
 /// Per texel of a `res × res` atlas: could a paintable surface sample it? Paintable triangles
 /// are rasterised in UV space at 4 × 4 samples per texel, then the mask grows by one texel
-/// (bilinear sampling reads the neighbours of the texel a point falls in).
+/// (bilinear sampling reads the neighbours of the texel a point falls in; like the renderer's
+/// repeat addressing, the growth wraps around the atlas edges).
 pub fn paintable_texels(scene: &Scene, res: usize) -> Vec<bool> {
     let mut hit = vec![false; res * res];
     let rf = res as f32;
@@ -87,10 +88,10 @@ pub fn paintable_texels(scene: &Scene, res: usize) -> Vec<bool> {
                     (0, 1),
                     (1, 1),
                 ] {
-                    let (nx, ny) = (x as i64 + dx, y as i64 + dy);
-                    if nx >= 0 && ny >= 0 && (nx as usize) < res && (ny as usize) < res {
-                        out[ny as usize * res + nx as usize] = true;
-                    }
+                    // The renderer addresses the atlas with repeat: neighbours wrap around.
+                    let nx = (x as i64 + dx).rem_euclid(res as i64) as usize;
+                    let ny = (y as i64 + dy).rem_euclid(res as i64) as usize;
+                    out[ny * res + nx] = true;
                 }
             }
         }
