@@ -126,6 +126,32 @@ fn every_baseline_runs_with_finite_loss_and_changes_only_paintable_texels() {
 }
 
 #[test]
+fn a_resumed_patch_run_equals_an_uninterrupted_one() {
+    let (r, env, d) = setup();
+    let init = r.scene.initial_atlas(48);
+    let dev = burn::tensor::Device::autodiff(inference());
+    let cfg = config(Method::Advpat);
+    let mut a =
+        PatchTrainer::new(cfg.clone(), &r, &env, vec![d.as_ref()], dev.clone(), &init).unwrap();
+    for _ in 0..3 {
+        a.step().unwrap();
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let mut b =
+        PatchTrainer::new(cfg.clone(), &r, &env, vec![d.as_ref()], dev.clone(), &init).unwrap();
+    b.step().unwrap();
+    b.step().unwrap();
+    cac::attack::save_checkpoint(dir.path(), &b.state).unwrap();
+    let mut c = PatchTrainer::new(cfg, &r, &env, vec![d.as_ref()], dev, &init)
+        .unwrap()
+        .resume(dir.path())
+        .unwrap();
+    c.step().unwrap();
+    assert_eq!(a.state.atlas, c.state.atlas, "resumed patch differs");
+    assert_eq!(a.state.adam, c.state.adam);
+}
+
+#[test]
 fn patch_transforms_keep_values_in_unit_range_and_pass_gradients() {
     let dev = burn::tensor::Device::autodiff(inference());
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);

@@ -20,14 +20,20 @@ pub struct Args {
     #[arg(long, default_value_t = 3)]
     pub runs: usize,
     /// Iterations of each error-against-time run.
-    #[arg(long, default_value_t = 40)]
+    #[arg(long, default_value_t = 120)]
     pub iterations: usize,
     /// Evaluate every this many iterations.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 40)]
     pub eval_every: usize,
     /// Street-level views per brightness level.
     #[arg(long, default_value_t = 12)]
     pub views: usize,
+    /// Error-against-time settings, comma-separated BATCHxNxTEXTURE_RES.
+    #[arg(
+        long,
+        default_value = "1x300x256,2x300x256,2x50x256,2x300x128,2x300x512"
+    )]
+    pub settings: String,
     /// Skip the error-against-time part.
     #[arg(long)]
     pub split_only: bool,
@@ -45,6 +51,7 @@ pub fn run(a: Args) -> Result<()> {
     if a.runs == 0 || a.eval_every == 0 || a.views == 0 {
         anyhow::bail!("--runs, --eval-every and --views must be positive");
     }
+    parse_settings(&a.settings)?;
     let dets = train::load_detectors(&["nanodet".into()])?;
     let det = [dets[0].as_ref()];
     // (1) Time split on the default scene (512², 4 spp, 512² atlas).
@@ -107,13 +114,7 @@ pub fn run(a: Args) -> Result<()> {
         ..Default::default()
     };
     let inf = device::inference();
-    let settings = [
-        (1usize, 300usize, 256usize),
-        (2, 300, 256),
-        (2, 50, 256),
-        (2, 300, 128),
-        (2, 300, 512),
-    ];
+    let settings = parse_settings(&a.settings)?;
     println!("\nwhite-box error against training time: nanodet, target \"person\", demo scene (320², 1 spp), {} street-level views (416², 4 spp)", views.len());
     println!(
         "{:>5} {:>5} {:>7} {:>10} {:>10} {:>7} {:>14}",
@@ -184,4 +185,24 @@ pub fn run(a: Args) -> Result<()> {
     cac::io::write_atomic(&p, (rows.join("\n") + "\n").as_bytes())?;
     println!("wrote {}", p.display());
     Ok(())
+}
+
+/// `BATCHxNxRES,...` → `(batch, n, res)` triples.
+fn parse_settings(s: &str) -> Result<Vec<(usize, usize, usize)>> {
+    s.split(',')
+        .map(|t| {
+            let v: Vec<usize> = t
+                .trim()
+                .split('x')
+                .map(|x| x.parse::<usize>())
+                .collect::<std::result::Result<_, _>>()
+                .map_err(|_| anyhow::anyhow!("--settings: {t:?} is not BATCHxNxTEXTURE_RES"))?;
+            match v[..] {
+                [b, n, r] if b > 0 && n > 0 && (2..=8192).contains(&r) => Ok((b, n, r)),
+                _ => anyhow::bail!(
+                    "--settings: {t:?} is not BATCHxNxTEXTURE_RES with positive values"
+                ),
+            }
+        })
+        .collect()
 }
