@@ -34,6 +34,10 @@ pub struct Args {
         default_value = "1x300x256,2x300x256,2x50x256,2x300x128,2x300x512"
     )]
     pub settings: String,
+    /// Instead: compare CAC, the baselines and the simple textures (trains each method for
+    /// --iterations) and write PREFIX-methods.csv.
+    #[arg(long)]
+    pub methods: bool,
     /// Skip the error-against-time part.
     #[arg(long)]
     pub split_only: bool,
@@ -52,6 +56,16 @@ pub fn run(a: Args) -> Result<()> {
         anyhow::bail!("--runs, --eval-every and --views must be positive");
     }
     parse_settings(&a.settings)?;
+    if a.methods {
+        let p = a.csv.with_file_name(format!(
+            "{}-methods.csv",
+            a.csv
+                .file_name()
+                .and_then(|n| n.to_str())
+                .unwrap_or("bench-attack")
+        ));
+        return super::bench_methods::run(a.iterations, a.views, &p);
+    }
     let dets = train::load_detectors(&["nanodet".into()])?;
     let det = [dets[0].as_ref()];
     // (1) Time split on the default scene (512², 4 spp, 512² atlas).
