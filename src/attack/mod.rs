@@ -129,6 +129,8 @@ pub struct IterationLog {
     pub iteration: usize,
     pub loss: f64,
     pub grad_norm: f64,
+    /// Candidates the objective scored, summed over the batch and source models: the fixed
+    /// proposals (CAC, ShapeShifter, UPC), every candidate (CAMOU) or one per image (AdvPat).
     pub proposals: usize,
     pub ms_render: f64,
     pub ms_forward: f64,
