@@ -11,7 +11,10 @@
 //! exactly where the last checkpoint left off.
 
 pub mod adam;
+pub mod baselines;
 pub mod loss;
+pub mod report;
+pub mod textures;
 
 use crate::detect::Detector;
 use crate::environment::{self, Brightness, Condition, Environment, ViewpointSet};
@@ -19,6 +22,7 @@ use crate::render::{self, Renderer};
 use crate::scene::Texture;
 use adam::Adam;
 use anyhow::{bail, Context, Result};
+pub use baselines::Method;
 use burn::tensor::{Device, Tensor, TensorData};
 use loss::Goal;
 use rand::SeedableRng;
@@ -31,6 +35,8 @@ use std::time::Instant;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct AttackConfig {
+    /// The attack: CAC (this paper) or a baseline (`docs/attack.md` says how each is realised).
+    pub method: Method,
     /// Source detectors (an ensemble when several).
     pub models: Vec<String>,
     /// COCO class every proposal is pushed towards; ignored with `hide`.
@@ -48,6 +54,10 @@ pub struct AttackConfig {
     /// Write a checkpoint every this many iterations (0: only at the end).
     pub checkpoint_every: usize,
     pub viewpoints: ViewpointSet,
+    /// 2D methods: side of the trained patch in texels.
+    pub patch_res: usize,
+    /// 2D methods: tiles of the patch across the atlas side when it is put on the object.
+    pub patch_tiles: usize,
 }
 
 impl Default for AttackConfig {
@@ -64,13 +74,16 @@ impl Default for AttackConfig {
             seed: 0,
             checkpoint_every: 10,
             viewpoints: ViewpointSet::Free,
+            method: Method::Cac,
+            patch_res: 128,
+            patch_tiles: 4,
         }
     }
 }
 
 impl AttackConfig {
     pub fn goal(&self) -> Result<Goal> {
-        if self.hide {
+        if self.hide || !self.method.is_targeted() {
             return Ok(Goal::Hide);
         }
         match crate::detect::labels::class_id(&self.target) {
@@ -89,6 +102,23 @@ impl AttackConfig {
         if !(self.lr > 0.0 && self.lr.is_finite()) {
             bail!("learning rate must be positive");
         }
+        if self.hide && self.method != Method::Cac {
+            bail!(
+                "--hide applies to --method cac only: {} {}",
+                self.method.name(),
+                if self.method.is_targeted() {
+                    "is a targeted attack (it needs --target)"
+                } else {
+                    "already hides the vehicle (it is non-targeted)"
+                }
+            );
+        }
+        if self.method.is_2d() && !(4..=2048).contains(&self.patch_res) {
+            bail!("--patch-res must be 4..=2048, got {}", self.patch_res);
+        }
+        if self.method.is_2d() && !(1..=64).contains(&self.patch_tiles) {
+            bail!("--patch-tiles must be 1..=64, got {}", self.patch_tiles);
+        }
         self.goal().map(|_| ())
     }
 }
@@ -99,6 +129,8 @@ pub struct IterationLog {
     pub iteration: usize,
     pub loss: f64,
     pub grad_norm: f64,
+    /// Candidates the objective scored, summed over the batch and source models: the fixed
+    /// proposals (CAC, ShapeShifter, UPC), every candidate (CAMOU) or one per image (AdvPat).
     pub proposals: usize,
     pub ms_render: f64,
     pub ms_forward: f64,
@@ -130,6 +162,7 @@ pub struct Trainer<'a> {
 
 impl<'a> Trainer<'a> {
     /// Starts from `init` (the object's texture or a chosen initial atlas).
+    /// A CAC or 3D-baseline run (`config.method` must not be a 2D method).
     pub fn new(
         config: AttackConfig,
         renderer: &'a Renderer,
@@ -139,6 +172,12 @@ impl<'a> Trainer<'a> {
         init: &Texture,
     ) -> Result<Self> {
         config.validate()?;
+        if config.method.is_2d() {
+            bail!(
+                "{} trains a 2D patch: use baselines::PatchTrainer",
+                config.method.name()
+            );
+        }
         if detectors.len() != config.models.len() {
             bail!(
                 "{} detectors given for {} configured models",
@@ -188,19 +227,7 @@ impl<'a> Trainer<'a> {
 
     /// The conditions of iteration `i` (a pure function of the seed and `i`).
     pub fn conditions(&self, i: usize) -> Vec<Condition> {
-        let mut rng = ChaCha8Rng::seed_from_u64(
-            self.config.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (i as u64).wrapping_add(1),
-        );
-        (0..self.config.batch)
-            .map(|k| {
-                let b = if k % 2 == 0 {
-                    Brightness::Bright
-                } else {
-                    Brightness::Dark
-                };
-                self.env.sample(self.config.viewpoints, b, &mut rng)
-            })
-            .collect()
+        draw_conditions(self.env, &self.config, i)
     }
 
     /// The current atlas as a texture.
@@ -247,9 +274,14 @@ impl<'a> Trainer<'a> {
         let mut proposals = 0;
         for det in &self.detectors {
             let c = det.candidates(images.clone())?;
-            let sel = loss::select_proposals(&c, self.config.top_n, self.config.nms_iou)?;
-            proposals += sel.iter().map(Vec::len).sum::<usize>();
-            let l = loss::proposals_loss(c.logits, &sel, goal)?;
+            let (l, n) = baselines::objective(
+                self.config.method,
+                c,
+                self.config.top_n,
+                self.config.nms_iou,
+                goal,
+            )?;
+            proposals += n;
             total = Some(match total {
                 Some(t) => t + l,
                 None => l,
@@ -293,6 +325,62 @@ impl<'a> Trainer<'a> {
         self.state.log.push(log.clone());
         self.state.iteration += 1;
         Ok(log)
+    }
+}
+
+/// The batch of conditions of iteration `i`: a pure function of the run seed and `i`, so a
+/// resumed run draws the same batches; brightness alternates bright, dark.
+pub fn draw_conditions(env: &Environment, config: &AttackConfig, i: usize) -> Vec<Condition> {
+    let mut rng = ChaCha8Rng::seed_from_u64(
+        config.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (i as u64).wrapping_add(1),
+    );
+    (0..config.batch)
+        .map(|k| {
+            let b = if k % 2 == 0 {
+                Brightness::Bright
+            } else {
+                Brightness::Dark
+            };
+            env.sample(config.viewpoints, b, &mut rng)
+        })
+        .collect()
+}
+
+/// A training run the CLI can drive: CAC and the 3D baselines ([`Trainer`]) or the 2D patch
+/// baselines ([`baselines::PatchTrainer`]).
+pub trait Run {
+    fn config(&self) -> &AttackConfig;
+    /// Iteration count, optimiser state and log (for 2D methods the state's atlas is the patch).
+    fn state(&self) -> &Checkpoint;
+    fn step(&mut self) -> Result<IterationLog>;
+    /// The camouflage atlas as it goes on the object.
+    fn atlas(&self) -> Texture;
+    fn renderer(&self) -> &Renderer;
+    fn env(&self) -> &Environment;
+    /// Extra images for the run folder (name, image), e.g. the 2D patch.
+    fn extra_images(&self) -> Vec<(String, image::RgbImage)> {
+        vec![]
+    }
+}
+
+impl Run for Trainer<'_> {
+    fn config(&self) -> &AttackConfig {
+        &self.config
+    }
+    fn state(&self) -> &Checkpoint {
+        &self.state
+    }
+    fn step(&mut self) -> Result<IterationLog> {
+        Trainer::step(self)
+    }
+    fn atlas(&self) -> Texture {
+        Trainer::atlas(self)
+    }
+    fn renderer(&self) -> &Renderer {
+        self.renderer
+    }
+    fn env(&self) -> &Environment {
+        self.env
     }
 }
 

@@ -4,6 +4,8 @@ use anyhow::Result;
 use clap::{Parser, Subcommand};
 
 pub mod bench;
+pub mod bench_attack;
+pub mod bench_methods;
 pub mod bench_render;
 pub mod config;
 pub mod demo;
@@ -13,6 +15,7 @@ pub mod export;
 pub mod meshes;
 pub mod models;
 pub mod render;
+pub mod texture;
 pub mod train;
 
 /// Learn, fabricate and physically test coated adversarial camouflages.
@@ -29,6 +32,8 @@ pub enum Command {
     Demo(demo::Args),
     /// Learn a coated adversarial camouflage (the dense-proposals attack).
     Train(train::Args),
+    /// Write a simple baseline texture (natural, naive, random) as a PNG.
+    Texture(texture::Args),
     /// Render one view, or a contact sheet of sampled views.
     Render(render::Args),
     /// Detect COCO objects in images (CenterNet or NanoDet, TFJS models on burn).
@@ -59,12 +64,15 @@ pub enum BenchCmd {
     Detect(bench::DetectBench),
     /// Bake error against triangles and seconds for several subdivision limits.
     Export(export::BenchArgs),
+    /// The attack: iteration time split, and white-box error against wall time.
+    Attack(bench_attack::Args),
 }
 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Demo(a) => demo::run(a),
         Command::Render(a) => render::run(a),
+        Command::Texture(a) => texture::run(a),
         Command::Train(a) => train::run(a),
         Command::Detect(a) => detect::run(a),
         Command::Models { cmd } => models::run(cmd),
@@ -74,5 +82,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Bench(BenchCmd::Detect(a)) => bench::run(bench::BenchCmd::Detect(a)),
         Command::Export(a) => export::run(a),
         Command::Bench(BenchCmd::Export(a)) => export::bench(a),
+        Command::Bench(BenchCmd::Attack(a)) => bench_attack::run(a),
     }
 }

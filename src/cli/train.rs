@@ -1,9 +1,10 @@
-//! `cac train`: learn a camouflage; writes a run folder (run.json, atlas.png, views.png,
-//! checkpoints) and resumes with `--resume DIR`.
+//! `cac train`: learn a camouflage with CAC or a baseline (`--method`); writes a run folder
+//! (run.json, atlas.png, views.png, loss.png, checkpoints, and patch.png for 2D methods) and resumes
+//! with `--resume DIR`.
 
 use super::device;
 use anyhow::{bail, Context, Result};
-use cac::attack::{self, AttackConfig, Trainer};
+use cac::attack::{self, baselines::PatchTrainer, AttackConfig, Method, Run, Trainer};
 use cac::config::SceneConfig;
 use cac::detect::{self, Detector};
 use cac::environment::{Environment, ViewpointSet};
@@ -13,6 +14,10 @@ use std::path::{Path, PathBuf};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
+    /// The attack: cac (this paper) or a baseline (advpat, shapeshifter: 2D patch tiled on the
+    /// object; upc, camou: full atlas in 3D). See docs/attack.md.
+    #[arg(long, value_enum, default_value_t = Method::Cac)]
+    pub method: Method,
     /// Scene config (TOML); defaults to the built-in jeep and the paper's environment.
     #[arg(long)]
     pub config: Option<PathBuf>,
@@ -53,6 +58,12 @@ pub struct Args {
     /// Train on side views only (the restricted viewpoint set).
     #[arg(long)]
     pub restricted: bool,
+    /// 2D methods: side of the patch in texels.
+    #[arg(long, default_value_t = 128)]
+    pub patch_res: usize,
+    /// 2D methods: copies of the patch across the atlas side when it is put on the object.
+    #[arg(long, default_value_t = 4)]
+    pub patch_tiles: usize,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -85,6 +96,9 @@ pub fn run(a: Args) -> Result<()> {
             cfg.render.atlas_res = r;
         }
         let ac = AttackConfig {
+            method: a.method,
+            patch_res: a.patch_res,
+            patch_tiles: a.patch_tiles,
             models: a.models.clone(),
             target: a.target.clone(),
             hide: a.hide,
@@ -101,33 +115,49 @@ pub fn run(a: Args) -> Result<()> {
             },
             ..Default::default()
         };
+        ac.validate()?;
+        if !a.method.is_targeted() && a.target != "person" {
+            eprintln!(
+                "note: {} is non-targeted; --target {:?} is ignored",
+                a.method.name(),
+                a.target
+            );
+        }
         (cfg, ac)
     };
     let scene = cfg.object.load()?;
     let init = match &a.init {
-        Some(p) => cac::scene::Texture::from_rgb8(&cac::io::load_rgb(p)?),
+        Some(p) => cac::scene::Texture::from_rgb8(
+            &cac::io::load_rgb(p).with_context(|| format!("--init {}", p.display()))?,
+        ),
         None => scene.initial_atlas(cfg.render.atlas_res),
     };
     let renderer = Renderer::new(scene, cfg.render.clone())?;
     let env = Environment::new(cfg.environment.clone())?;
     let dets = load_detectors(&attack_cfg.models)?;
-    let mut tr = Trainer::new(
-        attack_cfg.clone(),
-        &renderer,
-        &env,
-        dets.iter().map(|d| d.as_ref()).collect(),
-        device::training(),
-        &init,
-    )?;
+    let dets_ref: Vec<&dyn Detector> = dets.iter().map(|d| d.as_ref()).collect();
+    let dev = device::training();
+    let mut tr: Box<dyn Run> = if attack_cfg.method.is_2d() {
+        let t = PatchTrainer::new(attack_cfg.clone(), &renderer, &env, dets_ref, dev, &init)?;
+        Box::new(match &a.resume {
+            Some(d) => t.resume(d)?,
+            None => t,
+        })
+    } else {
+        let t = Trainer::new(attack_cfg.clone(), &renderer, &env, dets_ref, dev, &init)?;
+        Box::new(match &a.resume {
+            Some(d) => t.resume(d)?,
+            None => t,
+        })
+    };
     if a.resume.is_some() {
-        tr = tr.resume(&run_dir)?;
         println!(
             "resuming {} at iteration {}",
             run_dir.display(),
-            tr.state.iteration
+            tr.state().iteration
         );
     }
-    train_loop(&mut tr, &run_dir, &cfg, true)?;
+    train_loop(tr.as_mut(), &run_dir, &cfg, true)?;
     println!("wrote {}", run_dir.display());
     Ok(())
 }
@@ -143,14 +173,14 @@ pub fn load_detectors(names: &[String]) -> Result<Vec<Box<dyn Detector>>> {
 
 /// Runs the remaining iterations with a progress bar, checkpointing and writing the run folder.
 pub fn train_loop(
-    tr: &mut Trainer,
+    tr: &mut dyn Run,
     run_dir: &Path,
     cfg: &SceneConfig,
     progress: bool,
 ) -> Result<()> {
     std::fs::create_dir_all(run_dir)
         .with_context(|| format!("cannot create run folder {}", run_dir.display()))?;
-    let total = tr.config.iterations;
+    let total = tr.config().iterations;
     let pb = if progress {
         ProgressBar::new(total as u64)
     } else {
@@ -160,38 +190,51 @@ pub fn train_loop(
         ProgressStyle::with_template("{bar:30} {pos}/{len} iterations, loss {msg}, ETA {eta}")
             .expect("template"),
     );
-    pb.set_position(tr.state.iteration as u64);
+    pb.set_position(tr.state().iteration as u64);
     write_run(tr, run_dir, cfg, false)?;
-    while tr.state.iteration < total {
+    while tr.state().iteration < total {
         let log = tr.step()?;
         pb.set_message(format!("{:.4}", log.loss));
         pb.inc(1);
-        let k = tr.config.checkpoint_every;
-        if k > 0 && tr.state.iteration % k == 0 && tr.state.iteration < total {
-            attack::save_checkpoint(run_dir, &tr.state)?;
+        let (k, it) = (tr.config().checkpoint_every, tr.state().iteration);
+        if k > 0 && it % k == 0 && it < total {
+            attack::save_checkpoint(run_dir, tr.state())?;
             write_run(tr, run_dir, cfg, false)?;
         }
     }
     pb.finish_and_clear();
-    attack::save_checkpoint(run_dir, &tr.state)?;
+    attack::save_checkpoint(run_dir, tr.state())?;
     write_run(tr, run_dir, cfg, true)
 }
 
-fn write_run(tr: &Trainer, run_dir: &Path, cfg: &SceneConfig, finished: bool) -> Result<()> {
+fn write_run(tr: &dyn Run, run_dir: &Path, cfg: &SceneConfig, finished: bool) -> Result<()> {
     let run = serde_json::json!({
         "cac_version": env!("CARGO_PKG_VERSION"),
         "burn_version": "0.22.1",
         "finished": finished,
-        "seed": tr.config.seed,
-        "attack": tr.config,
+        "seed": tr.config().seed,
+        "method": tr.config().method,
+        "attack": tr.config(),
         "scene": cfg,
-        "iteration": tr.state.iteration,
-        "log": tr.state.log,
+        "iteration": tr.state().iteration,
+        "log": tr.state().log,
     });
     cac::io::write_atomic(
         &run_dir.join("run.json"),
         serde_json::to_string_pretty(&run)?.as_bytes(),
     )?;
-    cac::io::save_png_atomic(&run_dir.join("atlas.png"), &tr.atlas().to_rgb8())?;
+    let atlas = tr.atlas();
+    cac::io::save_png_atomic(&run_dir.join("atlas.png"), &atlas.to_rgb8())?;
+    for (name, img) in tr.extra_images() {
+        cac::io::save_png_atomic(&run_dir.join(name), &img)?;
+    }
+    let title = format!("{} loss", tr.config().method.name());
+    let plot = attack::report::loss_plot(&tr.state().log, &title, 640, 400)?;
+    cac::io::save_png_atomic(&run_dir.join("loss.png"), &plot)?;
+    if finished {
+        let sheet =
+            attack::report::views_sheet(tr.renderer(), tr.env(), &atlas, 8, &device::inference())?;
+        cac::io::save_png_atomic(&run_dir.join("views.png"), &sheet)?;
+    }
     Ok(())
 }

@@ -1,0 +1,121 @@
+//! `cac bench attack --methods`: CAC, the four attack baselines and the three simple textures in one
+//! harness: each attack trained for the same iterations (batch 2, n = 300, the demo's scene), then
+//! every texture scored on the same street-level views by NanoDet (white-box) and CenterNet
+//! (transfer). Prints a table and writes a CSV. A benchmark, not a test.
+
+use super::{demo, device, train};
+use anyhow::Result;
+use cac::attack::baselines::PatchTrainer;
+use cac::attack::textures::{self, Kind};
+use cac::attack::{AttackConfig, Method, Run, Trainer};
+use cac::environment::{Brightness, Environment};
+use cac::eval::{self, Protocol};
+use cac::render::{RenderSettings, Renderer};
+use std::path::Path;
+use std::time::Instant;
+
+pub fn run(iterations: usize, views_per_level: usize, csv: &Path) -> Result<()> {
+    let cfg = demo::demo_scene();
+    let scene = cfg.object.load()?;
+    let res = cfg.render.atlas_res;
+    let original = scene.initial_atlas(res);
+    let r = Renderer::new(scene, cfg.render.clone())?;
+    let eval_r = Renderer::new(
+        r.scene.clone(),
+        RenderSettings {
+            width: 416,
+            height: 416,
+            samples: 4,
+            ..cfg.render.clone()
+        },
+    )?;
+    let env = Environment::new(cfg.environment.clone())?;
+    let dets = train::load_detectors(&["nanodet".into(), "centernet".into()])?;
+    let all: Vec<&dyn cac::detect::Detector> = dets.iter().map(|d| d.as_ref()).collect();
+    let mut views = eval::street_views(views_per_level, 1.5, Brightness::Bright);
+    views.extend(eval::street_views(views_per_level, 1.5, Brightness::Dark));
+    let proto = Protocol {
+        target: Some(0),
+        ..Default::default()
+    };
+    let mask = cac::attack::baselines::atlas::paintable_texels(&r.scene, res);
+    let mut rows = vec![
+        "texture,train_s,nanodet_p05,nanodet_person,centernet_p05,centernet_person".to_string(),
+    ];
+    println!("{} views (416², 4 spp); P@0.5 = car/truck at IoU >= 0.5, conf >= 0.3; {iterations} iterations, batch 2, n = 300, target person", views.len());
+    println!(
+        "{:<13} {:>8} {:>12} {:>15} {:>14} {:>17}",
+        "texture",
+        "train_s",
+        "nanodet P@.5",
+        "nanodet person",
+        "centernet P@.5",
+        "centernet person"
+    );
+    let mut report = |name: &str, secs: f64, atlas: &cac::scene::Texture| -> Result<()> {
+        let out = eval::evaluate(
+            &eval_r,
+            &env,
+            &views,
+            atlas,
+            &all,
+            &proto,
+            &device::inference(),
+        )?;
+        let (n, c) = (
+            eval::summarise(&out.scores[0]),
+            eval::summarise(&out.scores[1]),
+        );
+        println!(
+            "{name:<13} {secs:>8.0} {:>12.3} {:>15.3} {:>14.3} {:>17.3}",
+            n.p_at_05, n.targeted_success, c.p_at_05, c.targeted_success
+        );
+        rows.push(format!(
+            "{name},{secs:.1},{:.4},{:.4},{:.4},{:.4}",
+            n.p_at_05, n.targeted_success, c.p_at_05, c.targeted_success
+        ));
+        Ok(())
+    };
+    report("original", 0.0, &original)?;
+    for kind in [Kind::Natural, Kind::Naive, Kind::Random] {
+        // Simple textures go on the paintable texels only, like every attack's atlas.
+        let t = textures::generate(kind, res, 0)?;
+        let mut a = original.clone();
+        for (k, m) in mask.iter().enumerate() {
+            if *m {
+                a.texels[k] = t.texels[k];
+            }
+        }
+        report(&format!("{kind:?}").to_lowercase(), 0.0, &a)?;
+    }
+    for method in Method::ALL {
+        let ac = AttackConfig {
+            method,
+            iterations,
+            batch: 2,
+            checkpoint_every: 0,
+            ..Default::default()
+        };
+        let dev = device::training();
+        let mut tr: Box<dyn Run> = if method.is_2d() {
+            Box::new(PatchTrainer::new(
+                ac,
+                &r,
+                &env,
+                vec![all[0]],
+                dev,
+                &original,
+            )?)
+        } else {
+            Box::new(Trainer::new(ac, &r, &env, vec![all[0]], dev, &original)?)
+        };
+        let t = Instant::now();
+        while tr.state().iteration < iterations {
+            tr.step()?;
+        }
+        report(method.name(), t.elapsed().as_secs_f64(), &tr.atlas())?;
+    }
+    cac::io::write_atomic(csv, (rows.join("\n") + "\n").as_bytes())?;
+    println!("wrote {}", csv.display());
+    Ok(())
+}
