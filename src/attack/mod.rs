@@ -270,24 +270,8 @@ impl<'a> Trainer<'a> {
         );
         let ms_render = t0.elapsed().as_secs_f64() * 1e3;
         let t1 = Instant::now();
-        let mut total: Option<Tensor<1>> = None;
-        let mut proposals = 0;
-        for det in &self.detectors {
-            let c = det.candidates(images.clone())?;
-            let (l, n) = baselines::objective(
-                self.config.method,
-                c,
-                self.config.top_n,
-                self.config.nms_iou,
-                goal,
-            )?;
-            proposals += n;
-            total = Some(match total {
-                Some(t) => t + l,
-                None => l,
-            });
-        }
-        let loss = total.context("no detector")? / self.detectors.len() as f64;
+        let (loss, proposals) = ensemble_loss(&self.detectors, &images, &self.config, goal)?;
+        let loss = loss;
         let loss_value = loss
             .clone()
             .into_data()
@@ -382,6 +366,31 @@ impl Run for Trainer<'_> {
     fn env(&self) -> &Environment {
         self.env
     }
+}
+
+/// The loss of one image batch averaged over the source detectors (an ensemble), and the number of
+/// fixed proposals it was taken over. Shared by the 3D trainer and the 2D patch trainer.
+pub fn ensemble_loss(
+    detectors: &[&dyn Detector],
+    images: &Tensor<4>,
+    config: &AttackConfig,
+    goal: Goal,
+) -> Result<(Tensor<1>, usize)> {
+    let mut total: Option<Tensor<1>> = None;
+    let mut proposals = 0;
+    for det in detectors {
+        let c = det.candidates(images.clone())?;
+        let (l, n) = baselines::objective(config.method, c, config.top_n, config.nms_iou, goal)?;
+        proposals += n;
+        total = Some(match total {
+            Some(t) => t + l,
+            None => l,
+        });
+    }
+    Ok((
+        total.context("no detector")? / detectors.len() as f64,
+        proposals,
+    ))
 }
 
 const CHECKPOINT: &str = "checkpoint";

@@ -7,10 +7,10 @@
 //! run seed and the iteration), so resuming from a checkpoint continues exactly. Not here: the
 //! objectives ([`super::objectives`]) or the transforms themselves ([`super::patch2d`]).
 
-use super::{atlas, objectives, patch2d, Method};
+use super::{atlas, patch2d, Method};
 use crate::attack::adam::Adam;
 use crate::attack::{
-    draw_conditions, load_checkpoint, AttackConfig, Checkpoint, IterationLog, Run,
+    draw_conditions, ensemble_loss, load_checkpoint, AttackConfig, Checkpoint, IterationLog, Run,
 };
 use crate::detect::Detector;
 use crate::environment::{self, Environment};
@@ -172,24 +172,8 @@ impl<'a> PatchTrainer<'a> {
         let images = patch2d::paste(&bg, dims, patch.clone(), &ts, &self.device)?;
         let ms_render = t0.elapsed().as_secs_f64() * 1e3;
         let t1 = Instant::now();
-        let mut total: Option<Tensor<1>> = None;
-        let mut proposals = 0;
-        for det in &self.detectors {
-            let c = det.candidates(images.clone())?;
-            let (l, n) = objectives::objective(
-                self.config.method,
-                c,
-                self.config.top_n,
-                self.config.nms_iou,
-                goal,
-            )?;
-            proposals += n;
-            total = Some(match total {
-                Some(t) => t + l,
-                None => l,
-            });
-        }
-        let mut loss = total.context("no detector")? / self.detectors.len() as f64;
+        let (loss, proposals) = ensemble_loss(&self.detectors, &images, &self.config, goal)?;
+        let mut loss = loss;
         if self.config.method == Method::Advpat {
             loss = loss + total_variation(patch.clone()) * TV_WEIGHT;
         }
