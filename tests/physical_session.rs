@@ -11,7 +11,7 @@ use cac::physical::session::{self, CaptureOptions, SessionInfo, SessionPlan};
 use cac::physical::simrig::{faults_by_name, SimRig};
 use cac::physical::truth::ground_truth_box;
 use cac::physical::twin::{DigitalTwin, Pose};
-use cac::sim::{FaultCounts, MotionKind};
+use cac::sim::{FaultConfig, FaultCounts, MotionKind};
 use firmware_protocol::{Axis, DoneEnd};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -180,10 +180,11 @@ struct Outcome {
 }
 
 /// Runs a whole session in-process against the simulated rig and checks it exactly-once.
-fn run_session(name: &str, faults: &str, seed: u64, rail: bool) -> Outcome {
+fn run_session(name: &str, faults: FaultConfig, rail: bool) -> Outcome {
+    let seed = faults.seed;
     let dir = tempfile::tempdir().unwrap();
     let rig = Arc::new(Rig::load(&rig_file(dir.path(), rail, [96, 72], [0.0, 0.0])).unwrap());
-    let sim = SimRig::spawn(&rig, faults_by_name(faults, seed).unwrap(), SPEEDUP).unwrap();
+    let sim = SimRig::spawn(&rig, faults, SPEEDUP).unwrap();
     let mut stage = sim.stage(&rig).unwrap_or_else(|e| panic!("[{name}] {e:#}"));
     let atlas = rig.renderer.scene.initial_atlas(64);
     let mut cam = DigitalTwin::new(rig.clone(), &atlas, sim.pose_source(), seed);
@@ -321,44 +322,50 @@ fn check_exactly_once(name: &str, entries: &[Entry], plan: &SessionPlan, dir: &P
 
 #[test]
 fn session_clean_without_rail_operator_moves_camera() {
-    let o = run_session("clean, no rail", "none", 30, false);
+    let o = run_session("clean, no rail", faults_by_name("none", 30).unwrap(), false);
     assert_eq!(o.faults.total(), 0);
     assert_eq!(o.boots, 1);
+    assert!(
+        o.entries.iter().all(|e| e.device["rail_um"].is_null()),
+        "no rail moved"
+    );
 }
 
 #[test]
 fn session_dropped_bytes() {
-    let o = run_session("drops", "drops", 31, true);
+    let o = run_session("drops", faults_by_name("drops", 31).unwrap(), true);
     assert!(o.faults.dropped > 0, "{}", o.faults);
 }
 
 #[test]
 fn session_garbled_bytes() {
-    let o = run_session("garbles", "garbles", 32, true);
+    let o = run_session("garbles", faults_by_name("garbles", 32).unwrap(), true);
     assert!(o.faults.garbled > 0, "{}", o.faults);
 }
 
 #[test]
 fn session_delays() {
-    let o = run_session("delays", "delays", 33, true);
+    let o = run_session("delays", faults_by_name("delays", 33).unwrap(), true);
     assert!(o.faults.delayed > 0, "{}", o.faults);
 }
 
 #[test]
 fn session_resets_mid_move() {
-    let o = run_session("resets", "resets", 34, true);
+    let o = run_session("resets", faults_by_name("resets", 34).unwrap(), true);
     assert!(o.faults.resets > 0 && o.boots > 1, "{}", o.faults);
 }
 
 #[test]
 fn session_disconnects() {
-    let o = run_session("disconnects", "disconnects", 35, true);
-    assert!(o.faults.disconnects > 0, "{}", o.faults);
+    // More often than the CLI's rate, so that a short session sees several.
+    let f = FaultConfig::disconnects(35, 0.15, Duration::from_millis(1500));
+    let o = run_session("disconnects", f, true);
+    assert!(o.faults.disconnects >= 2, "{}", o.faults);
 }
 
 #[test]
 fn session_mix_then_scored() {
-    let o = run_session("mix", "mix", 36, true);
+    let o = run_session("mix", faults_by_name("mix", 36).unwrap(), true);
     assert!(o.faults.total() > 0, "{}", o.faults);
     let dir = o.dir.path().join("session");
     let device = burn::tensor::Device::from(burn::backend::FlexDevice);
