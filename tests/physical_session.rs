@@ -371,7 +371,7 @@ fn session_mix_then_scored() {
     let models = cac::detect::fetch::ensure_models().expect("detector models");
     let det = cac::detect::load("nanodet", &models, &device).unwrap();
     let p = cac::eval::Protocol::default();
-    let s = cac::physical::score::score(&dir, &[det.as_ref()], &p, &device).unwrap();
+    let s = cac::physical::score::score(&dir, &[det.as_ref()], &p, &device, false).unwrap();
     assert_eq!(s.frames.len(), 16);
     let rig = Rig::load(&dir.parent().unwrap().join("rig.toml")).unwrap();
     for f in &s.frames {
