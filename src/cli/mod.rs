@@ -7,6 +7,7 @@ pub mod bench;
 pub mod bench_attack;
 pub mod bench_methods;
 pub mod bench_render;
+pub mod capture;
 pub mod config;
 pub mod demo;
 pub mod detect;
@@ -15,6 +16,7 @@ pub mod export;
 pub mod meshes;
 pub mod models;
 pub mod render;
+pub mod score;
 pub mod texture;
 pub mod train;
 
@@ -50,6 +52,10 @@ pub enum Command {
     Export(export::Args),
     /// Print the default scene config (TOML), or check a config file.
     Config(config::Args),
+    /// Physical test: turn, settle and capture frames into a session folder (or simulate).
+    Capture(capture::Args),
+    /// Score a capture session: P@0.5 per distance ratio and angle, JSON/CSV/HTML report.
+    Score(score::Args),
     /// Benchmarks: print a table and write CSV (timings are measured here, never in tests).
     #[command(subcommand)]
     Bench(BenchCmd),
@@ -81,6 +87,8 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Bench(BenchCmd::Render(a)) => bench_render::run(a),
         Command::Bench(BenchCmd::Detect(a)) => bench::run(bench::BenchCmd::Detect(a)),
         Command::Export(a) => export::run(a),
+        Command::Capture(a) => capture::run(a),
+        Command::Score(a) => score::run(a),
         Command::Bench(BenchCmd::Export(a)) => export::bench(a),
         Command::Bench(BenchCmd::Attack(a)) => bench_attack::run(a),
     }
