@@ -11,6 +11,7 @@ pub mod config;
 pub mod demo;
 pub mod detect;
 pub mod device;
+pub mod eval;
 pub mod export;
 pub mod meshes;
 pub mod models;
@@ -50,6 +51,8 @@ pub enum Command {
     Export(export::Args),
     /// Print the default scene config (TOML), or check a config file.
     Config(config::Args),
+    /// Evaluate textures: P@0.5, drop and targeted success in FV/RV, bright/dark views; reports.
+    Eval(eval::Args),
     /// Benchmarks: print a table and write CSV (timings are measured here, never in tests).
     #[command(subcommand)]
     Bench(BenchCmd),
@@ -71,6 +74,7 @@ pub enum BenchCmd {
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Demo(a) => demo::run(a),
+        Command::Eval(a) => eval::run(a),
         Command::Render(a) => render::run(a),
         Command::Texture(a) => texture::run(a),
         Command::Train(a) => train::run(a),
