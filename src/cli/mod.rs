@@ -12,6 +12,7 @@ pub mod demo;
 pub mod detect;
 pub mod device;
 pub mod eval;
+pub mod explain;
 pub mod export;
 pub mod meshes;
 pub mod models;
@@ -53,6 +54,8 @@ pub enum Command {
     Config(config::Args),
     /// Evaluate textures: P@0.5, drop and targeted success in FV/RV, bright/dark views; reports.
     Eval(eval::Args),
+    /// Grad-CAM attention map of a detector's class score for an image, as an overlay PNG.
+    Explain(explain::Args),
     /// Benchmarks: print a table and write CSV (timings are measured here, never in tests).
     #[command(subcommand)]
     Bench(BenchCmd),
@@ -75,6 +78,7 @@ pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Demo(a) => demo::run(a),
         Command::Eval(a) => eval::run(a),
+        Command::Explain(a) => explain::run(a),
         Command::Render(a) => render::run(a),
         Command::Texture(a) => texture::run(a),
         Command::Train(a) => train::run(a),

@@ -7,6 +7,7 @@
 //! texture list, [`cache`] keeps finished textures so an interrupted evaluation resumes.
 
 pub mod cache;
+pub mod gradcam;
 pub mod job;
 pub mod report;
 pub mod run;

@@ -331,3 +331,67 @@ pub fn breakdown_rows(records: &[ImageRecord], textures: &[String], models: &[St
     }
     t
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::eval::ImageScore;
+
+    fn rec(tex: &str, set: ViewpointSet, b: Brightness, az: f32, hit: bool) -> ImageRecord {
+        ImageRecord {
+            texture: tex.into(),
+            model: "m".into(),
+            set,
+            brightness: b,
+            view: 0,
+            azimuth_deg: az,
+            elevation_deg: 5.0,
+            distance_ratio: 1.2,
+            gt: [0.0; 4],
+            score: ImageScore {
+                hit,
+                targeted: !hit,
+                best_true_conf: if hit { 0.8 } else { 0.1 },
+            },
+        }
+    }
+
+    #[test]
+    fn tables_drops_and_breakdowns_count_the_right_images() {
+        use Brightness::*;
+        use ViewpointSet::*;
+        let mut r = vec![];
+        // Original: all hits in FV bright, half in FV dark; CAC: a quarter of FV bright, none dark.
+        for k in 0..4 {
+            r.push(rec("Original", Free, Bright, 10.0 + 90.0 * k as f32, true));
+            r.push(rec("Original", Free, Dark, 10.0, k < 2));
+            r.push(rec("CAC", Free, Bright, 10.0 + 90.0 * k as f32, k == 0));
+            r.push(rec("CAC", Free, Dark, 10.0, false));
+        }
+        let tex = vec!["Original".to_string(), "CAC".to_string()];
+        let t = level_table(&r, &tex, &["m".into()], Free, "Original", Metric::P05);
+        assert_eq!(t.rows[0], ["Original", "1.000", "0.500", "0.750 (–)"]);
+        assert_eq!(t.rows[1], ["CAC", "0.250", "0.000", "0.125 (0.625)"]);
+        assert_eq!(t.flat_header()[3], "m Avg (Drop)");
+        let f = figures(&r, sel("CAC", "m", Some(Free), Some(Bright)));
+        assert!((f.p_stderr - (0.25f64 * 0.75 / 4.0).sqrt()).abs() < 1e-12);
+        assert!((f.targeted_success - 0.75).abs() < 1e-12);
+        let bins = breakdown(
+            r.iter().filter(|x| x.texture == "Original"),
+            Factor::Azimuth,
+        );
+        assert_eq!(
+            bins.len(),
+            4,
+            "azimuths 10, 100, 190, 280 fall in four 30° bins"
+        );
+        assert_eq!(
+            (bins[0].lo, bins[0].hi, bins[0].figures.images),
+            (0.0, 30.0, 5)
+        );
+        assert!((bins[0].figures.p_at_05 - 0.6).abs() < 1e-12, "3 of 5 hits");
+        let s = summary_rows(&r, &tex, &["m".into()], &[Free], "Original");
+        assert_eq!(s.rows.len(), 2 * 3);
+        assert_eq!(s.rows[5][7], "0.6250", "CAC drop over both levels");
+    }
+}
