@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 
 pub mod bench;
 pub mod bench_attack;
+pub mod bench_eval;
 pub mod bench_methods;
 pub mod bench_render;
 pub mod config;
@@ -72,6 +73,8 @@ pub enum BenchCmd {
     Export(export::BenchArgs),
     /// The attack: iteration time split, and white-box error against wall time.
     Attack(bench_attack::Args),
+    /// Evaluation throughput: images scored per second (render + detect + score) per detector.
+    Eval(bench_eval::Args),
 }
 
 pub fn run(cli: Cli) -> Result<()> {
@@ -91,5 +94,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Export(a) => export::run(a),
         Command::Bench(BenchCmd::Export(a)) => export::bench(a),
         Command::Bench(BenchCmd::Attack(a)) => bench_attack::run(a),
+        Command::Bench(BenchCmd::Eval(a)) => bench_eval::run(a),
     }
 }
