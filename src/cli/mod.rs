@@ -18,6 +18,7 @@ pub mod export;
 pub mod meshes;
 pub mod models;
 pub mod render;
+pub mod study;
 pub mod texture;
 pub mod train;
 
@@ -57,6 +58,9 @@ pub enum Command {
     Eval(eval::Args),
     /// Grad-CAM attention map of a detector's class score for an image, as an overlay PNG.
     Explain(explain::Args),
+    /// Studies built from training runs and evaluations (the top-n denseness study).
+    #[command(subcommand)]
+    Study(study::Cmd),
     /// Benchmarks: print a table and write CSV (timings are measured here, never in tests).
     #[command(subcommand)]
     Bench(BenchCmd),
@@ -82,6 +86,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Demo(a) => demo::run(a),
         Command::Eval(a) => eval::run(a),
         Command::Explain(a) => explain::run(a),
+        Command::Study(c) => study::run(c),
         Command::Render(a) => render::run(a),
         Command::Texture(a) => texture::run(a),
         Command::Train(a) => train::run(a),
