@@ -111,6 +111,7 @@ pub fn run(
         reference,
         models,
         skipped,
+        reused: reused.clone(),
         seconds: start.elapsed().as_secs_f64(),
     };
     let mut files = vec![];

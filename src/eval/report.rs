@@ -25,6 +25,8 @@ pub struct EvalInfo {
     pub models: Vec<String>,
     /// Views without a visible object, per texture (excluded).
     pub skipped: Vec<usize>,
+    /// Textures whose records came from the cache of an earlier run.
+    pub reused: Vec<String>,
     pub seconds: f64,
 }
 
@@ -51,8 +53,8 @@ pub fn protocol_text(i: &EvalInfo) -> String {
          render: {w}x{h}, {spp} samples per pixel, vertical FOV {fov} deg, atlas {atlas}^2\n\
          hit: a true-class ({tc}) detection with IoU >= {iou} against the ground-truth box (object mask) \
          and confidence >= {conf}; P@0.5 = hits / images\n\
-         Drop = P@0.5({reference}) - P@0.5(texture); targeted success: a {target} detection with \
-         IoU >= {iou} and confidence >= {conf}; mean best true-class confidence over detections with IoU >= {iou}\n\
+         Drop = P@0.5({reference}) - P@0.5(texture); {targeted}; mean best true-class confidence \
+         over detections with IoU >= {iou}\n\
          error bars: binomial standard error sqrt(p (1 - p) / n); breakdowns pool all sets and levels",
         obj = i.object,
         tex = i.textures.join(", "),
@@ -70,7 +72,13 @@ pub fn protocol_text(i: &EvalInfo) -> String {
         iou = p.iou,
         conf = p.confidence,
         reference = i.reference,
-        target = p.target.map_or("(no target)", |t| COCO80[t]),
+        targeted = match p.target {
+            Some(t) => format!(
+                "targeted success: a {} detection with IoU >= {} and confidence >= {}",
+                COCO80[t], p.iou, p.confidence
+            ),
+            None => "targeted success: not measured (no target class given)".into(),
+        },
     )
 }
 
@@ -269,8 +277,13 @@ pub fn files(
         md += &format!("\n## {title}\n\n{}", t.markdown());
         out.push((format!("{stem}.csv"), t.csv().into_bytes()));
     }
+    let reused = if i.reused.is_empty() {
+        String::new()
+    } else {
+        format!(" ({} reused from the cache)", i.reused.join(", "))
+    };
     md += &format!(
-        "\nEvaluated in {:.0} s. Per-image records: records.csv; every figure: results.json.\n",
+        "\nEvaluated in {:.0} s{reused}. Per-image records: records.csv; every figure: results.json.\n",
         i.seconds
     );
     out.push(("report.md".into(), md.into_bytes()));
