@@ -217,13 +217,32 @@ pub fn factor_plot(
     )
 }
 
-/// An example view with the ground truth (white) and one model's detections drawn.
-pub fn example_image(e: &Example, model: usize) -> image::RgbImage {
-    let mut img = e.image.clone();
-    draw::labelled_box(&mut img, e.gt, [255, 255, 255], 1, "");
+/// An example view, scaled to at most `max_side` pixels, with the ground truth (white) and one
+/// model's detections (label and confidence) drawn.
+pub fn example_image(e: &Example, model: usize, max_side: u32) -> image::RgbImage {
+    let (w, h) = e.image.dimensions();
+    let k = (max_side as f32 / w.max(h) as f32).min(1.0);
+    let mut img = if k < 1.0 {
+        image::imageops::resize(
+            &e.image,
+            ((w as f32 * k).round() as u32).max(1),
+            ((h as f32 * k).round() as u32).max(1),
+            image::imageops::FilterType::Triangle,
+        )
+    } else {
+        e.image.clone()
+    };
+    let s = |b: [f32; 4]| b.map(|v| v * k);
+    draw::labelled_box(&mut img, s(e.gt), [255, 255, 255], 1, "");
     for d in &e.detections[model] {
         let label = format!("{} {:.2}", d.label, d.score);
-        draw::labelled_box(&mut img, d.bbox, draw::class_colour(d.class_id), 2, &label);
+        draw::labelled_box(
+            &mut img,
+            s(d.bbox),
+            draw::class_colour(d.class_id),
+            2,
+            &label,
+        );
     }
     img
 }
@@ -337,7 +356,7 @@ pub fn files(
                 .iter()
                 .map(|e| {
                     (
-                        example_image(e, k),
+                        example_image(e, k, 320),
                         format!(
                             "{} {} view {}",
                             set_name(e.set),
@@ -352,8 +371,7 @@ pub fn files(
             }
             let figs: Vec<(&image::RgbImage, &str)> =
                 imgs.iter().map(|(a, b)| (a, b.as_str())).collect();
-            h.heading(3, &format!("{t} — {model}"))
-                .figures(&figs, 240)?;
+            h.heading(3, &format!("{t} — {model}")).photos(&figs, 240)?;
         }
     }
     out.push(("report.html".into(), h.finish().into_bytes()));
