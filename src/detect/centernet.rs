@@ -21,7 +21,7 @@ const WH: &str = "tower_0/wh";
 const DETECTIONS: &str = "tower_0/detections";
 const SIZE: usize = 512;
 /// Grad-CAM's default layer.
-const CAM_LAYER: &str = "tower_0/CenternetHead/Relu";
+const CAM_LAYER: &str = "tower_0/MobilenetV3/expanded_conv_11/add";
 /// Post-processing thresholds of `@vladmandic/human` (config.ts `object`).
 pub const MIN_SCORE: f64 = 0.2;
 pub const IOU: f64 = 0.4;
