@@ -54,6 +54,9 @@ pub struct Args {
     /// Example views per group kept for the HTML report.
     #[arg(long, default_value_t = 1)]
     pub examples: usize,
+    /// Extra figure for the HTML report, CAPTION=PNG (e.g. "Top-n study=study-topn/topn.png").
+    #[arg(long = "figure")]
+    pub figures: Vec<String>,
     /// Output folder (finished textures are reused from its cache/ on a rerun).
     #[arg(long, default_value = "eval-out")]
     pub out: PathBuf,
@@ -107,6 +110,15 @@ pub fn run(a: Args) -> Result<()> {
         },
         protocol: Protocol::from_labels(&a.true_classes, a.target.as_deref())?,
         examples_per_group: a.examples,
+        figures: a
+            .figures
+            .iter()
+            .map(|f| {
+                f.split_once('=')
+                    .map(|(c, p)| (c.to_string(), PathBuf::from(p)))
+                    .ok_or_else(|| anyhow::anyhow!("--figure {f:?}: expected CAPTION=PNG"))
+            })
+            .collect::<Result<_>>()?,
         out: a.out.clone(),
     };
     let dets = train::load_detectors(&a.models)?;

@@ -72,7 +72,11 @@ fn topn(a: TopnArgs) -> Result<()> {
     }
     let cfg = match &a.config {
         Some(p) => SceneConfig::from_file(p)?,
-        None => demo::demo_scene(),
+        None => {
+            let mut c = demo::demo_scene();
+            c.object.mesh = "pickup".into();
+            c
+        }
     };
     let scene = cfg.object.load()?;
     let original = scene.initial_atlas(cfg.render.atlas_res);
@@ -156,6 +160,7 @@ fn topn(a: TopnArgs) -> Result<()> {
             ..Default::default()
         },
         examples_per_group: 1,
+        figures: vec![],
         out: a.out.join("eval"),
     };
     let evals = train::load_detectors(&a.eval_models)?;

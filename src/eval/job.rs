@@ -25,6 +25,8 @@ pub struct EvalJob {
     pub protocol: Protocol,
     /// Example views kept per group for the HTML report.
     pub examples_per_group: usize,
+    /// Extra figures for the HTML report, `(caption, PNG path)`: e.g. the top-n study's plot.
+    pub figures: Vec<(String, PathBuf)>,
     pub out: PathBuf,
 }
 
@@ -115,7 +117,12 @@ pub fn run(
         seconds: start.elapsed().as_secs_f64(),
     };
     let mut files = vec![];
-    for (name, bytes) in report::files(&info, &records, &examples)? {
+    let extra = job
+        .figures
+        .iter()
+        .map(|(c, p)| Ok((c.clone(), crate::io::load_rgb(p)?)))
+        .collect::<Result<Vec<_>>>()?;
+    for (name, bytes) in report::files(&info, &records, &examples, &extra)? {
         crate::io::write_atomic(&job.out.join(&name), &bytes)?;
         files.push(name);
     }

@@ -276,11 +276,13 @@ fn table_json(t: &Table) -> Vec<serde_json::Value> {
         .collect()
 }
 
-/// Every file of the report: `(file name, bytes)`. `examples` holds each texture's examples.
+/// Every file of the report: `(file name, bytes)`. `examples` holds each texture's examples;
+/// `extra` are further captioned figures for the HTML page (e.g. the top-n study's plot).
 pub fn files(
     i: &EvalInfo,
     records: &[ImageRecord],
     examples: &[Vec<Example>],
+    extra: &[(String, image::RgbImage)],
 ) -> Result<Vec<(String, Vec<u8>)>> {
     let mut out: Vec<(String, Vec<u8>)> = vec![];
     let proto = protocol_text(i);
@@ -345,6 +347,12 @@ pub fn files(
         let figs: Vec<(&image::RgbImage, &str)> = imgs.iter().zip(caps).collect();
         h.heading(3, &format!("{model} (model {})", k + 1))
             .figures(&figs, 0)?;
+    }
+    if !extra.is_empty() {
+        h.heading(2, "Further figures");
+        for (cap, img) in extra {
+            h.image(img, cap)?;
+        }
     }
     h.heading(2, "Example views");
     h.paragraph(
