@@ -12,10 +12,9 @@ use cac::config::SceneConfig;
 use cac::environment::{Environment, ViewpointSet};
 use cac::eval::job::{self, EvalJob};
 use cac::eval::run::ViewPlan;
-use cac::eval::summary::{figures, sel};
-use cac::eval::Protocol;
+use cac::eval::{study, Protocol};
 use cac::render::Renderer;
-use cac::report::{plot, Html, Plot, Series, Table};
+use cac::report::Html;
 use std::path::PathBuf;
 
 #[derive(clap::Subcommand, Debug)]
@@ -116,9 +115,9 @@ fn topn(a: TopnArgs) -> Result<()> {
                 iterations: 0,
                 ..c.clone()
             };
-            if same(&old) != same(&ac) {
+            if same(&old) != same(&ac) || run["scene"] != serde_json::to_value(&cfg)? {
                 bail!(
-                    "{} holds a run with other settings (n = {}, models {:?}); use another --out",
+                    "{} holds a run with other settings (n = {}, models {:?}, or another scene); use another --out",
                     dir.display(),
                     old.top_n,
                     old.models
@@ -137,7 +136,7 @@ fn topn(a: TopnArgs) -> Result<()> {
             );
         }
         train::train_loop(&mut tr, &dir, &cfg, true)?;
-        specs.push(format!("n{n}={}", dir.display()));
+        specs.push(format!("{}={}", study::run_name(n), dir.display()));
     }
 
     let mut eval_scene = cfg.clone();
@@ -171,85 +170,8 @@ fn topn(a: TopnArgs) -> Result<()> {
         a.eval_models.join(", ")
     );
     let o = job::run(&job, &refs, &device::inference(), &mut |_, _| {})?;
-    let recs: Vec<cac::eval::run::ImageRecord> = serde_json::from_value(
-        serde_json::from_slice::<serde_json::Value>(&std::fs::read(job.out.join("results.json"))?)?
-            ["records"]
-            .clone(),
-    )?;
-
-    let mut t = Table::new(
-        ["n".to_string()]
-            .into_iter()
-            .chain(o.info.models.iter().flat_map(|m| {
-                let role = if a.models.contains(m) {
-                    "white-box"
-                } else {
-                    "transfer"
-                };
-                [
-                    format!("{m} ({role}) P@0.5"),
-                    format!("{m} s.e."),
-                    format!("{m} drop"),
-                ]
-            })),
-    );
-    let mut series = vec![];
-    for m in &o.info.models {
-        let orig = figures(&recs, sel("Original", m, None, None));
-        let pts: Vec<(usize, cac::eval::summary::Figures)> =
-            a.n.iter()
-                .map(|&n| (n, figures(&recs, sel(&format!("n{n}"), m, None, None))))
-                .collect();
-        let role = if a.models.contains(m) {
-            "white-box"
-        } else {
-            "transfer"
-        };
-        series.push(
-            Series::new(
-                &format!("{m} ({role})"),
-                pts.iter().map(|(n, f)| (*n as f64, f.p_at_05)).collect(),
-            )
-            .err(pts.iter().map(|(_, f)| f.p_stderr).collect()),
-        );
-        let (lo, hi) = (
-            *a.n.iter().min().unwrap() as f64,
-            *a.n.iter().max().unwrap() as f64,
-        );
-        series.push(
-            Series::new(
-                &format!("{m}: original texture"),
-                vec![(lo, orig.p_at_05), (hi, orig.p_at_05)],
-            )
-            .line(1),
-        );
-    }
-    for &n in &a.n {
-        let mut row = vec![n.to_string()];
-        for m in &o.info.models {
-            let f = figures(&recs, sel(&format!("n{n}"), m, None, None));
-            let orig = figures(&recs, sel("Original", m, None, None));
-            row.extend([
-                format!("{:.3}", f.p_at_05),
-                format!("{:.3}", f.p_stderr),
-                format!("{:.3}", orig.p_at_05 - f.p_at_05),
-            ]);
-        }
-        t.row(row);
-    }
-    // Series colours: a model's texture curve and its original line share a colour.
-    for (k, s) in series.iter_mut().enumerate() {
-        s.color = Some(plot::PALETTE[(k / 2) % plot::PALETTE.len()]);
-    }
-    let img = plot::xy(
-        &Plot::new(
-            "P@0.5 against the number of fixed proposals n",
-            "n (fixed proposals per image)",
-            "P@0.5",
-        )
-        .y_range(-0.02, 1.02),
-        &series,
-    )?;
+    let t = study::topn_table(&o.records, &a.n, &o.info.models, &a.models);
+    let img = study::topn_plot(&o.records, &a.n, &o.info.models, &a.models)?;
     cac::io::save_png_atomic(&a.out.join("topn.png"), &img)?;
     cac::io::write_atomic(&a.out.join("topn.csv"), t.csv().as_bytes())?;
     let md = format!(

@@ -33,6 +33,8 @@ pub struct EvalJob {
 /// What a finished evaluation wrote and measured.
 pub struct Outcome {
     pub info: EvalInfo,
+    /// Every image's record, all textures.
+    pub records: Vec<super::run::ImageRecord>,
     pub files: Vec<String>,
     /// Images rendered and scored in this call (cached textures excluded).
     pub images_scored: usize,
@@ -128,6 +130,7 @@ pub fn run(
     }
     Ok(Outcome {
         info,
+        records,
         files,
         images_scored: scored,
         reused,

@@ -11,6 +11,7 @@ pub mod gradcam;
 pub mod job;
 pub mod report;
 pub mod run;
+pub mod study;
 pub mod summary;
 pub mod textures;
 mod views;
