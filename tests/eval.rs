@@ -94,6 +94,19 @@ fn grad_cam_peaks_on_the_vehicle_and_its_gradient_matches_finite_differences() {
         "same score: {s0} vs {}",
         cam.score
     );
+    // Re-injecting the layer's own activation reproduces the plain forward pass.
+    let logits = det.candidates(side_view().0).unwrap().logits;
+    let [_, n, c] = logits.dims();
+    assert_eq!(c, 80);
+    let plain = logits
+        .narrow(2, found.class_id, 1)
+        .reshape([n])
+        .max()
+        .into_scalar::<f32>();
+    assert!(
+        (plain - s0).abs() < 1e-3 * plain.abs().max(1.0),
+        "injected forward {s0} != plain forward {plain}"
+    );
     let norm = g.iter().map(|v| v * v).sum::<f32>().sqrt();
     assert!(norm > 0.0, "no gradient");
     let slope = |dir: &[f32], eps: f32| {
