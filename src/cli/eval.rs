@@ -37,6 +37,7 @@ pub struct Args {
     /// Viewpoint sets: fv (free), rv (restricted side views), comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "fv,rv")]
     pub sets: Vec<String>,
+    /// Seed of the views (and of the generated natural/naive/random textures).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// True classes (COCO labels, comma-separated; `none` for objects without one).

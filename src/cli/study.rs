@@ -53,6 +53,7 @@ pub struct TopnArgs {
     /// Evaluation image side (default: the config's).
     #[arg(long)]
     pub size: Option<usize>,
+    /// Seed of the training runs and of the evaluation views.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     #[arg(long, default_value = "study-topn")]
