@@ -1,0 +1,103 @@
+//! The top-n denseness study's figures (the paper's Figure 5): P@0.5 of textures trained with
+//! different numbers of fixed proposals n, per evaluation model, against the original texture.
+//! The training and the evaluation themselves are `attack::Trainer` and [`super::job`].
+
+use super::run::ImageRecord;
+use super::summary::{figures, sel, Figures};
+use crate::report::{plot, Plot, Series, Table};
+use anyhow::Result;
+
+/// The texture (row) name of the run trained with `n` proposals.
+pub fn run_name(n: usize) -> String {
+    format!("n{n}")
+}
+
+fn role(model: &str, sources: &[String]) -> &'static str {
+    if sources.iter().any(|s| s == model) {
+        "white-box"
+    } else {
+        "transfer"
+    }
+}
+
+fn at(records: &[ImageRecord], texture: &str, model: &str) -> Figures {
+    figures(records, sel(texture, model, None, None))
+}
+
+/// Rows n; per model P@0.5, its standard error and the drop against `Original` (all views).
+pub fn topn_table(
+    records: &[ImageRecord],
+    ns: &[usize],
+    models: &[String],
+    sources: &[String],
+) -> Table {
+    let mut t = Table::new(
+        std::iter::once("n".to_string()).chain(models.iter().flat_map(|m| {
+            [
+                format!("{m} ({}) P@0.5", role(m, sources)),
+                format!("{m} s.e."),
+                format!("{m} drop"),
+            ]
+        })),
+    );
+    for &n in ns {
+        let mut row = vec![n.to_string()];
+        for m in models {
+            let f = at(records, &run_name(n), m);
+            let orig = at(records, "Original", m);
+            row.extend([
+                format!("{:.3}", f.p_at_05),
+                format!("{:.3}", f.p_stderr),
+                format!("{:.3}", orig.p_at_05 - f.p_at_05),
+            ]);
+        }
+        t.row(row);
+    }
+    t
+}
+
+/// P@0.5 ± s.e. against n, one curve per model, with the model's P@0.5 on the original texture
+/// as a thin flat line of the same colour.
+pub fn topn_plot(
+    records: &[ImageRecord],
+    ns: &[usize],
+    models: &[String],
+    sources: &[String],
+) -> Result<image::RgbImage> {
+    let lo = ns.iter().copied().min().unwrap_or(0) as f64;
+    let hi = ns.iter().copied().max().unwrap_or(1) as f64;
+    let mut series = vec![];
+    for (k, m) in models.iter().enumerate() {
+        let c = plot::PALETTE[k % plot::PALETTE.len()];
+        let pts: Vec<(f64, Figures)> = ns
+            .iter()
+            .map(|&n| (n as f64, at(records, &run_name(n), m)))
+            .collect();
+        series.push(
+            Series::new(
+                &format!("{m} ({})", role(m, sources)),
+                pts.iter().map(|(n, f)| (*n, f.p_at_05)).collect(),
+            )
+            .err(pts.iter().map(|(_, f)| f.p_stderr).collect())
+            .color(c),
+        );
+        let orig = at(records, "Original", m).p_at_05;
+        series.push(
+            Series::new(
+                &format!("{m}: original texture"),
+                vec![(lo, orig), (hi, orig)],
+            )
+            .color(c)
+            .line(1),
+        );
+    }
+    plot::xy(
+        &Plot::new(
+            "P@0.5 against the number of fixed proposals n",
+            "n (fixed proposals per image)",
+            "P@0.5",
+        )
+        .y_range(-0.02, 1.02),
+        &series,
+    )
+}
