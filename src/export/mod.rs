@@ -13,7 +13,7 @@
 
 pub mod bake;
 pub mod benchmark;
-mod font;
+pub(crate) mod font;
 pub mod obj;
 pub mod pdf;
 pub mod printcheck;
