@@ -18,5 +18,6 @@ pub mod export;
 pub mod io;
 pub mod physical;
 pub mod render;
+pub mod report;
 pub mod scene;
 pub mod sim;

@@ -1,0 +1,13 @@
+//! Report building blocks shared by every stage that shows results to a person: tables written as
+//! Markdown and CSV from the same rows ([`table`]), plots drawn to images with `plotters`
+//! ([`plot`]: xy lines with error bars, polar plots against azimuth), and a self-contained HTML
+//! page with its images embedded ([`html`]). Nothing here writes files; callers do, atomically
+//! (`cac::io`).
+
+pub mod html;
+pub mod plot;
+pub mod table;
+
+pub use html::Html;
+pub use plot::{Plot, Series};
+pub use table::Table;
