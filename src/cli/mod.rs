@@ -15,6 +15,7 @@ pub mod export;
 pub mod meshes;
 pub mod models;
 pub mod render;
+pub mod score_video;
 pub mod texture;
 pub mod train;
 
@@ -50,6 +51,8 @@ pub enum Command {
     Export(export::Args),
     /// Print the default scene config (TOML), or check a config file.
     Config(config::Args),
+    /// Score a recorded video or image sequence against annotations or a turntable log.
+    ScoreVideo(score_video::Args),
     /// Benchmarks: print a table and write CSV (timings are measured here, never in tests).
     #[command(subcommand)]
     Bench(BenchCmd),
@@ -81,6 +84,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Bench(BenchCmd::Render(a)) => bench_render::run(a),
         Command::Bench(BenchCmd::Detect(a)) => bench::run(bench::BenchCmd::Detect(a)),
         Command::Export(a) => export::run(a),
+        Command::ScoreVideo(a) => score_video::run(a),
         Command::Bench(BenchCmd::Export(a)) => export::bench(a),
         Command::Bench(BenchCmd::Attack(a)) => bench_attack::run(a),
     }

@@ -1,5 +1,5 @@
 //! The annotated output: each scored frame drawn once per model side by side (ground-truth box
-//! in white, detections in a colour per class with label and score, a header with the model, time,
+//! in white on top, detections in a colour per class with label and score, a header with the model, time,
 //! frame and hit/miss), written as a PNG folder or encoded by ffmpeg (H.264, yuv420p) into a video.
 
 use super::score::FrameRecord;
@@ -38,7 +38,6 @@ pub fn draw(frame: &RgbImage, rec: &FrameRecord, models: &[String], confidence: 
     let mut out = RgbImage::new(w * models.len() as u32, h);
     for (m, name) in models.iter().enumerate() {
         let mut p = frame.clone();
-        rect(&mut p, &rec.gt, t, [255, 255, 255]);
         let mf = &rec.models[m];
         for d in mf.detections.iter().filter(|d| d.score >= confidence) {
             let c = class_colour(d.class_id);
@@ -46,9 +45,17 @@ pub fn draw(frame: &RgbImage, rec: &FrameRecord, models: &[String], confidence: 
             let label = format!("{} {:.2}", d.label, d.score);
             let (x, y) = (d.bbox[0].round() as i64, d.bbox[1].round() as i64 - 8 * t);
             let y = y.max(9 * t);
-            fill_rect(&mut p, x, y - t, text_width(&label, px) as i64 + t, 8 * t, c);
+            fill_rect(
+                &mut p,
+                x,
+                y - t,
+                text_width(&label, px) as i64 + t,
+                8 * t,
+                c,
+            );
             draw_text(&mut p, x + t, y, &label, px, [0, 0, 0]);
         }
+        rect(&mut p, &rec.gt, t, [255, 255, 255]);
         let head = format!(
             "{} T {:.2}S #{} {}",
             name,

@@ -77,9 +77,8 @@ impl Annotations {
             .map(|c| c.trim().to_ascii_lowercase())
             .collect();
         let col = |n: &str| cols.iter().position(|c| c == n);
-        let need = |n: &str| {
-            col(n).with_context(|| format!("header {header:?} has no {n:?} column"))
-        };
+        let need =
+            |n: &str| col(n).with_context(|| format!("header {header:?} has no {n:?} column"));
         let [x1, y1, x2, y2] = [need("x1")?, need("y1")?, need("x2")?, need("y2")?];
         let seg = col("segment");
         let key = match (col("frame"), col("t_start"), col("t_end")) {
@@ -274,17 +273,24 @@ mod tests {
 
     #[test]
     fn csv_frames_and_ranges() {
-        let a = Annotations::from_csv("# boxes\nframe,x1,y1,x2,y2,segment\n0,1,2,30,40,a\n3,5,5,9,9,\n")
-            .unwrap();
+        let a = Annotations::from_csv(
+            "# boxes\nframe,x1,y1,x2,y2,segment\n0,1,2,30,40,a\n3,5,5,9,9,\n",
+        )
+        .unwrap();
         assert_eq!(a.at(0, 9.0).unwrap().unwrap().bbox, [1.0, 2.0, 30.0, 40.0]);
         assert_eq!(a.at(0, 0.0).unwrap().unwrap().segment.as_deref(), Some("a"));
         assert_eq!(a.at(3, 0.0).unwrap().unwrap().segment, None);
         assert!(a.at(1, 0.0).unwrap().is_none());
-        let r = Annotations::from_csv("t_start,t_end,x1,y1,x2,y2\n1.0,2.0,0,0,5,5\n2.0,3,1,1,6,6\n")
-            .unwrap();
+        let r =
+            Annotations::from_csv("t_start,t_end,x1,y1,x2,y2\n1.0,2.0,0,0,5,5\n2.0,3,1,1,6,6\n")
+                .unwrap();
         assert!(r.at(0, 0.99).unwrap().is_none());
         assert_eq!(r.at(0, 1.0).unwrap().unwrap().bbox[0], 0.0);
-        assert_eq!(r.at(0, 2.0).unwrap().unwrap().bbox[0], 1.0, "half-open ranges");
+        assert_eq!(
+            r.at(0, 2.0).unwrap().unwrap().bbox[0],
+            1.0,
+            "half-open ranges"
+        );
         assert!(r.at(0, 3.0).unwrap().is_none());
     }
 

@@ -207,7 +207,14 @@ impl FfmpegStream {
         }
         cmd.arg("-i").arg(path);
         cmd.args(["-map", "0:v:0", "-an", "-sn", "-vf", &filters.join(",")]);
-        cmd.args(["-fps_mode", "passthrough", "-f", "rawvideo", "-pix_fmt", "rgb24"]);
+        cmd.args([
+            "-fps_mode",
+            "passthrough",
+            "-f",
+            "rawvideo",
+            "-pix_fmt",
+            "rgb24",
+        ]);
         cmd.arg("pipe:1");
         cmd.stdout(Stdio::piped()).stderr(Stdio::piped());
         let mut child = cmd.spawn().map_err(|e| missing(&tools.ffmpeg, e))?;

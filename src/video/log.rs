@@ -4,7 +4,7 @@
 //! capture manifest with timestamps in seconds reads as a log).
 //!
 //! The angle between samples is interpolated linearly along the shorter way round (the log may
-//! wrap at 360 or count up); the ratio and repeat hold from one sample to the next. Each frame
+//! wrap at 360 or count up; consecutive samples must be less than half a turn apart); the ratio and repeat hold from one sample to the next. Each frame
 //! gets a segment: its ratio (and repeat), and with [`LogSegments::Revolution`] also the whole
 //! revolution it is in since the ratio began. The ground-truth box comes from a [`Projector`]
 //! (the digital twin in [`super::twin`], or a calibrated camera model).
@@ -75,8 +75,9 @@ impl TurntableLog {
             }
         }
         for k in 1..samples.len() {
-            let d = (samples[k].angle_deg - samples[k - 1].angle_deg + 180.0).rem_euclid(360.0)
-                - 180.0;
+            // The step in (-180, 180]: exactly half a turn counts as forward.
+            let d = 180.0
+                - (180.0 - (samples[k].angle_deg - samples[k - 1].angle_deg)).rem_euclid(360.0);
             samples[k].angle_deg = samples[k - 1].angle_deg + d;
         }
         let mut run_start = vec![0];
@@ -104,7 +105,11 @@ impl TurntableLog {
         }
         let k = s.partition_point(|x| x.t <= t).max(1) - 1;
         let (a, b) = (&s[k], &s[(k + 1).min(s.len() - 1)]);
-        let u = if b.t > a.t { (t - a.t) / (b.t - a.t) } else { 0.0 };
+        let u = if b.t > a.t {
+            (t - a.t) / (b.t - a.t)
+        } else {
+            0.0
+        };
         let angle = a.angle_deg + u * (b.angle_deg - a.angle_deg);
         let start = s[self.run_start[k]].angle_deg;
         Some(Pose {
@@ -164,7 +169,12 @@ fn parse_jsonl(text: &str) -> Result<Vec<LogSample>> {
         let num = |names: &[&str], need: bool| -> Result<Option<f64>> {
             match field(names) {
                 Some(x) => x.as_f64().map(Some).with_context(|| {
-                    format!("line {}: {} must be a number of {}", n + 1, names[0], unit(names[0]))
+                    format!(
+                        "line {}: {} must be a number of {}",
+                        n + 1,
+                        names[0],
+                        unit(names[0])
+                    )
                 }),
                 None if need => bail!("line {}: no {} field", n + 1, names.join("/")),
                 None => Ok(None),
@@ -275,7 +285,11 @@ mod tests {
         assert_eq!(log.pose(2.4).unwrap().revolution, 0);
         assert_eq!(log.pose(2.6).unwrap().revolution, 1);
         let p = log.pose(5.5).unwrap();
-        assert_eq!((p.ratio, p.revolution), (Some(3.0), 0), "new ratio restarts");
+        assert_eq!(
+            (p.ratio, p.revolution),
+            (Some(3.0), 0),
+            "new ratio restarts"
+        );
         assert!(log.pose(-0.1).is_none() && log.pose(6.1).is_none());
     }
 

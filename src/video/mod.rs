@@ -11,6 +11,7 @@
 pub mod annotate;
 pub mod annotations;
 pub mod decode;
+pub mod encode;
 pub mod log;
 pub mod probe;
 pub mod report;

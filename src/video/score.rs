@@ -353,8 +353,7 @@ pub fn summarise(frames: &[FrameRecord], m: usize, name: &str) -> ModelSummary {
     for (s, h) in segs.iter_mut().zip(&hits) {
         s.p_at_05 = *h as f64 / s.frames as f64;
     }
-    let (segment_mean, segment_std) =
-        mean_std(&segs.iter().map(|s| s.p_at_05).collect::<Vec<_>>());
+    let (segment_mean, segment_std) = mean_std(&segs.iter().map(|s| s.p_at_05).collect::<Vec<_>>());
     let n = frames.len().max(1) as f64;
     ModelSummary {
         model: name.to_string(),

