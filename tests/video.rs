@@ -216,12 +216,11 @@ fn centernet() -> Box<dyn Detector> {
     detect::load("centernet", &dir, &inference()).unwrap()
 }
 
+/// A frame's score and its matched box and class.
+type Scored = (ImageScore, Option<([f32; 4], usize)>);
+
 /// The reference: each frame scored directly (no video module involved).
-fn direct(
-    f: &Fixture,
-    frames: &[RgbImage],
-    d: &dyn Detector,
-) -> Vec<(ImageScore, Option<([f32; 4], usize)>)> {
+fn direct(f: &Fixture, frames: &[RgbImage], d: &dyn Detector) -> Vec<Scored> {
     let p = Protocol::default();
     frames
         .iter()
@@ -300,8 +299,8 @@ fn measure(
     name: &str,
     model: &str,
     against: &str,
-    reference: &[(ImageScore, Option<([f32; 4], usize)>)],
-    got: &[(ImageScore, Option<([f32; 4], usize)>)],
+    reference: &[Scored],
+    got: &[Scored],
     imgs: &[RgbImage],
     originals: &[RgbImage],
 ) -> Vec<String> {
@@ -338,9 +337,7 @@ fn measure(
             ));
         }
     }
-    let p = |v: &[(ImageScore, Option<([f32; 4], usize)>)]| {
-        v.iter().filter(|x| x.0.hit).count() as f64 / v.len() as f64
-    };
+    let p = |v: &[Scored]| v.iter().filter(|x| x.0.hit).count() as f64 / v.len() as f64;
     shifts.sort_by(f32::total_cmp);
     let median = shifts.get(shifts.len() / 2).copied().unwrap_or(0.0);
     println!(
@@ -363,7 +360,7 @@ fn measure(
 fn compare(
     name: &str,
     model: &str,
-    reference: &[(ImageScore, Option<([f32; 4], usize)>)],
+    reference: &[Scored],
     r: &VideoScores,
     m: usize,
     imgs: &[RgbImage],

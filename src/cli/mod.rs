@@ -7,6 +7,7 @@ pub mod bench;
 pub mod bench_attack;
 pub mod bench_methods;
 pub mod bench_render;
+pub mod bench_video;
 pub mod config;
 pub mod demo;
 pub mod detect;
@@ -69,6 +70,8 @@ pub enum BenchCmd {
     Export(export::BenchArgs),
     /// The attack: iteration time split, and white-box error against wall time.
     Attack(bench_attack::Args),
+    /// Offline video scoring: decode frames/s and scored frames/s per detector and codec.
+    Video(bench_video::Args),
 }
 
 pub fn run(cli: Cli) -> Result<()> {
@@ -87,5 +90,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::ScoreVideo(a) => score_video::run(a),
         Command::Bench(BenchCmd::Export(a)) => export::bench(a),
         Command::Bench(BenchCmd::Attack(a)) => bench_attack::run(a),
+        Command::Bench(BenchCmd::Video(a)) => bench_video::run(a),
     }
 }

@@ -22,6 +22,8 @@ pub struct GtBox {
     pub bbox: [f32; 4],
     /// The segment the frame belongs to, when the source names one.
     pub segment: Option<String>,
+    /// The turntable angle (degrees, unwrapped), when the source knows it.
+    pub angle_deg: Option<f64>,
 }
 
 /// Where the ground-truth box of a frame comes from.
@@ -108,7 +110,11 @@ impl Annotations {
                 .and_then(|i| f.get(i))
                 .filter(|s| !s.is_empty())
                 .map(|s| s.to_string());
-            let gt = GtBox { bbox, segment };
+            let gt = GtBox {
+                bbox,
+                segment,
+                angle_deg: None,
+            };
             match key {
                 Ok(fc) => {
                     let v = get(fc)?;
@@ -206,6 +212,7 @@ impl Annotations {
                     GtBox {
                         bbox,
                         segment: None,
+                        angle_deg: None,
                     },
                 );
             }

@@ -243,6 +243,7 @@ impl<P: Projector> GroundTruth for LogGroundTruth<P> {
         Ok(Some(GtBox {
             bbox,
             segment: Some(seg),
+            angle_deg: Some(p.angle_deg),
         }))
     }
     fn describe(&self) -> String {

@@ -19,6 +19,7 @@ pub fn frames_table(s: &VideoScores) -> Table {
         "frame",
         "pts_s",
         "segment",
+        "angle_deg",
         "model",
         "hit",
         "targeted",
@@ -43,6 +44,7 @@ pub fn frames_table(s: &VideoScores) -> Table {
                 f.index.to_string(),
                 format!("{:.4}", f.pts),
                 f.segment.clone(),
+                f.angle_deg.map(|a| format!("{a:.2}")).unwrap_or_default(),
                 s.summary[m].model.clone(),
                 (mf.score.hit as u8).to_string(),
                 (mf.score.targeted as u8).to_string(),
@@ -137,7 +139,7 @@ pub fn time_plot(s: &VideoScores) -> Result<image::RgbImage> {
     let c = s.protocol.confidence as f64;
     series.push(
         Series::new("confidence threshold", vec![(t0, c), (t1, c)])
-            .color((150, 150, 150))
+            .color((200, 40, 40))
             .line(1),
     );
     plot::xy(
@@ -181,8 +183,47 @@ pub fn segments_plot(s: &VideoScores) -> Result<image::RgbImage> {
     )
 }
 
+/// With a turntable log: the best true-class confidence against the turntable angle (polar, 0° at
+/// the top, clockwise), one curve per model and revolution-free angle (mod 360).
+pub fn angle_plot(s: &VideoScores) -> Result<Option<image::RgbImage>> {
+    if s.frames.iter().all(|f| f.angle_deg.is_none()) {
+        return Ok(None);
+    }
+    let series: Vec<Series> = s
+        .summary
+        .iter()
+        .enumerate()
+        .map(|(m, sm)| {
+            let mut pts: Vec<(f64, f64)> = s
+                .frames
+                .iter()
+                .filter_map(|f| {
+                    let a = f.angle_deg?.rem_euclid(360.0);
+                    Some((a, f.models[m].score.best_true_conf as f64))
+                })
+                .collect();
+            pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+            if let Some(&p) = pts.first() {
+                pts.push(p);
+            }
+            Series::new(&sm.model, pts).color(PALETTE[m % PALETTE.len()])
+        })
+        .collect();
+    plot::polar(
+        &Plot::new(
+            "best true-class confidence against turntable angle",
+            "angle (°)",
+            "confidence",
+        )
+        .y_range(0.0, 1.0)
+        .size(480, 480),
+        &series,
+    )
+    .map(Some)
+}
+
 /// Writes `frames.csv`, `segments.csv`, `summary.csv`, `summary.md`, `scores.json`,
-/// `time.png`, `segments.png` and `report.html` into `out`. `notes` are extra lines for the report
+/// `time.png`, `segments.png`, `angle.png` (with a turntable log) and `report.html` into `out`. `notes` are extra lines for the report
 /// (the command, the annotated output).
 pub fn write_all(out: &Path, s: &VideoScores, notes: &[String]) -> Result<()> {
     let (frames, segs, summary) = (frames_table(s), segments_table(s), summary_table(s));
@@ -195,6 +236,10 @@ pub fn write_all(out: &Path, s: &VideoScores, notes: &[String]) -> Result<()> {
     let sp = segments_plot(s)?;
     save_png_atomic(&out.join("time.png"), &tp)?;
     save_png_atomic(&out.join("segments.png"), &sp)?;
+    let ap = angle_plot(s)?;
+    if let Some(ap) = &ap {
+        save_png_atomic(&out.join("angle.png"), ap)?;
+    }
     let p = &s.protocol;
     let mut h = Html::new("cac score-video");
     h.heading(2, "Input")
@@ -221,6 +266,9 @@ pub fn write_all(out: &Path, s: &VideoScores, notes: &[String]) -> Result<()> {
     }
     h.heading(2, "Summary").table(&summary);
     h.image(&tp, "best true-class confidence over time")?;
+    if let Some(ap) = &ap {
+        h.image(ap, "best true-class confidence against turntable angle")?;
+    }
     h.heading(2, "Segments").table(&segs);
     h.image(&sp, "P@0.5 per segment")?;
     write_atomic(&out.join("report.html"), h.finish().as_bytes())

@@ -71,6 +71,8 @@ pub struct FrameRecord {
     pub pts: f64,
     pub segment: String,
     pub gt: [f32; 4],
+    /// Turntable angle (degrees, unwrapped), with a turntable-log ground truth.
+    pub angle_deg: Option<f64>,
     /// Per model, in the order of the detectors.
     pub models: Vec<ModelFrame>,
 }
@@ -283,7 +285,7 @@ pub fn score_stream(
                     let k = (f.pts / s).floor();
                     format!("{:.2}-{:.2} s", k * s, (k + 1.0) * s)
                 }
-                Segmenting::FromGroundTruth => g.segment.unwrap_or_else(|| "all".into()),
+                Segmenting::FromGroundTruth => g.segment.clone().unwrap_or_else(|| "all".into()),
             };
             let x = image_to_tensor(&f.image, device);
             let mut models = Vec::with_capacity(detectors.len());
@@ -309,6 +311,7 @@ pub fn score_stream(
                 pts: f.pts,
                 segment,
                 gt: b,
+                angle_deg: g.angle_deg,
                 models,
             };
             on_frame(&f, &rec)?;

@@ -57,12 +57,15 @@ impl TwinCalibration {
     }
 }
 
+/// Boxes by (angle in 0.01°, ratio in 1e-4).
+type BoxCache = Mutex<HashMap<(i64, i64), Option<[f32; 4]>>>;
+
 /// Silhouette boxes from the twin's ray caster (1 sample per pixel, at the renderer's size,
 /// which must be the video's display size). Boxes are cached per 0.01° and ratio.
 pub struct TwinProjector {
     pub renderer: Renderer,
     pub calibration: TwinCalibration,
-    cache: Mutex<HashMap<(i64, i64), Option<[f32; 4]>>>,
+    cache: BoxCache,
 }
 
 impl TwinProjector {
