@@ -8,6 +8,7 @@ pub mod bench_attack;
 pub mod bench_methods;
 pub mod bench_render;
 pub mod bench_video;
+pub mod capture;
 pub mod config;
 pub mod demo;
 pub mod detect;
@@ -16,6 +17,7 @@ pub mod export;
 pub mod meshes;
 pub mod models;
 pub mod render;
+pub mod score;
 pub mod score_video;
 pub mod texture;
 pub mod train;
@@ -54,6 +56,10 @@ pub enum Command {
     Config(config::Args),
     /// Score a recorded video or image sequence against annotations or a turntable log.
     ScoreVideo(score_video::Args),
+    /// Physical test: turn, settle and capture frames into a session folder (or simulate).
+    Capture(capture::Args),
+    /// Score a capture session: P@0.5 per distance ratio and angle, JSON/CSV/HTML report.
+    Score(score::Args),
     /// Benchmarks: print a table and write CSV (timings are measured here, never in tests).
     #[command(subcommand)]
     Bench(BenchCmd),
@@ -88,6 +94,8 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Bench(BenchCmd::Detect(a)) => bench::run(bench::BenchCmd::Detect(a)),
         Command::Export(a) => export::run(a),
         Command::ScoreVideo(a) => score_video::run(a),
+        Command::Capture(a) => capture::run(a),
+        Command::Score(a) => score::run(a),
         Command::Bench(BenchCmd::Export(a)) => export::bench(a),
         Command::Bench(BenchCmd::Attack(a)) => bench_attack::run(a),
         Command::Bench(BenchCmd::Video(a)) => bench_video::run(a),

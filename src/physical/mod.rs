@@ -1,11 +1,22 @@
 //! The physical test rig, host side: the turntable driver speaking `firmware-protocol` over any
 //! [`Transport`] — a real serial port ([`SerialTransport`]), the simulator's pseudo-terminal, or its
-//! in-memory link (`crate::sim`).
+//! in-memory link (`crate::sim`) — camera frame sources, the calibrated lens, the rig file, the
+//! digital twin, ground-truth boxes, and capture sessions with their manifest.
 
+pub mod calib;
 pub mod camera;
+pub mod manifest;
+pub mod rig;
+pub mod score;
 pub mod serial;
+pub mod session;
+#[cfg(unix)]
+pub mod simrig;
+pub mod stage;
 pub mod transport;
+pub mod truth;
 pub mod turntable;
+pub mod twin;
 
 pub use camera::{CameraError, FolderSource, Frame, FrameSource};
 pub use firmware_protocol::{Axis, FaultCode, StatusInfo};

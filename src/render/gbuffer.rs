@@ -84,6 +84,21 @@ impl GBuffer {
         samples: usize,
         ground: bool,
     ) -> GBuffer {
+        Self::cast_with(scene, accel, camera, samples, ground, &|x, y| {
+            camera.ray_dir(x, y)
+        })
+    }
+
+    /// Like [`GBuffer::cast`], with the world-space ray direction through each image point
+    /// `(px, py)` given by `ray` (unit length; e.g. through a lens-distortion model).
+    pub fn cast_with(
+        scene: &Scene,
+        accel: &Accel,
+        camera: &Camera,
+        samples: usize,
+        ground: bool,
+        ray: &(dyn Fn(f32, f32) -> Vec3 + Sync),
+    ) -> GBuffer {
         let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
         let offs = sample_offsets(samples);
         let s = offs.len();
@@ -93,7 +108,7 @@ impl GBuffer {
                 let offs = &offs;
                 (0..w).flat_map(move |x| {
                     offs.iter().map(move |o| {
-                        let dir = camera.ray_dir(x as f32 + o.x, y as f32 + o.y);
+                        let dir = ray(x as f32 + o.x, y as f32 + o.y);
                         trace_primary(scene, accel, camera.eye, dir, ground)
                     })
                 })

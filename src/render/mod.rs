@@ -129,4 +129,32 @@ impl Renderer {
             self.settings.atlas_res,
         ))
     }
+
+    /// Ray-casts and shades one view seen by `camera`, with the ray through each image point
+    /// given by `ray` (unit directions; a camera with lens distortion); the image size is the
+    /// camera's.
+    pub fn plan_rays(
+        &self,
+        camera: &Camera,
+        ray: &(dyn Fn(f32, f32) -> glam::Vec3 + Sync),
+        light: &Lighting,
+        backdrop: &Backdrop,
+    ) -> RenderPlan {
+        let g = gbuffer::GBuffer::cast_with(
+            &self.scene,
+            &self.accel,
+            camera,
+            self.settings.samples,
+            backdrop.ground.is_some(),
+            ray,
+        );
+        shade::plan(
+            &self.scene,
+            &self.accel,
+            &g,
+            light,
+            backdrop,
+            self.settings.atlas_res,
+        )
+    }
 }

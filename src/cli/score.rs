@@ -1,0 +1,48 @@
+//! `cac score SESSION/`: detect in every captured frame, score against the projected ground
+//! truth, P@0.5 ± std per distance ratio and per angle; JSON, CSV, plots, HTML report.
+
+use anyhow::Result;
+use cac::detect;
+use cac::eval::Protocol;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The capture session folder.
+    pub session: PathBuf,
+    /// Detectors, comma separated.
+    #[arg(long, default_value = "centernet,nanodet")]
+    pub models: String,
+    /// Output folder (default: SESSION/score).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let device = super::device::inference();
+    let dir = detect::fetch::ensure_models()?;
+    let models = a
+        .models
+        .split(',')
+        .map(|m| detect::load(m.trim(), &dir, &device))
+        .collect::<Result<Vec<_>>>()?;
+    let refs: Vec<&dyn detect::Detector> = models.iter().map(|m| m.as_ref()).collect();
+    let s = cac::physical::score::score(&a.session, &refs, &Protocol::default(), &device)?;
+    let out = a.out.unwrap_or_else(|| a.session.join("score"));
+    cac::physical::score::write(&out, &s, &a.session.display().to_string())?;
+    for r in &s.by_ratio {
+        println!(
+            "{:10} ratio {:5}: P@0.5 {:.3} ± {:.3} ({} repeats)",
+            r.model,
+            r.ratio,
+            r.mean,
+            r.std,
+            r.per_repeat.len()
+        );
+    }
+    println!(
+        "wrote {}/report.html, scores.json, by_ratio.csv, by_angle.csv, frames.csv",
+        out.display()
+    );
+    Ok(())
+}

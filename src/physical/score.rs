@@ -1,0 +1,314 @@
+//! Scores a capture session: every frame of the manifest through each detector, against the
+//! ground-truth box projected through the calibrated lens at the planned angle and distance
+//! ([`super::truth`]); P@0.5 per distance ratio as mean ± standard deviation over the repeats
+//! (the paper's Figure 6), and per table angle (a polar plot). [`write`] saves JSON, CSV, the
+//! plots and an HTML report.
+
+use super::manifest;
+use super::rig::Rig;
+use super::session::SessionInfo;
+use super::truth::ground_truth_box;
+use crate::detect::{preprocess::image_to_tensor, Detector};
+use crate::eval::{score_image, Protocol};
+use crate::report::{plot, Html, Plot, Series, Table};
+use anyhow::{Context, Result};
+use burn::tensor::Device;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// One frame's outcome.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FrameScore {
+    pub frame: String,
+    pub ratio: f64,
+    pub angle: f64,
+    pub repeat: usize,
+    /// Projected ground-truth box; `None` when the object is out of view (frame not scored).
+    pub gt: Option<[f32; 4]>,
+    /// Per model: hit (true class, IoU ≥ 0.5, confidence ≥ 0.3).
+    pub hit: Vec<bool>,
+    /// Per model: best true-class confidence among boxes with IoU ≥ 0.5.
+    pub best_conf: Vec<f32>,
+}
+
+/// P@0.5 at one distance ratio for one model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RatioScore {
+    pub model: String,
+    pub ratio: f64,
+    /// P@0.5 of each repeat (over the angles).
+    pub per_repeat: Vec<f64>,
+    pub mean: f64,
+    /// Sample standard deviation over the repeats (0 with one repeat).
+    pub std: f64,
+}
+
+/// P@0.5 at one table angle (over ratios and repeats) for one model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AngleScore {
+    pub model: String,
+    pub angle: f64,
+    pub p_at_05: f64,
+    pub frames: usize,
+}
+
+/// A scored session.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SessionScore {
+    pub protocol: Protocol,
+    pub models: Vec<String>,
+    pub frames: Vec<FrameScore>,
+    pub by_ratio: Vec<RatioScore>,
+    pub by_angle: Vec<AngleScore>,
+}
+
+/// Scores every frame of the session in `dir` with each detector.
+pub fn score(
+    dir: &Path,
+    detectors: &[&dyn Detector],
+    protocol: &Protocol,
+    device: &Device,
+) -> Result<SessionScore> {
+    let info = SessionInfo::load(dir)?;
+    let entries = manifest::read(&dir.join("manifest.jsonl"))?;
+    let rig = Rig::new(info.rig.clone(), info.lens.clone())
+        .with_context(|| format!("the rig of session {}", dir.display()))?;
+    let mut frames = Vec::with_capacity(entries.len());
+    for e in &entries {
+        let gt = ground_truth_box(&rig, e.angle, rig.horizontal_distance(e.ratio)?)?;
+        let mut f = FrameScore {
+            frame: e.frame.clone(),
+            ratio: e.ratio,
+            angle: e.angle,
+            repeat: e.repeat,
+            gt,
+            hit: vec![],
+            best_conf: vec![],
+        };
+        if let Some(gt) = gt {
+            let img = crate::io::load_rgb(&dir.join(&e.frame))?;
+            let x = image_to_tensor(&img, device);
+            for d in detectors {
+                let dets = d
+                    .detect(x.clone())
+                    .with_context(|| format!("{} on {}", d.name(), e.frame))?
+                    .into_iter()
+                    .next()
+                    .unwrap_or_default();
+                let s = score_image(&dets, &gt, protocol);
+                f.hit.push(s.hit);
+                f.best_conf.push(s.best_true_conf);
+            }
+        }
+        frames.push(f);
+    }
+    let models: Vec<String> = detectors.iter().map(|d| d.name().to_string()).collect();
+    let (by_ratio, by_angle) = aggregate(
+        &models,
+        &info.plan.ratios,
+        &info.plan.angles,
+        info.plan.repeats,
+        &frames,
+    );
+    Ok(SessionScore {
+        protocol: protocol.clone(),
+        models,
+        frames,
+        by_ratio,
+        by_angle,
+    })
+}
+
+fn mean_std(v: &[f64]) -> (f64, f64) {
+    if v.is_empty() {
+        return (0.0, 0.0);
+    }
+    let n = v.len() as f64;
+    let m = v.iter().sum::<f64>() / n;
+    let var = if v.len() > 1 {
+        v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0)
+    } else {
+        0.0
+    };
+    (m, var.sqrt())
+}
+
+/// Per-ratio (mean ± std over repeats) and per-angle P@0.5 from frame scores.
+pub fn aggregate(
+    models: &[String],
+    ratios: &[f64],
+    angles: &[f64],
+    repeats: usize,
+    frames: &[FrameScore],
+) -> (Vec<RatioScore>, Vec<AngleScore>) {
+    let scored: Vec<_> = frames.iter().filter(|f| f.gt.is_some()).collect();
+    let p = |m: usize, sel: &dyn Fn(&FrameScore) -> bool| -> Option<(f64, usize)> {
+        let v: Vec<_> = scored.iter().filter(|f| sel(f)).collect();
+        (!v.is_empty()).then(|| {
+            let hits = v.iter().filter(|f| f.hit[m]).count();
+            (hits as f64 / v.len() as f64, v.len())
+        })
+    };
+    let mut by_ratio = Vec::new();
+    let mut by_angle = Vec::new();
+    for (m, name) in models.iter().enumerate() {
+        for &r in ratios {
+            let per_repeat: Vec<f64> = (0..repeats)
+                .filter_map(|k| p(m, &|f| f.ratio == r && f.repeat == k).map(|x| x.0))
+                .collect();
+            let (mean, std) = mean_std(&per_repeat);
+            by_ratio.push(RatioScore {
+                model: name.clone(),
+                ratio: r,
+                per_repeat,
+                mean,
+                std,
+            });
+        }
+        for &a in angles {
+            if let Some((pa, n)) = p(m, &|f| f.angle == a) {
+                by_angle.push(AngleScore {
+                    model: name.clone(),
+                    angle: a,
+                    p_at_05: pa,
+                    frames: n,
+                });
+            }
+        }
+    }
+    (by_ratio, by_angle)
+}
+
+/// Writes `scores.json`, `frames.csv`, `by_ratio.csv`, `by_angle.csv`, `p_vs_ratio.png`,
+/// `polar.png` and `report.html` into `out`.
+pub fn write(out: &Path, s: &SessionScore, session: &str) -> Result<()> {
+    let io = crate::io::write_atomic;
+    io(
+        &out.join("scores.json"),
+        serde_json::to_string_pretty(s)?.as_bytes(),
+    )?;
+    let mut frames = Table::new(
+        [
+            "frame", "ratio", "angle", "repeat", "gt_x1", "gt_y1", "gt_x2", "gt_y2",
+        ]
+        .map(String::from)
+        .into_iter()
+        .chain(
+            s.models
+                .iter()
+                .flat_map(|m| [format!("{m}_hit"), format!("{m}_conf")]),
+        ),
+    );
+    for f in &s.frames {
+        let gt = f.gt.map_or(
+            [String::new(), String::new(), String::new(), String::new()],
+            |b| b.map(|v| format!("{v:.2}")),
+        );
+        let mut row = vec![
+            f.frame.clone(),
+            f.ratio.to_string(),
+            f.angle.to_string(),
+            f.repeat.to_string(),
+        ];
+        row.extend(gt);
+        for (h, c) in f.hit.iter().zip(&f.best_conf) {
+            row.push((*h as u8).to_string());
+            row.push(format!("{c:.4}"));
+        }
+        frames.row(row);
+    }
+    io(&out.join("frames.csv"), frames.csv().as_bytes())?;
+    let mut ratio_t = Table::new([
+        "model",
+        "distance ratio",
+        "P@0.5 mean",
+        "P@0.5 std",
+        "repeats",
+    ]);
+    for r in &s.by_ratio {
+        ratio_t.row([
+            r.model.clone(),
+            r.ratio.to_string(),
+            format!("{:.3}", r.mean),
+            format!("{:.3}", r.std),
+            r.per_repeat.len().to_string(),
+        ]);
+    }
+    io(&out.join("by_ratio.csv"), ratio_t.csv().as_bytes())?;
+    let mut angle_t = Table::new(["model", "angle", "P@0.5", "frames"]);
+    for a in &s.by_angle {
+        angle_t.row([
+            a.model.clone(),
+            a.angle.to_string(),
+            format!("{:.3}", a.p_at_05),
+            a.frames.to_string(),
+        ]);
+    }
+    io(&out.join("by_angle.csv"), angle_t.csv().as_bytes())?;
+
+    let ratio_series: Vec<Series> = s
+        .models
+        .iter()
+        .map(|m| {
+            let rs: Vec<_> = s
+                .by_ratio
+                .iter()
+                .filter(|r| &r.model == m && !r.per_repeat.is_empty())
+                .collect();
+            Series::new(m, rs.iter().map(|r| (r.ratio, r.mean)).collect())
+                .err(rs.iter().map(|r| r.std).collect())
+        })
+        .collect();
+    let fig6 = plot::xy(
+        &Plot::new("P@0.5 against distance ratio", "distance ratio", "P@0.5").y_range(0.0, 1.0),
+        &ratio_series,
+    )?;
+    let polar_series: Vec<Series> = s
+        .models
+        .iter()
+        .map(|m| {
+            let mut pts: Vec<_> = s
+                .by_angle
+                .iter()
+                .filter(|a| &a.model == m)
+                .map(|a| (a.angle, a.p_at_05))
+                .collect();
+            if let Some(&first) = pts.first() {
+                pts.push(first);
+            }
+            Series::new(m, pts)
+        })
+        .collect();
+    let polar = plot::polar(
+        &Plot::new("P@0.5 against table angle", "", "P@0.5")
+            .y_range(0.0, 1.0)
+            .size(480, 480),
+        &polar_series,
+    )?;
+    crate::io::save_png_atomic(&out.join("p_vs_ratio.png"), &fig6)?;
+    crate::io::save_png_atomic(&out.join("polar.png"), &polar)?;
+    let skipped = s.frames.iter().filter(|f| f.gt.is_none()).count();
+    let mut h = Html::new("Physical test: P@0.5");
+    h.paragraph(&format!(
+        "Session {session}: {} frames, {skipped} with the object out of view (not scored).",
+        s.frames.len()
+    ));
+    h.pre(&format!(
+        "protocol: a frame is a hit when a detection of class {:?} has IoU >= {} with the ground-truth box (the object's silhouette projected through the calibrated lens) at confidence >= {}; P@0.5 = hits / frames; ± is the standard deviation over repeats",
+        s.protocol.true_classes, s.protocol.iou, s.protocol.confidence
+    ));
+    h.figures(
+        &[
+            (
+                &fig6,
+                "P@0.5 against distance ratio (mean ± std over repeats)",
+            ),
+            (&polar, "P@0.5 against table angle"),
+        ],
+        480,
+    )?;
+    h.heading(2, "By distance ratio").table(&ratio_t);
+    h.heading(2, "By table angle").table(&angle_t);
+    io(&out.join("report.html"), h.finish().as_bytes())?;
+    Ok(())
+}
