@@ -5,7 +5,8 @@ use anyhow::{bail, Context, Result};
 use cac::detect::{self, Detector};
 use cac::eval::Protocol;
 use cac::render::{RenderSettings, Renderer};
-use cac::video::log::{LogGroundTruth, LogSegments, TurntableLog};
+use cac::video::log::{LogGroundTruth, LogSegments, Projector, TurntableLog};
+use cac::video::rig::RigProjector;
 use cac::video::twin::{TwinCalibration, TwinProjector};
 use cac::video::{
     annotate, report, Annotations, GroundTruth, OpenOptions, Sampling, ScoreOptions, Segmenting,
@@ -36,12 +37,22 @@ pub struct Args {
     /// Ground truth: turntable log (CSV or JSON lines), projected with the digital twin.
     #[arg(long)]
     pub log: Option<PathBuf>,
-    /// Twin calibration JSON {azimuth_at_zero_deg, direction, elevation_deg} (default: 90, -1, 10).
+    /// Project the log through a calibrated rig file (rig.toml: lens, camera pose, object), as
+    /// `cac score` does for capture sessions.
+    #[arg(long, requires = "log", conflicts_with = "calib")]
+    pub rig: Option<PathBuf>,
+    /// Without --rig: the digital twin's calibration JSON {azimuth_at_zero_deg, direction,
+    /// elevation_deg} (default: 90, -1, 10) with --mesh and --vfov.
     #[arg(long, requires = "log")]
     pub calib: Option<PathBuf>,
-    /// Log time = video time + offset (seconds).
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
-    pub log_offset: f64,
+    /// Log time = video time + offset: seconds, or `creation` for the video's creation_time
+    /// (Unix seconds, for logs with Unix timestamps such as capture manifests).
+    #[arg(long, default_value = "0", allow_hyphen_values = true)]
+    pub log_offset: String,
+    /// Score the frames nearest to the log's sample times (step-and-shoot sessions: the settled
+    /// frames), instead of --every/--at.
+    #[arg(long, requires = "log", conflicts_with = "at")]
+    pub at_log: bool,
     /// Segments of a logged session.
     #[arg(long, value_enum, default_value = "revolution")]
     pub segments: SegArg,
@@ -97,29 +108,63 @@ pub fn run(a: Args) -> Result<()> {
     };
     let mut stream = cac::video::open(&tools, &a.input, &opts)?;
     let (w, h) = stream.size();
+    let mut at_times = a.at.clone();
     let gt: Box<dyn GroundTruth> = match (&a.annotations, &a.log) {
         (Some(p), None) => Box::new(Annotations::load(p)?),
         (None, Some(p)) => {
-            let calibration = match &a.calib {
-                Some(c) => TwinCalibration::load(c)?,
-                None => TwinCalibration::default(),
+            let log = TurntableLog::load(p)?;
+            let offset_s = match a.log_offset.as_str() {
+                "creation" => stream.creation_time().with_context(|| {
+                    format!(
+                        "{} has no creation_time: give --log-offset in seconds",
+                        a.input.display()
+                    )
+                })?,
+                s => s
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|v| v.is_finite())
+                    .with_context(|| format!("--log-offset {s:?}: seconds or `creation`"))?,
             };
-            let object = cac::config::ObjectConfig {
-                mesh: a.mesh.clone(),
-                ..Default::default()
+            let t0 = log.samples()[0].t;
+            if t0 > 1e8 && offset_s.abs() < 1e8 {
+                bail!(
+                    "{}: times look like Unix seconds ({t0}) but the video's start at 0 s: give                      --log-offset creation or the Unix time of the video's first frame",
+                    p.display()
+                );
+            }
+            if a.at_log {
+                at_times = Some(log.samples().iter().map(|s| s.t - offset_s).collect());
+            }
+            let projector: Box<dyn Projector> = match &a.rig {
+                Some(r) => Box::new(RigProjector::new(
+                    cac::physical::rig::Rig::load(r)?,
+                    (w, h),
+                )?),
+                None => {
+                    let calibration = match &a.calib {
+                        Some(c) => TwinCalibration::load(c)?,
+                        None => TwinCalibration::default(),
+                    };
+                    let object = cac::config::ObjectConfig {
+                        mesh: a.mesh.clone(),
+                        ..Default::default()
+                    };
+                    let settings = RenderSettings {
+                        width: w as usize,
+                        height: h as usize,
+                        samples: 1,
+                        vfov_deg: a.vfov,
+                        atlas_res: 2,
+                    };
+                    let r = Renderer::new(object.load()?, settings)?;
+                    Box::new(TwinProjector::new(r, calibration))
+                }
             };
-            let settings = RenderSettings {
-                width: w as usize,
-                height: h as usize,
-                samples: 1,
-                vfov_deg: a.vfov,
-                atlas_res: 2,
-            };
-            let r = Renderer::new(object.load()?, settings)?;
             Box::new(LogGroundTruth {
-                log: TurntableLog::load(p)?,
-                projector: TwinProjector::new(r, calibration),
-                offset_s: a.log_offset,
+                log,
+                projector,
+                offset_s,
                 segments: match a.segments {
                     SegArg::Revolution => LogSegments::Revolution,
                     SegArg::Ratio => LogSegments::Ratio,
@@ -138,8 +183,8 @@ pub fn run(a: Args) -> Result<()> {
         },
         ..Default::default()
     };
-    let sampling = match &a.at {
-        Some(t) => Sampling::At(t.clone()),
+    let sampling = match at_times {
+        Some(t) => Sampling::At(t),
         None => Sampling::Every(a.every),
     };
     let out_fps = match &sampling {

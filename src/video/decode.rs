@@ -37,6 +37,10 @@ pub trait FrameStream {
     fn fps(&self) -> f64;
     /// One line for logs and reports.
     fn describe(&self) -> String;
+    /// Unix seconds of the recording's start from the container's `creation_time`, if any.
+    fn creation_time(&self) -> Option<f64> {
+        None
+    }
 }
 
 /// How to open an input.
@@ -362,6 +366,9 @@ impl FrameStream for FfmpegStream {
     }
     fn fps(&self) -> f64 {
         self.fps
+    }
+    fn creation_time(&self) -> Option<f64> {
+        self.info.creation_time
     }
     fn describe(&self) -> String {
         format!(

@@ -224,6 +224,15 @@ pub struct LogGroundTruth<P: Projector> {
     pub default_ratio: f64,
 }
 
+impl<P: Projector + ?Sized> Projector for Box<P> {
+    fn project(&self, angle_deg: f64, ratio: f64) -> Result<Option<[f32; 4]>> {
+        (**self).project(angle_deg, ratio)
+    }
+    fn describe(&self) -> String {
+        (**self).describe()
+    }
+}
+
 impl<P: Projector> GroundTruth for LogGroundTruth<P> {
     fn at(&self, _index: u64, pts: f64) -> Result<Option<GtBox>> {
         let Some(p) = self.log.pose(pts + self.offset_s) else {

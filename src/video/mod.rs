@@ -1,9 +1,9 @@
 //! Offline scoring of recorded videos and image sequences (`cac score-video`): decode with the
 //! ffmpeg command-line tools as a subprocess ([`probe`], [`decode`]), ground truth from
 //! annotation files ([`annotations`]) or a turntable log projected through the digital twin
-//! ([`log`], [`twin`]), frame sampling and P@0.5 per segment ([`score`]), boxes drawn into an
+//! ([`log`]; projected by the digital twin, [`twin`], or the calibrated rig, [`rig`]), frame sampling and P@0.5 per segment ([`score`]), boxes drawn into an
 //! annotated video or frame folder ([`annotate`]), and the per-frame CSV, plot and HTML report
-//! ([`report`]).
+//! ([`report`]). [`encode`] holds the encoding presets of the fixtures and the benchmark.
 //!
 //! ffmpeg and ffprobe are found on `PATH`, or where `CAC_FFMPEG` / `CAC_FFPROBE` point
 //! ([`Tools::from_env`]).
@@ -15,6 +15,7 @@ pub mod encode;
 pub mod log;
 pub mod probe;
 pub mod report;
+pub mod rig;
 pub mod score;
 pub mod twin;
 
@@ -118,14 +119,18 @@ pub(crate) fn run_tool(tools: &Tools, tool: &Path, args: &[&std::ffi::OsStr]) ->
     Ok(out.stdout)
 }
 
-/// Mean and (population) standard deviation; `(0, 0)` for no values.
+/// Mean and sample standard deviation (n − 1, as the capture scorer); `(0, 0)` for no values,
+/// std 0 for one.
 pub fn mean_std(v: &[f64]) -> (f64, f64) {
     if v.is_empty() {
         return (0.0, 0.0);
     }
     let n = v.len() as f64;
     let m = v.iter().sum::<f64>() / n;
-    let var = v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / n;
+    if v.len() == 1 {
+        return (m, 0.0);
+    }
+    let var = v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0);
     (m, var.sqrt())
 }
 

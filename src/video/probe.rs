@@ -26,6 +26,9 @@ pub struct StreamInfo {
     pub r_fps: Option<f64>,
     pub frames: Option<u64>,
     pub duration_s: Option<f64>,
+    /// The `creation_time` tag (stream, else container) as Unix seconds: when the recording
+    /// started on most cameras (some phones write the end; check against a visible event).
+    pub creation_time: Option<f64>,
 }
 
 impl StreamInfo {
@@ -124,6 +127,9 @@ pub fn probe(tools: &Tools, path: &Path) -> Result<StreamInfo> {
         );
     }
     let duration_s = num(&stream["duration"]).or_else(|| num(&v["format"]["duration"]));
+    let creation_time = [&stream["tags"], &v["format"]["tags"]]
+        .iter()
+        .find_map(|t| t["creation_time"].as_str().and_then(parse_utc));
     Ok(StreamInfo {
         rotation_ccw: rotation_of(stream).with_context(|| path.display().to_string())?,
         codec,
@@ -133,7 +139,43 @@ pub fn probe(tools: &Tools, path: &Path) -> Result<StreamInfo> {
         r_fps: rate(&stream["r_frame_rate"]),
         frames: num(&stream["nb_frames"]).map(|n| n as u64),
         duration_s,
+        creation_time,
     })
+}
+
+/// Unix seconds of an ISO 8601 UTC time `YYYY-MM-DDTHH:MM:SS[.frac]Z` (the form ffmpeg writes).
+pub fn parse_utc(s: &str) -> Option<f64> {
+    let s = s.trim().strip_suffix('Z').unwrap_or(s.trim());
+    let (date, time) = s.split_once(['T', ' '])?;
+    let d: Vec<i64> = date
+        .split('-')
+        .map(|x| x.parse().ok())
+        .collect::<Option<_>>()?;
+    let (hms, frac) = time.split_once('.').unwrap_or((time, ""));
+    let t: Vec<i64> = hms
+        .split(':')
+        .map(|x| x.parse().ok())
+        .collect::<Option<_>>()?;
+    if d.len() != 3 || t.len() != 3 || !(1..=12).contains(&d[1]) || !(1..=31).contains(&d[2]) {
+        return None;
+    }
+    // Days from 1970-01-01 of a proleptic Gregorian date (H. Hinnant's days_from_civil).
+    let (y, m) = if d[1] <= 2 {
+        (d[0] - 1, d[1] + 9)
+    } else {
+        (d[0], d[1] - 3)
+    };
+    let era = y.div_euclid(400);
+    let yoe = y - era * 400;
+    let doy = (153 * m + 2) / 5 + d[2] - 1;
+    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
+    let days = era * 146_097 + doe - 719_468;
+    let frac: f64 = if frac.is_empty() {
+        0.0
+    } else {
+        format!("0.{frac}").parse().ok()?
+    };
+    Some((days * 86_400 + t[0] * 3600 + t[1] * 60 + t[2]) as f64 + frac)
 }
 
 /// Presentation time (s) of every frame of the first video stream, in presentation order. Decodes
@@ -186,6 +228,17 @@ mod tests {
         assert_eq!(rotation_of(&serde_json::json!({})).unwrap(), 0);
         let s: Value = serde_json::json!({"tags": {"rotate": "45"}});
         assert!(rotation_of(&s).is_err());
+    }
+
+    #[test]
+    fn utc_times() {
+        assert_eq!(parse_utc("1970-01-01T00:00:00.000000Z"), Some(0.0));
+        assert_eq!(parse_utc("2000-03-01T00:00:01Z"), Some(951_868_801.0));
+        assert_eq!(
+            parse_utc("2026-11-22T07:09:04.500000Z"),
+            Some(1_795_331_344.5)
+        );
+        assert_eq!(parse_utc("yesterday"), None);
     }
 
     #[test]

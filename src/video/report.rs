@@ -258,7 +258,7 @@ pub fn write_all(out: &Path, s: &VideoScores, notes: &[String]) -> Result<()> {
         ))
         .pre(&format!(
             "protocol: hit = class in {:?} with IoU >= {} and confidence >= {}; P@0.5 = hits / frames; \
-             ± is the population standard deviation over segments",
+             ± is the sample standard deviation (n − 1) over segments",
             p.true_classes, p.iou, p.confidence
         ));
     for n in notes {

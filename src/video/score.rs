@@ -97,7 +97,7 @@ pub struct ModelSummary {
     pub targeted_success: f64,
     pub mean_best_true_conf: f64,
     pub segments: Vec<SegmentStat>,
-    /// Mean and population standard deviation of the segments' P@0.5.
+    /// Mean and sample standard deviation (n − 1) of the segments' P@0.5.
     pub segment_mean: f64,
     pub segment_std: f64,
     pub ms_per_frame: f64,
