@@ -129,7 +129,8 @@ pub fn run(a: Args) -> Result<()> {
             let t0 = log.samples()[0].t;
             if t0 > 1e8 && offset_s.abs() < 1e8 {
                 bail!(
-                    "{}: times look like Unix seconds ({t0}) but the video's start at 0 s: give                      --log-offset creation or the Unix time of the video's first frame",
+                    "{}: times look like Unix seconds ({t0}) but the video starts at 0 s: give \
+                     --log-offset creation or the Unix time of the video's first frame",
                     p.display()
                 );
             }

@@ -159,19 +159,19 @@ impl Sampler {
                 }
                 return;
             }
-            Sampling::At(t) => t.clone(),
+            Sampling::At(t) => t,
         };
         while let Some(&t) = times.get(self.next_time) {
             if f.pts < t {
                 break;
             }
             let pick = match &self.prev {
-                Some(p) if (t - p.pts) <= (f.pts - t) => p.clone(),
-                _ => f.clone(),
+                Some(p) if (t - p.pts) <= (f.pts - t) => p,
+                _ => &f,
             };
             if self.last_taken != Some(pick.index) {
                 self.last_taken = Some(pick.index);
-                out.push(pick);
+                out.push(pick.clone());
             }
             self.next_time += 1;
         }
