@@ -872,3 +872,40 @@ fn capture_manifest_projected_through_the_calibrated_rig() {
         .unwrap();
     assert!(format!("{e:#}").contains("camera.resolution"), "{e:#}");
 }
+
+#[test]
+fn cli_scores_a_video_and_writes_report_and_annotated_video() {
+    let f = fixture();
+    let out = tempfile::tempdir().unwrap();
+    let o = out.path();
+    let run = Command::new(env!("CARGO_BIN_EXE_cac"))
+        .arg("score-video")
+        .arg(f.path("rotated.mp4"))
+        .arg("--annotations")
+        .arg(f.path("gt.csv"))
+        .args([
+            "--models", "nanodet", "--every", "6", "--window", "0.5", "--out",
+        ])
+        .arg(o.join("report"))
+        .arg("--annotated")
+        .arg(o.join("a.mp4"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{text}\n{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert!(text.contains("| nanodet | 2 |"), "{text}");
+    let csv = std::fs::read_to_string(o.join("report/frames.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 3, "frames 0 and 6");
+    let seg = std::fs::read_to_string(o.join("report/segments.csv")).unwrap();
+    assert!(
+        seg.contains("0.50-1.00 s") && seg.contains("0.00-0.50 s"),
+        "{seg}"
+    );
+    let i = probe::probe(&tools(), &o.join("a.mp4")).unwrap();
+    assert_eq!((i.width, i.height, i.frames), (W as u32, H as u32, Some(2)));
+    assert!(o.join("report/report.html").is_file() && o.join("report/time.png").is_file());
+}
