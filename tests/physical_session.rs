@@ -204,7 +204,6 @@ fn run_session(name: &str, faults: FaultConfig, rail: bool) -> Outcome {
     let opts = CaptureOptions {
         settle: Box::new(move || s2.settle(Duration::from_millis(200))),
         progress: false,
-        limit: None,
     };
     let sum = session::capture(&out, &info, &rig, &mut stage, &mut cam, &opts)
         .unwrap_or_else(|e| panic!("[{name}] capture failed: {e:#}"));
@@ -215,7 +214,7 @@ fn run_session(name: &str, faults: FaultConfig, rail: bool) -> Outcome {
     for e in &entries {
         let v: Vec<f64> = e
             .camera
-            .split(|c: char| c == '=' || c == ' ')
+            .split(['=', ' '])
             .filter_map(|t| t.parse().ok())
             .collect();
         assert!((v[0] - e.angle).abs() < 1e-6, "[{name}] {e:?}");
@@ -372,7 +371,7 @@ fn session_mix_then_scored() {
     let models = cac::detect::fetch::ensure_models().expect("detector models");
     let det = cac::detect::load("nanodet", &models, &device).unwrap();
     let p = cac::eval::Protocol::default();
-    let s = cac::physical::score::score(&dir, &[det.as_ref()], &p, &device).unwrap();
+    let s = cac::physical::score::score(&dir, &[det.as_ref()], &p, &device, false).unwrap();
     assert_eq!(s.frames.len(), 16);
     let rig = Rig::load(&dir.parent().unwrap().join("rig.toml")).unwrap();
     for f in &s.frames {
@@ -475,6 +474,12 @@ fn killed_capture_resumes_each_missing_frame_once() {
         "{}",
         String::from_utf8_lossy(&o.stderr)
     );
+    // So is a changed rig file.
+    let text = std::fs::read_to_string(&rig).unwrap();
+    std::fs::write(&rig, text.replace("settle_ms = 200", "settle_ms = 300")).unwrap();
+    let o = args(true).output().unwrap();
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("rig file"));
+    std::fs::write(&rig, text).unwrap();
     let o = args(true).output().unwrap();
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(

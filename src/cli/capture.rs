@@ -82,7 +82,6 @@ pub fn run(a: Args) -> Result<()> {
         let opts = CaptureOptions {
             settle: Box::new(move || s2.settle(settle)),
             progress: true,
-            limit: None,
         };
         let sum = session::capture(&a.out, &info, &rig, &mut stage, &mut cam, &opts)?;
         report(&a, &sum);
@@ -114,7 +113,6 @@ pub fn run(a: Args) -> Result<()> {
     let opts = CaptureOptions {
         settle: Box::new(move || std::thread::sleep(settle)),
         progress: true,
-        limit: None,
     };
     let sum = session::capture(&a.out, &info, &rig, &mut stage, cam.as_mut(), &opts)?;
     report(&a, &sum);

@@ -27,7 +27,7 @@ pub fn run(a: Args) -> Result<()> {
         .map(|m| detect::load(m.trim(), &dir, &device))
         .collect::<Result<Vec<_>>>()?;
     let refs: Vec<&dyn detect::Detector> = models.iter().map(|m| m.as_ref()).collect();
-    let s = cac::physical::score::score(&a.session, &refs, &Protocol::default(), &device)?;
+    let s = cac::physical::score::score(&a.session, &refs, &Protocol::default(), &device, true)?;
     let out = a.out.unwrap_or_else(|| a.session.join("score"));
     cac::physical::score::write(&out, &s, &a.session.display().to_string())?;
     for r in &s.by_ratio {

@@ -62,19 +62,27 @@ pub struct SessionScore {
     pub by_angle: Vec<AngleScore>,
 }
 
-/// Scores every frame of the session in `dir` with each detector.
+/// Scores every frame of the session in `dir` with each detector (a progress bar on stderr with
+/// `progress`).
 pub fn score(
     dir: &Path,
     detectors: &[&dyn Detector],
     protocol: &Protocol,
     device: &Device,
+    progress: bool,
 ) -> Result<SessionScore> {
     let info = SessionInfo::load(dir)?;
     let entries = manifest::read(&dir.join("manifest.jsonl"))?;
     let rig = Rig::new(info.rig.clone(), info.lens.clone())
         .with_context(|| format!("the rig of session {}", dir.display()))?;
     let mut frames = Vec::with_capacity(entries.len());
+    let bar = if progress {
+        indicatif::ProgressBar::new(entries.len() as u64)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
     for e in &entries {
+        bar.inc(1);
         let gt = ground_truth_box(&rig, e.angle, rig.horizontal_distance(e.ratio)?)?;
         let mut f = FrameScore {
             frame: e.frame.clone(),
@@ -102,6 +110,7 @@ pub fn score(
         }
         frames.push(f);
     }
+    bar.finish_and_clear();
     let models: Vec<String> = detectors.iter().map(|d| d.name().to_string()).collect();
     let (by_ratio, by_angle) = aggregate(
         &models,

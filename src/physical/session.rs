@@ -61,7 +61,7 @@ impl SessionPlan {
         };
         if let [a, b, c] = s.split(':').collect::<Vec<_>>()[..] {
             let (a, b, c) = (num(a)?, num(b)?, num(c)?);
-            if !(c > 0.0) || b <= a || (b - a) / c > 100_000.0 {
+            if c.is_nan() || c <= 0.0 || b <= a || (b - a) / c > 100_000.0 {
                 bail!("--angles {s:?}: expected START:END:STEP with END > START and STEP > 0");
             }
             let n = ((b - a) / c - 1e-9).ceil() as usize;
@@ -133,17 +133,25 @@ impl SessionInfo {
     }
 
     /// Starts or resumes the session in `dir`. A new session refuses a folder that already
-    /// holds one; resuming requires the same plan.
+    /// holds one; resuming requires the same plan, rig and lens.
     pub fn prepare(self, dir: &Path, resume: bool) -> Result<Self> {
         let p = dir.join("session.json");
         if resume {
             let old = SessionInfo::load(dir)?;
-            if old.plan != self.plan {
+            // Compare after the same JSON round trip (float parsing need not be bit-exact).
+            let new: SessionInfo = serde_json::from_str(&serde_json::to_string(&self)?)?;
+            if old.plan != new.plan {
                 bail!(
                     "--resume: the plan differs from the session's in {} ({:?} vs {:?})",
                     p.display(),
-                    self.plan,
+                    new.plan,
                     old.plan
+                );
+            }
+            if old.rig != new.rig || old.lens != new.lens {
+                bail!(
+                    "--resume: the rig file or its calibration changed since the session in {} started",
+                    dir.display()
                 );
             }
             return Ok(old);
@@ -165,8 +173,6 @@ pub struct CaptureOptions {
     pub settle: Box<dyn Fn()>,
     /// Show a progress bar on stderr.
     pub progress: bool,
-    /// Stop after this many frames (tests; `None` = all).
-    pub limit: Option<usize>,
 }
 
 /// What a capture run did.
@@ -222,7 +228,7 @@ pub fn capture(
         .expect("valid template"),
     );
     let mut ratio = None;
-    for f in todo.iter().take(opts.limit.unwrap_or(usize::MAX)) {
+    for f in &todo {
         if ratio != Some(f.ratio) {
             bar.suspend(|| stage.set_ratio(f.ratio, rig))?;
             ratio = Some(f.ratio);

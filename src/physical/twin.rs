@@ -2,7 +2,7 @@
 //! the turntable's *physical* angle and the camera's distance (read at capture time from a
 //! [`PoseSource`], e.g. the simulated device's mechanics) through the calibrated lens — rays
 //! are cast through the plumb-bob distortion model — then applies exposure, blur and sensor noise
-//! (read + shot). Deterministic for a seed and frame number.
+//! (read + shot). Deterministic for a seed, frame number and pose.
 
 use super::camera::{CameraError, Frame, FrameSource};
 use super::rig::Rig;
@@ -83,7 +83,7 @@ impl DigitalTwin {
         };
         let plan = rig.renderer.plan_rays(&cam, &ray, &light, &backdrop);
         let rgb = plan.render_cpu(&self.atlas);
-        let image = self.sensor(rgb, plan.width, plan.height, frame);
+        let image = self.sensor(rgb, plan.width, plan.height, frame, pose);
         Ok(TwinFrame {
             image,
             mask_box: plan.object_box,
@@ -92,7 +92,17 @@ impl DigitalTwin {
     }
 
     /// Exposure, blur, read and shot noise, 8-bit quantisation.
-    fn sensor(&self, mut rgb: Vec<[f32; 3]>, w: usize, h: usize, frame: u64) -> RgbImage {
+    fn sensor(
+        &self,
+        mut rgb: Vec<[f32; 3]>,
+        w: usize,
+        h: usize,
+        frame: u64,
+        pose: Pose,
+    ) -> RgbImage {
+        // The pose enters the seed too, so a resumed run (frame numbers from 0 again) does not
+        // repeat the noise of the first run's frames.
+        let pose_bits = pose.angle_deg.to_bits() ^ pose.horizontal_m.to_bits().rotate_left(29);
         let t = &self.rig.config.twin;
         for p in &mut rgb {
             for c in p.iter_mut() {
@@ -102,8 +112,9 @@ impl DigitalTwin {
         if t.blur_px > 0.0 {
             rgb = blur(&rgb, w, h, t.blur_px);
         }
-        let mut rng =
-            ChaCha8Rng::seed_from_u64(self.seed ^ frame.wrapping_mul(0x9e37_79b9_7f4a_7c15));
+        let mut rng = ChaCha8Rng::seed_from_u64(
+            self.seed ^ frame.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ pose_bits.rotate_left(17),
+        );
         let unit = Normal::new(0.0f32, 1.0).expect("valid normal");
         let mut img = RgbImage::new(w as u32, h as u32);
         for (i, p) in rgb.iter().enumerate() {
