@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 
 pub mod bench;
 pub mod bench_attack;
+pub mod bench_eval;
 pub mod bench_methods;
 pub mod bench_render;
 pub mod bench_video;
@@ -13,12 +14,15 @@ pub mod config;
 pub mod demo;
 pub mod detect;
 pub mod device;
+pub mod eval;
+pub mod explain;
 pub mod export;
 pub mod meshes;
 pub mod models;
 pub mod render;
 pub mod score;
 pub mod score_video;
+pub mod study;
 pub mod texture;
 pub mod train;
 
@@ -60,6 +64,13 @@ pub enum Command {
     Capture(capture::Args),
     /// Score a capture session: P@0.5 per distance ratio and angle, JSON/CSV/HTML report.
     Score(score::Args),
+    /// Evaluate textures: P@0.5, drop and targeted success in FV/RV, bright/dark views; reports.
+    Eval(eval::Args),
+    /// Grad-CAM attention map of a detector's class score for an image, as an overlay PNG.
+    Explain(explain::Args),
+    /// Studies built from training runs and evaluations (the top-n denseness study).
+    #[command(subcommand)]
+    Study(study::Cmd),
     /// Benchmarks: print a table and write CSV (timings are measured here, never in tests).
     #[command(subcommand)]
     Bench(BenchCmd),
@@ -78,11 +89,16 @@ pub enum BenchCmd {
     Attack(bench_attack::Args),
     /// Offline video scoring: decode frames/s and scored frames/s per detector and codec.
     Video(bench_video::Args),
+    /// Evaluation throughput: images scored per second (render + detect + score) per detector.
+    Eval(bench_eval::Args),
 }
 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Demo(a) => demo::run(a),
+        Command::Eval(a) => eval::run(a),
+        Command::Explain(a) => explain::run(a),
+        Command::Study(c) => study::run(c),
         Command::Render(a) => render::run(a),
         Command::Texture(a) => texture::run(a),
         Command::Train(a) => train::run(a),
@@ -99,5 +115,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Bench(BenchCmd::Export(a)) => export::bench(a),
         Command::Bench(BenchCmd::Attack(a)) => bench_attack::run(a),
         Command::Bench(BenchCmd::Video(a)) => bench_video::run(a),
+        Command::Bench(BenchCmd::Eval(a)) => bench_eval::run(a),
     }
 }

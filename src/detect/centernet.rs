@@ -20,6 +20,8 @@ const KEYPOINTS: &str = "tower_0/keypoints";
 const WH: &str = "tower_0/wh";
 const DETECTIONS: &str = "tower_0/detections";
 const SIZE: usize = 512;
+/// Grad-CAM's default layer.
+const CAM_LAYER: &str = "tower_0/MobilenetV3/expanded_conv_11/add";
 /// Post-processing thresholds of `@vladmandic/human` (config.ts `object`).
 pub const MIN_SCORE: f64 = 0.2;
 pub const IOU: f64 = 0.4;
@@ -190,6 +192,15 @@ impl CenterNet {
 impl Detector for CenterNet {
     fn name(&self) -> &str {
         "centernet"
+    }
+
+    fn cam_io(&self, images: Tensor<4>) -> Result<Option<super::CamIo<'_>>> {
+        Ok(Some(super::CamIo {
+            graph: &self.graph,
+            feeds: vec![(INPUT.to_string(), self.network_input(images)?)],
+            logits: vec![(self.logits.clone(), 3)],
+            default_layer: CAM_LAYER.to_string(),
+        }))
     }
 
     fn input_size(&self) -> (usize, usize) {

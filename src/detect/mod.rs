@@ -47,6 +47,18 @@ pub struct Detection {
     pub bbox: [f32; 4],
 }
 
+/// A detector's graph as attention maps (Grad-CAM) need it: the graph, its inputs for one image
+/// batch, the outputs holding the pre-sigmoid class logits, and a default layer.
+pub struct CamIo<'a> {
+    pub graph: &'a tfjs::Graph,
+    /// Graph inputs (placeholder name, pre-processed network input).
+    pub feeds: Vec<(String, Tensor<4>)>,
+    /// Graph outputs of class logits, each with the logical axis of its 80 classes.
+    pub logits: Vec<(String, usize)>,
+    /// The default layer: a late feature map of good spatial resolution.
+    pub default_layer: String,
+}
+
 /// A differentiable object detector. Object-safe.
 pub trait Detector {
     fn name(&self) -> &str;
@@ -59,6 +71,10 @@ pub trait Detector {
     fn detect(&self, images: Tensor<4>) -> Result<Vec<Vec<Detection>>>;
     /// The raw graph outputs for one image, in the TFJS reference runner's `--raw` schema.
     fn raw(&self, image: Tensor<4>) -> Result<raw::RawDump>;
+    /// The graph view for attention maps of `images`; `None` when the detector has none.
+    fn cam_io(&self, _images: Tensor<4>) -> Result<Option<CamIo<'_>>> {
+        Ok(None)
+    }
 }
 
 /// The detectors by name.

@@ -17,6 +17,8 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 const SIZE: usize = 416;
+/// Grad-CAM's default layer.
+const CAM_LAYER: &str = "PartitionedCall/onnx_tf_prefix_LeakyRelu_41";
 const CLASSES: usize = 80;
 /// NanoDet's training normalisation, in B, G, R order.
 pub const MEAN_BGR: [f32; 3] = [103.53, 116.28, 123.675];
@@ -360,6 +362,15 @@ impl NanoDet {
 }
 
 impl Detector for NanoDet {
+    fn cam_io(&self, images: Tensor<4>) -> Result<Option<super::CamIo<'_>>> {
+        Ok(Some(super::CamIo {
+            graph: &self.graph,
+            feeds: vec![(self.input.clone(), self.network_input(images)?)],
+            logits: self.levels.iter().map(|l| (l.logits.clone(), 1)).collect(),
+            default_layer: CAM_LAYER.to_string(),
+        }))
+    }
+
     fn name(&self) -> &str {
         "nanodet"
     }

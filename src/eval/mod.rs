@@ -1,7 +1,18 @@
 //! Evaluation metrics: per image and model, a *hit* is a true-class detection with IoU >= 0.5
 //! against the ground-truth box at confidence >= 0.3; P@0.5 = hits / images. Targeted success is
 //! the same test for the target class. Drop = P@0.5(original) − P@0.5(texture).
+//!
+//! [`run`] draws the protocol's views and scores textures in them, [`summary`] aggregates the
+//! per-image records, [`report`] writes the tables, plots and HTML, [`textures`] resolves the
+//! texture list, [`cache`] keeps finished textures so an interrupted evaluation resumes.
 
+pub mod cache;
+pub mod gradcam;
+pub mod job;
+pub mod report;
+pub mod run;
+pub mod summary;
+pub mod textures;
 mod views;
 pub use views::{evaluate, street_views, ViewResults};
 
@@ -27,6 +38,33 @@ impl Default for Protocol {
             iou: 0.5,
             confidence: 0.3,
         }
+    }
+}
+
+impl Protocol {
+    /// The protocol with true classes from a comma-separated list of COCO labels (`none` or an
+    /// empty list: no true class, only targeted success is meaningful) and an optional target.
+    pub fn from_labels(true_classes: &str, target: Option<&str>) -> anyhow::Result<Protocol> {
+        let id = |l: &str| {
+            crate::detect::labels::class_id(l).ok_or_else(|| {
+                anyhow::anyhow!(
+                    "unknown COCO class {l:?} (use COCO-80 labels such as \"car\", \"truck\", \"stop sign\")"
+                )
+            })
+        };
+        let t = true_classes.trim();
+        let true_classes = if t.is_empty() || t.eq_ignore_ascii_case("none") {
+            vec![]
+        } else {
+            t.split(',')
+                .map(|l| id(l.trim()))
+                .collect::<anyhow::Result<_>>()?
+        };
+        Ok(Protocol {
+            true_classes,
+            target: target.map(id).transpose()?,
+            ..Default::default()
+        })
     }
 }
 
@@ -124,5 +162,15 @@ mod tests {
         let s = score_image(&[det(0, 0.5, gt), det(2, 0.2, gt)], &gt, &p);
         assert!(s.targeted && !s.hit && (s.best_true_conf - 0.2).abs() < 1e-6);
         assert_eq!(summarise(&[]).p_at_05, 0.0, "no images: no NaN");
+        let q = Protocol::from_labels("car, bus", Some("stop sign")).unwrap();
+        assert_eq!((q.true_classes, q.target), (vec![2, 5], Some(11)));
+        assert!(Protocol::from_labels("none", None)
+            .unwrap()
+            .true_classes
+            .is_empty());
+        let e = Protocol::from_labels("car,tank", None)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("\"tank\""), "{e}");
     }
 }

@@ -47,6 +47,15 @@ pub fn png_data_uri(img: &image::RgbImage) -> Result<String> {
     Ok(format!("data:image/png;base64,{}", base64(&buf)))
 }
 
+/// A JPEG data URI of `img` (quality 1–100): for photographs and renders, far smaller than PNG.
+pub fn jpeg_data_uri(img: &image::RgbImage, quality: u8) -> Result<String> {
+    let mut buf = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut buf, quality.clamp(1, 100))
+        .encode_image(img)
+        .context("cannot encode an image for the HTML report")?;
+    Ok(format!("data:image/jpeg;base64,{}", base64(&buf)))
+}
+
 const STYLE: &str = "body{font-family:sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;\
 color:#222}table{border-collapse:collapse;margin:1em 0}th,td{border:1px solid #bbb;\
 padding:3px 8px;text-align:right}th{background:#eee}td:first-child{text-align:left}\
@@ -94,12 +103,26 @@ impl Html {
         self
     }
 
-    /// Images side by side, each a captioned figure embedded as PNG, displayed at most `width`
-    /// CSS pixels wide (0 = natural size).
+    /// Images side by side, each a captioned figure embedded as PNG (lossless: plots), displayed
+    /// at most `width` CSS pixels wide (0 = natural size).
     pub fn figures(
         &mut self,
         images: &[(&image::RgbImage, &str)],
         width: u32,
+    ) -> Result<&mut Self> {
+        self.embed(images, width, None)
+    }
+
+    /// Like [`Html::figures`] but embedded as JPEG at quality 85 (renders, camera frames).
+    pub fn photos(&mut self, images: &[(&image::RgbImage, &str)], width: u32) -> Result<&mut Self> {
+        self.embed(images, width, Some(85))
+    }
+
+    fn embed(
+        &mut self,
+        images: &[(&image::RgbImage, &str)],
+        width: u32,
+        jpeg: Option<u8>,
     ) -> Result<&mut Self> {
         self.body += "<div>\n";
         for (img, cap) in images {
@@ -110,7 +133,10 @@ impl Html {
             };
             self.body += &format!(
                 "<figure{style}><img src=\"{}\" alt=\"{c}\"><figcaption>{c}</figcaption></figure>\n",
-                png_data_uri(img)?,
+                match jpeg {
+                    Some(q) => jpeg_data_uri(img, q)?,
+                    None => png_data_uri(img)?,
+                },
                 c = escape(cap)
             );
         }
@@ -195,5 +221,21 @@ mod tests {
         let png = decode64(b64);
         let back = image::load_from_memory(&png).unwrap().to_rgb8();
         assert_eq!(back, img, "the embedded PNG decodes to the same pixels");
+        let big = image::RgbImage::from_fn(64, 64, |x, y| {
+            image::Rgb([(x * 4) as u8, (y * 4) as u8, 90])
+        });
+        let mut j = Html::new("j");
+        j.photos(&[(&big, "a")], 100).unwrap();
+        let page = j.finish();
+        let b64 = page
+            .split("data:image/jpeg;base64,")
+            .nth(1)
+            .unwrap()
+            .split('"')
+            .next()
+            .unwrap();
+        let back = image::load_from_memory(&decode64(b64)).unwrap().to_rgb8();
+        assert_eq!(back.dimensions(), (64, 64));
+        assert!(page.contains("style=\"width:100px\""));
     }
 }

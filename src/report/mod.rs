@@ -4,6 +4,7 @@
 //! page with its images embedded ([`html`]). Nothing here writes files; callers do, atomically
 //! (`cac::io`).
 
+pub mod draw;
 pub mod html;
 pub mod plot;
 pub mod table;

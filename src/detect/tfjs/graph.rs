@@ -271,6 +271,34 @@ impl Graph {
     /// Runs the graph: `feeds` by Placeholder name, returns the values of `outputs`
     /// (node names, optionally `name:k` for the k-th output of a multi-output node).
     pub fn run(&self, feeds: &[(&str, Tensor<4>)], outputs: &[&str]) -> Result<Vec<Value>> {
+        self.run_injected(feeds, &[], outputs)
+    }
+
+    /// Runs the graph with the outputs of some nodes replaced: each `(node name, value)` in
+    /// `inject` stands for that node's output 0 (its ancestors are not run unless another path
+    /// needs them). With an autodiff leaf injected, gradients of the outputs with respect to
+    /// that intermediate activation can be taken (Grad-CAM). Values are logical (NHWC for
+    /// rank 4), as [`Graph::run`] returns them.
+    pub fn run_injected(
+        &self,
+        feeds: &[(&str, Tensor<4>)],
+        inject: &[(&str, FloatValue)],
+        outputs: &[&str],
+    ) -> Result<Vec<Value>> {
+        let mut injected: HashMap<usize, FloatValue> = HashMap::new();
+        for (name, v) in inject {
+            let (n, k) = parse_ref(name);
+            if k != 0 {
+                bail!(
+                    "{}: only output 0 of a node can be replaced ({name:?})",
+                    self.source
+                );
+            }
+            let i = self
+                .node_index(n)
+                .ok_or_else(|| anyhow!("{}: no node named {n:?}", self.source))?;
+            injected.insert(i, v.clone());
+        }
         let mut wanted = Vec::new();
         for o in outputs {
             let (name, k) = parse_ref(o);
@@ -301,6 +329,9 @@ impl Graph {
                 }
                 state[i] = 1;
                 stack.push((i, true));
+                if injected.contains_key(&i) {
+                    continue;
+                }
                 for &(j, _) in &self.nodes[i].inputs {
                     if state[j] == 0 {
                         stack.push((j, false));
@@ -317,6 +348,9 @@ impl Graph {
         // Last use of each node, to free activations early.
         let mut last_use = vec![0usize; self.nodes.len()];
         for (step, &i) in order.iter().enumerate() {
+            if injected.contains_key(&i) {
+                continue;
+            }
             for &(j, _) in &self.nodes[i].inputs {
                 last_use[j] = step;
             }
@@ -330,7 +364,9 @@ impl Graph {
         for (step, &i) in order.iter().enumerate() {
             let started = std::time::Instant::now();
             let node = &self.nodes[i];
-            let out = if node.op() == "Placeholder" {
+            let out = if let Some(v) = injected.get(&i) {
+                vec![Value::Float(v.clone())]
+            } else if node.op() == "Placeholder" {
                 let t = feeds
                     .iter()
                     .find(|(n, _)| *n == node.name())
@@ -368,6 +404,9 @@ impl Graph {
                     started.elapsed().as_secs_f64() * 1e3;
             }
             values.insert(i, out);
+            if injected.contains_key(&i) {
+                continue;
+            }
             for &(j, _) in &node.inputs {
                 if last_use[j] == step {
                     values.remove(&j);

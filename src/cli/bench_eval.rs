@@ -1,0 +1,119 @@
+//! `cac bench eval`: images scored per second, end to end (render + detect + score), for each
+//! detector alone and for all of them sharing one render, on the protocol's FV views of the
+//! default pickup. Prints a table and writes CSV. A benchmark, not a test: it asserts nothing.
+
+use super::{device, train};
+use anyhow::{bail, Result};
+use cac::config::SceneConfig;
+use cac::environment::{self, Brightness, Environment, ViewpointSet};
+use cac::eval::{score_image, Protocol};
+use cac::render::{self, Renderer};
+use cac::report::Table;
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Timed images per row (after one warm-up image).
+    #[arg(long, default_value_t = 8)]
+    pub images: usize,
+    /// Detectors, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "centernet,nanodet")]
+    pub models: Vec<String>,
+    /// Image side in pixels.
+    #[arg(long, default_value_t = 512)]
+    pub size: usize,
+    /// Samples per pixel.
+    #[arg(long, default_value_t = 4)]
+    pub samples: usize,
+    /// Object (pickup, jeep, barrel, container).
+    #[arg(long, default_value = "pickup")]
+    pub object: String,
+    #[arg(long, default_value = "bench-eval.csv")]
+    pub csv: PathBuf,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    if a.images == 0 {
+        bail!("--images must be positive");
+    }
+    let mut cfg = SceneConfig::default();
+    cfg.object.mesh = a.object.clone();
+    (cfg.render.width, cfg.render.height, cfg.render.samples) = (a.size, a.size, a.samples);
+    let scene = cfg.object.load()?;
+    let atlas = scene.initial_atlas(cfg.render.atlas_res);
+    let r = Renderer::new(scene, cfg.render.clone())?;
+    let env = Environment::new(cfg.environment.clone())?;
+    let dets = train::load_detectors(&a.models)?;
+    let dev = device::inference();
+    let p = Protocol::default();
+    let conds = env.sample_n(a.images + 1, ViewpointSet::Free, Brightness::Bright, 7);
+    let a_t = render::atlas_tensor(&atlas, &dev);
+    let mut t = Table::new([
+        "detectors",
+        "size",
+        "spp",
+        "images",
+        "render_ms",
+        "detect_ms",
+        "score_ms",
+        "total_ms",
+        "images_per_s",
+    ]);
+    let mut rows: Vec<Vec<usize>> = (0..dets.len()).map(|k| vec![k]).collect();
+    if dets.len() > 1 {
+        rows.push((0..dets.len()).collect());
+    }
+    for which in rows {
+        let (mut tr, mut td, mut ts, mut n) = (0.0, 0.0, 0.0, 0);
+        for (i, c) in conds.iter().enumerate() {
+            let t0 = Instant::now();
+            let plan = r.plan(&c.viewpoint, &env.lighting(c), &env.backdrop(c))?;
+            let gt = plan.object_box.unwrap_or([0.0; 4]);
+            let one = std::slice::from_ref(c);
+            let img = environment::photometric(
+                render::composite(&[plan], environment::print_error(a_t.clone(), one)),
+                one,
+            );
+            let _ = img.clone().slice([0..1, 0..1, 0..1, 0..1]).into_data();
+            let t1 = Instant::now();
+            let mut found = vec![];
+            for &k in &which {
+                found.push(dets[k].detect(img.clone())?.remove(0));
+            }
+            let t2 = Instant::now();
+            let hits = found.iter().filter(|f| score_image(f, &gt, &p).hit).count();
+            std::hint::black_box(hits);
+            let t3 = Instant::now();
+            if i == 0 {
+                continue; // warm-up
+            }
+            tr += (t1 - t0).as_secs_f64();
+            td += (t2 - t1).as_secs_f64();
+            ts += (t3 - t2).as_secs_f64();
+            n += 1;
+        }
+        let names: Vec<&str> = which.iter().map(|&k| dets[k].name()).collect();
+        let total = tr + td + ts;
+        let ms = |s: f64| format!("{:.1}", 1e3 * s / n as f64);
+        t.row([
+            names.join("+"),
+            format!("{}", a.size),
+            format!("{}", a.samples),
+            n.to_string(),
+            ms(tr),
+            ms(td),
+            ms(ts),
+            ms(total),
+            format!("{:.2}", n as f64 / total),
+        ]);
+    }
+    println!(
+        "end-to-end evaluation throughput ({}, FV bright views, {}x{}, {} spp):\n",
+        a.object, a.size, a.size, a.samples
+    );
+    print!("{}", t.markdown());
+    cac::io::write_atomic(&a.csv, t.csv().as_bytes())?;
+    println!("\nwrote {}", a.csv.display());
+    Ok(())
+}

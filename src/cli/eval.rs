@@ -1,0 +1,158 @@
+//! `cac eval`: the evaluation protocol (FV and RV views, bright and dark, P@0.5, drop, targeted
+//! success, breakdowns) for a list of textures and models; writes report.md, report.html, CSV
+//! tables, results.json and plots into the output folder, resuming finished textures.
+
+use super::{device, train};
+use anyhow::{bail, Result};
+use cac::config::SceneConfig;
+use cac::environment::ViewpointSet;
+use cac::eval::job::{self, EvalJob};
+use cac::eval::run::ViewPlan;
+use cac::eval::Protocol;
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Scene config (TOML): object, render settings, environment (default: built-in defaults).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Object, overriding the config (pickup, jeep, barrel, container or a mesh path).
+    #[arg(long)]
+    pub object: Option<String>,
+    /// Textures as table rows: original, natural, naive, random, or NAME=PATH (atlas image or
+    /// run folder). Comma-separated or repeated.
+    #[arg(
+        long = "texture",
+        value_delimiter = ',',
+        default_value = "original,natural,random"
+    )]
+    pub textures: Vec<String>,
+    /// Detectors, comma-separated (column groups).
+    #[arg(long, value_delimiter = ',', default_value = "centernet,nanodet")]
+    pub models: Vec<String>,
+    /// Views per brightness level in each viewpoint set (the paper: 200).
+    #[arg(long, default_value_t = 200)]
+    pub views: usize,
+    /// Viewpoint sets: fv (free), rv (restricted side views), comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "fv,rv")]
+    pub sets: Vec<String>,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// True classes (COCO labels, comma-separated; `none` for objects without one).
+    #[arg(long, default_value = "car,truck")]
+    pub true_classes: String,
+    /// Target class for targeted success (a COCO label such as "person" or "stop sign").
+    #[arg(long)]
+    pub target: Option<String>,
+    /// Image side in pixels (overrides the config's render width and height).
+    #[arg(long)]
+    pub size: Option<usize>,
+    /// Samples per pixel (overrides the config).
+    #[arg(long)]
+    pub samples: Option<usize>,
+    /// Example views per group kept for the HTML report.
+    #[arg(long, default_value_t = 1)]
+    pub examples: usize,
+    /// Extra figure for the HTML report, CAPTION=PNG (e.g. "Top-n study=study-topn/topn.png").
+    #[arg(long = "figure")]
+    pub figures: Vec<String>,
+    /// Output folder (finished textures are reused from its cache/ on a rerun).
+    #[arg(long, default_value = "eval-out")]
+    pub out: PathBuf,
+}
+
+/// Parses `fv`/`rv` lists.
+pub fn parse_sets(s: &[String]) -> Result<Vec<ViewpointSet>> {
+    let mut out = vec![];
+    for x in s {
+        let v = match x.trim().to_ascii_lowercase().as_str() {
+            "fv" | "free" => ViewpointSet::Free,
+            "rv" | "restricted" => ViewpointSet::Restricted,
+            o => bail!("unknown viewpoint set {o:?}: use fv or rv"),
+        };
+        if !out.contains(&v) {
+            out.push(v);
+        }
+    }
+    if out.is_empty() {
+        bail!("--sets needs fv, rv or both");
+    }
+    Ok(out)
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let mut scene = match &a.config {
+        Some(p) => SceneConfig::from_file(p)?,
+        None => SceneConfig::default(),
+    };
+    if let Some(o) = &a.object {
+        scene.object.mesh = o.clone();
+    }
+    if let Some(s) = a.size {
+        (scene.render.width, scene.render.height) = (s, s);
+    }
+    if let Some(s) = a.samples {
+        scene.render.samples = s;
+    }
+    scene.render.validate()?;
+    if a.views == 0 {
+        bail!("--views must be at least 1");
+    }
+    let job = EvalJob {
+        scene,
+        textures: a.textures.clone(),
+        plan: ViewPlan {
+            views_per_level: a.views,
+            seed: a.seed,
+            sets: parse_sets(&a.sets)?,
+            ..Default::default()
+        },
+        protocol: Protocol::from_labels(&a.true_classes, a.target.as_deref())?,
+        examples_per_group: a.examples,
+        figures: a
+            .figures
+            .iter()
+            .map(|f| {
+                f.split_once('=')
+                    .map(|(c, p)| (c.to_string(), PathBuf::from(p)))
+                    .ok_or_else(|| anyhow::anyhow!("--figure {f:?}: expected CAPTION=PNG"))
+            })
+            .collect::<Result<_>>()?,
+        out: a.out.clone(),
+    };
+    let dets = train::load_detectors(&a.models)?;
+    let refs: Vec<&dyn cac::detect::Detector> = dets.iter().map(|d| d.as_ref()).collect();
+    let pb = ProgressBar::new(0);
+    pb.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} images, {per_sec}, ETA {eta}")
+            .expect("template"),
+    );
+    let o = job::run(&job, &refs, &device::inference(), &mut |d, t| {
+        pb.set_length(t as u64);
+        pb.set_position(d as u64);
+    })?;
+    pb.finish_and_clear();
+    let md = std::fs::read_to_string(a.out.join("report.md")).unwrap_or_default();
+    println!("{md}");
+    if !o.reused.is_empty() {
+        println!(
+            "reused from {}/cache: {}",
+            a.out.display(),
+            o.reused.join(", ")
+        );
+    }
+    if o.info.skipped.iter().any(|&s| s > 0) {
+        println!(
+            "views without a visible object (excluded), per texture: {:?}",
+            o.info.skipped
+        );
+    }
+    println!(
+        "wrote {} ({} files: report.md, report.html, CSV tables, results.json, plots) in {:.0} s",
+        a.out.display(),
+        o.files.len(),
+        o.info.seconds
+    );
+    Ok(())
+}

