@@ -4,31 +4,13 @@
 
 use super::score::FrameRecord;
 use super::{missing, Tools};
-use crate::export::font::{draw_text, fill_rect, text_width};
+use crate::export::font::{draw_text, fill_rect};
+use crate::report::draw::{class_colour, labelled_box};
 use anyhow::{bail, Context, Result};
 use image::RgbImage;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, Stdio};
-
-/// Colour of a COCO class (the same as `cac detect --draw`).
-pub fn class_colour(c: usize) -> [u8; 3] {
-    let c = c as u32;
-    [
-        (50 + c * 97 % 206) as u8,
-        (255 - c * 53 % 200) as u8,
-        (c * 31 % 256) as u8,
-    ]
-}
-
-fn rect(img: &mut RgbImage, b: &[f32; 4], t: i64, colour: [u8; 3]) {
-    let [x1, y1, x2, y2] = b.map(|v| v.round() as i64);
-    let (w, h) = ((x2 - x1).max(1), (y2 - y1).max(1));
-    fill_rect(img, x1, y1, w, t, colour);
-    fill_rect(img, x1, y2 - t, w, t, colour);
-    fill_rect(img, x1, y1, t, h, colour);
-    fill_rect(img, x2 - t, y1, t, h, colour);
-}
 
 /// Draws one panel per model for `rec` over `frame`; panels sit side by side.
 pub fn draw(frame: &RgbImage, rec: &FrameRecord, models: &[String], confidence: f32) -> RgbImage {
@@ -40,22 +22,10 @@ pub fn draw(frame: &RgbImage, rec: &FrameRecord, models: &[String], confidence: 
         let mut p = frame.clone();
         let mf = &rec.models[m];
         for d in mf.detections.iter().filter(|d| d.score >= confidence) {
-            let c = class_colour(d.class_id);
-            rect(&mut p, &d.bbox, t, c);
             let label = format!("{} {:.2}", d.label, d.score);
-            let (x, y) = (d.bbox[0].round() as i64, d.bbox[1].round() as i64 - 8 * t);
-            let y = y.max(9 * t);
-            fill_rect(
-                &mut p,
-                x,
-                y - t,
-                text_width(&label, px) as i64 + t,
-                8 * t,
-                c,
-            );
-            draw_text(&mut p, x + t, y, &label, px, [0, 0, 0]);
+            labelled_box(&mut p, d.bbox, class_colour(d.class_id), px, &label);
         }
-        rect(&mut p, &rec.gt, t, [255, 255, 255]);
+        labelled_box(&mut p, rec.gt, [255, 255, 255], px, "");
         let head = format!(
             "{} T {:.2}S #{} {}",
             name,
