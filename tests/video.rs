@@ -676,7 +676,12 @@ fn annotated_video_frames_and_report_are_written() {
         (2 * W as u32, H as u32, Some(N as u64 / 2))
     );
     assert!(out.path().join("frames/frame_000010.png").is_file());
-    video::report::write_all(&out.path().join("report"), &r, &["note".into()]).unwrap();
+    let mut ex = video::report::Examples::new(8);
+    let rec = &r.frames[0];
+    ex.offer(&f.frames[0], rec, &names, 0.3);
+    ex.offer(&f.frames[0], rec, &names, 0.3);
+    assert_eq!(ex.frames.len(), 1, "one example per segment");
+    video::report::write_all(&out.path().join("report"), &r, &["note".into()], &ex.frames).unwrap();
     let csv = std::fs::read_to_string(out.path().join("report/frames.csv")).unwrap();
     assert_eq!(
         csv.lines().count(),
@@ -685,6 +690,7 @@ fn annotated_video_frames_and_report_are_written() {
     );
     let html = std::fs::read_to_string(out.path().join("report/report.html")).unwrap();
     assert!(html.contains("P@0.5") && html.contains("data:image/png;base64"));
+    assert!(html.contains("data:image/jpeg;base64") && html.contains("frame 0 at 0.00 s"));
     let seg = std::fs::read_to_string(out.path().join("report/segments.csv")).unwrap();
     assert!(seg.contains("ratio 1.5") && seg.contains("ratio 2"));
 }

@@ -224,6 +224,7 @@ pub fn run(a: Args) -> Result<()> {
         None => None,
     };
     let conf = so.protocol.confidence;
+    let mut examples = report::Examples::new(8);
     let scores = cac::video::score_stream(
         stream.as_mut(),
         gt.as_ref(),
@@ -231,6 +232,7 @@ pub fn run(a: Args) -> Result<()> {
         &so,
         &device,
         &mut |f, rec| {
+            examples.offer(&f.image, rec, &names, conf);
             if let Some(wr) = writer.as_mut() {
                 wr.write(&annotate::draw(&f.image, rec, &names, conf), f.index)?;
             }
@@ -247,7 +249,7 @@ pub fn run(a: Args) -> Result<()> {
         let p = wr.finish()?;
         notes.push(format!("annotated output: {}", p.display()));
     }
-    report::write_all(&a.out, &scores, &notes)?;
+    report::write_all(&a.out, &scores, &notes, &examples.frames)?;
     print!("{}", report::summary_table(&scores).markdown());
     for n in &notes {
         println!("{n}");

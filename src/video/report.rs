@@ -2,7 +2,8 @@
 //! and summary tables (CSV + Markdown), `scores.json`, the plots over time and per segment, and a
 //! self-contained HTML report — on the shared `cac::report` tables, plots and HTML.
 
-use super::score::VideoScores;
+use super::annotate;
+use super::score::{FrameRecord, VideoScores};
 use crate::io::{save_png_atomic, write_atomic};
 use crate::report::plot::PALETTE;
 use crate::report::{plot, Html, Plot, Series, Table};
@@ -222,10 +223,67 @@ pub fn angle_plot(s: &VideoScores) -> Result<Option<image::RgbImage>> {
     .map(Some)
 }
 
+/// Example frames for the report: the first scored frame of each segment (at most `max`),
+/// drawn like the annotated output and scaled to at most 640 pixels wide.
+pub struct Examples {
+    max: usize,
+    seen: Vec<String>,
+    pub frames: Vec<(image::RgbImage, String)>,
+}
+
+impl Examples {
+    pub fn new(max: usize) -> Self {
+        Examples {
+            max,
+            seen: vec![],
+            frames: vec![],
+        }
+    }
+
+    /// Keeps `frame` when it is the first of its segment and there is room.
+    pub fn offer(
+        &mut self,
+        frame: &image::RgbImage,
+        rec: &FrameRecord,
+        models: &[String],
+        confidence: f32,
+    ) {
+        if self.frames.len() >= self.max || self.seen.contains(&rec.segment) {
+            return;
+        }
+        self.seen.push(rec.segment.clone());
+        let img = annotate::draw(frame, rec, models, confidence);
+        let img = if img.width() > 640 {
+            let h = (img.height() as u64 * 640 / img.width() as u64).max(1) as u32;
+            image::imageops::resize(&img, 640, h, image::imageops::FilterType::Triangle)
+        } else {
+            img
+        };
+        let outcome: Vec<String> = models
+            .iter()
+            .zip(&rec.models)
+            .map(|(m, f)| format!("{m} {}", if f.score.hit { "hit" } else { "miss" }))
+            .collect();
+        let caption = format!(
+            "frame {} at {:.2} s, {}: {}",
+            rec.index,
+            rec.pts,
+            rec.segment,
+            outcome.join(", ")
+        );
+        self.frames.push((img, caption));
+    }
+}
+
 /// Writes `frames.csv`, `segments.csv`, `summary.csv`, `summary.md`, `scores.json`,
 /// `time.png`, `segments.png`, `angle.png` (with a turntable log) and `report.html` into `out`. `notes` are extra lines for the report
-/// (the command, the annotated output).
-pub fn write_all(out: &Path, s: &VideoScores, notes: &[String]) -> Result<()> {
+/// (the command, the annotated output); `examples` are drawn frames shown in the report.
+pub fn write_all(
+    out: &Path,
+    s: &VideoScores,
+    notes: &[String],
+    examples: &[(image::RgbImage, String)],
+) -> Result<()> {
     let (frames, segs, summary) = (frames_table(s), segments_table(s), summary_table(s));
     write_atomic(&out.join("frames.csv"), frames.csv().as_bytes())?;
     write_atomic(&out.join("segments.csv"), segs.csv().as_bytes())?;
@@ -271,5 +329,11 @@ pub fn write_all(out: &Path, s: &VideoScores, notes: &[String]) -> Result<()> {
     }
     h.heading(2, "Segments").table(&segs);
     h.image(&sp, "P@0.5 per segment")?;
+    if !examples.is_empty() {
+        h.heading(2, "Example frames (first of each segment)");
+        let refs: Vec<(&image::RgbImage, &str)> =
+            examples.iter().map(|(i, c)| (i, c.as_str())).collect();
+        h.photos(&refs, 640)?;
+    }
     write_atomic(&out.join("report.html"), h.finish().as_bytes())
 }
