@@ -8,6 +8,7 @@ pub mod bench_attack;
 pub mod bench_eval;
 pub mod bench_methods;
 pub mod bench_render;
+pub mod bench_video;
 pub mod capture;
 pub mod config;
 pub mod demo;
@@ -20,6 +21,7 @@ pub mod meshes;
 pub mod models;
 pub mod render;
 pub mod score;
+pub mod score_video;
 pub mod study;
 pub mod texture;
 pub mod train;
@@ -56,6 +58,8 @@ pub enum Command {
     Export(export::Args),
     /// Print the default scene config (TOML), or check a config file.
     Config(config::Args),
+    /// Score a recorded video or image sequence against annotations or a turntable log.
+    ScoreVideo(score_video::Args),
     /// Physical test: turn, settle and capture frames into a session folder (or simulate).
     Capture(capture::Args),
     /// Score a capture session: P@0.5 per distance ratio and angle, JSON/CSV/HTML report.
@@ -83,6 +87,8 @@ pub enum BenchCmd {
     Export(export::BenchArgs),
     /// The attack: iteration time split, and white-box error against wall time.
     Attack(bench_attack::Args),
+    /// Offline video scoring: decode frames/s and scored frames/s per detector and codec.
+    Video(bench_video::Args),
     /// Evaluation throughput: images scored per second (render + detect + score) per detector.
     Eval(bench_eval::Args),
 }
@@ -103,10 +109,12 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Bench(BenchCmd::Render(a)) => bench_render::run(a),
         Command::Bench(BenchCmd::Detect(a)) => bench::run(bench::BenchCmd::Detect(a)),
         Command::Export(a) => export::run(a),
+        Command::ScoreVideo(a) => score_video::run(a),
         Command::Capture(a) => capture::run(a),
         Command::Score(a) => score::run(a),
         Command::Bench(BenchCmd::Export(a)) => export::bench(a),
         Command::Bench(BenchCmd::Attack(a)) => bench_attack::run(a),
+        Command::Bench(BenchCmd::Video(a)) => bench_video::run(a),
         Command::Bench(BenchCmd::Eval(a)) => bench_eval::run(a),
     }
 }

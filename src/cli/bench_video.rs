@@ -1,0 +1,158 @@
+//! `cac bench video`: throughput of offline video scoring. A turntable sequence of the default
+//! pickup is rendered by the digital twin, encoded with each codec, then timed: decoding alone
+//! (frames/s) and scoring with each detector (frames scored per second, decode included).
+//! Prints a table and writes a CSV. A benchmark, not a test: it asserts nothing.
+
+use anyhow::Result;
+use cac::detect::{self, Detector};
+use cac::report::Table;
+use cac::video::encode::{encode_sequence, H264, HEVC, MJPEG};
+use cac::video::twin::{render_turntable, TwinCalibration};
+use cac::video::{self, Annotations, OpenOptions, ScoreOptions, Tools};
+use clap::Args as ClapArgs;
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(ClapArgs, Debug)]
+pub struct Args {
+    /// Frame size of the rendered sequence.
+    #[arg(long, default_value_t = 640)]
+    pub width: usize,
+    #[arg(long, default_value_t = 480)]
+    pub height: usize,
+    /// Frames (one turn of the turntable).
+    #[arg(long, default_value_t = 24)]
+    pub frames: usize,
+    /// Detectors, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "nanodet,centernet")]
+    pub models: Vec<String>,
+    /// Codecs, comma-separated (h264, hevc, mjpeg).
+    #[arg(long, value_delimiter = ',', default_value = "h264,hevc,mjpeg")]
+    pub codecs: Vec<String>,
+    /// CSV output file.
+    #[arg(long, default_value = "bench-video.csv")]
+    pub csv: PathBuf,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let tools = Tools::from_env();
+    tools.check()?;
+    let dir = tempfile::tempdir()?;
+    let mut scene = cac::scene::generate::pickup();
+    scene.normalise(0.0, None);
+    let settings = cac::render::RenderSettings {
+        width: a.width,
+        height: a.height,
+        samples: 2,
+        ..Default::default()
+    };
+    let r = cac::render::Renderer::new(scene, settings)?;
+    let env = cac::environment::Environment::new(Default::default())?;
+    let atlas = r.scene.initial_atlas(r.settings.atlas_res);
+    let device = super::device::inference();
+    let poses: Vec<(f64, f64)> = (0..a.frames)
+        .map(|i| (360.0 * i as f64 / a.frames as f64, 1.6))
+        .collect();
+    let t0 = Instant::now();
+    let frames = render_turntable(
+        &r,
+        &env,
+        &atlas,
+        &TwinCalibration::default(),
+        &poses,
+        &device,
+    )?;
+    let mut csv = String::from("frame,x1,y1,x2,y2\n");
+    for (i, (img, b)) in frames.iter().enumerate() {
+        cac::io::save_png_atomic(&dir.path().join(format!("f{i:04}.png")), img)?;
+        if let Some(b) = b {
+            csv += &format!("{i},{},{},{},{}\n", b[0], b[1], b[2], b[3]);
+        }
+    }
+    let gt_path = dir.path().join("gt.csv");
+    cac::io::write_atomic(&gt_path, csv.as_bytes())?;
+    let gt = Annotations::load(&gt_path)?;
+    eprintln!(
+        "rendered {} frames at {}x{} in {:.1} s",
+        a.frames,
+        a.width,
+        a.height,
+        t0.elapsed().as_secs_f64()
+    );
+    let models = detect::fetch::ensure_models()?;
+    let dets: Vec<Box<dyn Detector>> = a
+        .models
+        .iter()
+        .map(|m| detect::load(m, &models, &device))
+        .collect::<Result<_>>()?;
+    let mut t = Table::new([
+        "codec",
+        "size",
+        "model",
+        "frames",
+        "decode frames/s",
+        "detect ms/frame",
+        "scored frames/s",
+    ]);
+    let size = format!("{}x{}", a.width, a.height);
+    for codec in &a.codecs {
+        let (args, name): (&[&str], &str) = match codec.as_str() {
+            "h264" => (H264, "v.mp4"),
+            "hevc" => (HEVC, "v-hevc.mp4"),
+            "mjpeg" => (MJPEG, "v.avi"),
+            other => anyhow::bail!("unknown codec {other:?}: expected h264, hevc or mjpeg"),
+        };
+        let path = dir.path().join(name);
+        encode_sequence(
+            &tools,
+            &dir.path().join("f%04d.png"),
+            24.0,
+            args,
+            &[],
+            &path,
+        )?;
+        // Decoding alone.
+        let t0 = Instant::now();
+        let mut s = video::open(&tools, &path, &OpenOptions::default())?;
+        let mut n = 0;
+        while s.next_frame()?.is_some() {
+            n += 1;
+        }
+        let decode_fps = n as f64 / t0.elapsed().as_secs_f64();
+        t.row([
+            codec.clone(),
+            size.clone(),
+            "(decode only)".into(),
+            n.to_string(),
+            format!("{decode_fps:.1}"),
+            "".into(),
+            "".into(),
+        ]);
+        for (m, d) in a.models.iter().zip(&dets) {
+            let mut s = video::open(&tools, &path, &OpenOptions::default())?;
+            let t0 = Instant::now();
+            let r = video::score_stream(
+                s.as_mut(),
+                &gt,
+                &[d.as_ref()],
+                &ScoreOptions::default(),
+                &device,
+                &mut |_, _| Ok(()),
+            )?;
+            let wall = t0.elapsed().as_secs_f64();
+            t.row([
+                codec.clone(),
+                size.clone(),
+                m.clone(),
+                r.frames.len().to_string(),
+                format!("{decode_fps:.1}"),
+                format!("{:.1}", r.summary[0].ms_per_frame),
+                format!("{:.2}", r.frames.len() as f64 / wall),
+            ]);
+        }
+    }
+    print!("{}", t.markdown());
+    cac::io::write_atomic(&a.csv, t.csv().as_bytes())?;
+    println!("wrote {}", a.csv.display());
+    Ok(())
+}
