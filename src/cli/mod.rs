@@ -6,6 +6,7 @@ use clap::{Parser, Subcommand};
 pub mod bench;
 pub mod bench_attack;
 pub mod bench_methods;
+pub mod bench_realism;
 pub mod bench_render;
 pub mod config;
 pub mod demo;
@@ -66,6 +67,8 @@ pub enum BenchCmd {
     Export(export::BenchArgs),
     /// The attack: iteration time split, and white-box error against wall time.
     Attack(bench_attack::Args),
+    /// Is the original vehicle recognised? P@0.5 per mesh, viewpoint set, light and renderer.
+    Realism(bench_realism::Args),
 }
 
 pub fn run(cli: Cli) -> Result<()> {
@@ -83,5 +86,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Export(a) => export::run(a),
         Command::Bench(BenchCmd::Export(a)) => export::bench(a),
         Command::Bench(BenchCmd::Attack(a)) => bench_attack::run(a),
+        Command::Bench(BenchCmd::Realism(a)) => bench_realism::run(a),
     }
 }

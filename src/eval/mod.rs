@@ -2,6 +2,7 @@
 //! against the ground-truth box at confidence >= 0.3; P@0.5 = hits / images. Targeted success is
 //! the same test for the target class. Drop = P@0.5(original) − P@0.5(texture).
 
+pub mod blender;
 mod views;
 pub use views::{evaluate, street_views, ViewResults};
 

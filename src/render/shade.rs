@@ -138,6 +138,30 @@ fn environment_colour(
     }
 }
 
+/// The backdrop's colour seen along the view ray `dir` through pixel `(x, y)` of a `w x h`
+/// image: the sky gradient by ray height, a flat colour, or the image stretched over the frame.
+pub fn background_colour(
+    bg: &Background,
+    dir: Vec3,
+    x: usize,
+    y: usize,
+    w: usize,
+    h: usize,
+) -> [f32; 3] {
+    match bg {
+        Background::Sky { horizon, zenith } => {
+            let t = dir.y.max(0.0).sqrt();
+            [0, 1, 2].map(|i| horizon[i] * (1.0 - t) + zenith[i] * t)
+        }
+        Background::Color(c) => *c,
+        Background::Image(img) => {
+            let (x, y) = (x as f32 + 0.5, y as f32 + 0.5);
+            let uv = Vec2::new(x / w as f32, 1.0 - y / h as f32);
+            sample(img, uv.clamp(Vec2::splat(0.001), Vec2::splat(0.999)))
+        }
+    }
+}
+
 /// Shades a G-buffer into a render plan for an atlas of `atlas_res x atlas_res`.
 pub fn plan(
     scene: &Scene,
@@ -179,19 +203,14 @@ pub fn plan(
             for sm in samples {
                 match sm.surface {
                     Surface::Sky => {
-                        let c = match &backdrop.background {
-                            Background::Sky { horizon, zenith } => {
-                                let t = sm.dir.y.max(0.0).sqrt();
-                                [0, 1, 2].map(|i| horizon[i] * (1.0 - t) + zenith[i] * t)
-                            }
-                            Background::Color(c) => *c,
-                            Background::Image(img) => {
-                                let (x, y) =
-                                    ((pi % g.width) as f32 + 0.5, (pi / g.width) as f32 + 0.5);
-                                let uv = Vec2::new(x / g.width as f32, 1.0 - y / g.height as f32);
-                                sample(img, uv.clamp(Vec2::splat(0.001), Vec2::splat(0.999)))
-                            }
-                        };
+                        let c = background_colour(
+                            &backdrop.background,
+                            sm.dir,
+                            pi % g.width,
+                            pi / g.width,
+                            g.width,
+                            g.height,
+                        );
                         add(&mut base, c, inv_s);
                     }
                     Surface::Ground => {
