@@ -10,6 +10,7 @@ mod transforms;
 
 pub use transforms::{photometric, print_error};
 
+use crate::render::skyline::Skyline;
 use crate::render::{Backdrop, Background, Ground, Lighting, Viewpoint};
 use crate::scene::Texture;
 use anyhow::{bail, Context, Result};
@@ -70,6 +71,8 @@ pub struct EnvConfig {
     pub ground_textures: Vec<PathBuf>,
     /// Metres per repetition of the ground texture.
     pub ground_tile_m: f32,
+    /// A distant skyline (buildings, trees) on the sky's horizon.
+    pub skyline: bool,
     /// Additive lighten/darken (Table 3: ±0.15).
     pub light_add: f32,
     /// Multiplicative lighten/darken (Table 3: 0.5 to 2.0).
@@ -99,6 +102,7 @@ impl Default for EnvConfig {
             ground: true,
             ground_textures: vec![],
             ground_tile_m: 3.0,
+            skyline: true,
             light_add: 0.15,
             light_mul: [0.5, 2.0],
             channel_add: 0.15,
@@ -338,6 +342,11 @@ impl Environment {
             (None, None) => Background::Sky {
                 horizon: [0.80 * dim, 0.85 * dim, 0.90 * dim],
                 zenith: [0.35 * dim, 0.55 * dim, 0.85 * dim],
+                // Each view faces another part of the ring (phase from the ground offset).
+                skyline: self.config.skyline.then(|| Skyline {
+                    phase_deg: cond.ground_offset[0] * 0.72,
+                    light: dim,
+                }),
             },
         };
         let ground = self.config.ground.then(|| Ground {

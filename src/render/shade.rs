@@ -38,8 +38,12 @@ impl Lighting {
 /// What is behind the object.
 #[derive(Clone, Debug)]
 pub enum Background {
-    /// A vertical gradient from horizon to zenith colour.
-    Sky { horizon: [f32; 3], zenith: [f32; 3] },
+    /// A vertical gradient from horizon to zenith colour, with an optional distant skyline.
+    Sky {
+        horizon: [f32; 3],
+        zenith: [f32; 3],
+        skyline: Option<super::skyline::Skyline>,
+    },
     /// A flat colour.
     Color([f32; 3]),
     /// An image stretched over the whole frame (screen space).
@@ -129,7 +133,9 @@ fn environment_colour(
         return [k; 3];
     }
     match &backdrop.background {
-        Background::Sky { horizon, zenith } => {
+        Background::Sky {
+            horizon, zenith, ..
+        } => {
             let t = r.y.max(0.0).sqrt();
             [0, 1, 2].map(|i| horizon[i] * (1.0 - t) + zenith[i] * t)
         }
@@ -149,7 +155,14 @@ pub fn background_colour(
     h: usize,
 ) -> [f32; 3] {
     match bg {
-        Background::Sky { horizon, zenith } => {
+        Background::Sky {
+            horizon,
+            zenith,
+            skyline,
+        } => {
+            if let Some(c) = skyline.and_then(|s| s.colour(dir, *horizon)) {
+                return c;
+            }
             let t = dir.y.max(0.0).sqrt();
             [0, 1, 2].map(|i| horizon[i] * (1.0 - t) + zenith[i] * t)
         }
