@@ -378,15 +378,26 @@ fn vehicle(pickup: bool) -> Scene {
     let (hw, zw) = (0.9f32, 0.006f32); // half width, panel thickness
                                        // Side profile (x forward, y up), counter-clockwise: underbody, nose, hood, windshield, then
                                        // the roof and back, which differ between the two styles.
-    let mut profile = vec![
-        v2(-2.15, 0.40),
-        v2(2.05, 0.40),
-        v2(2.15, 0.55),
+                                       // The sill runs 0.30 m above the ground and arches over each wheel (radius 0.47 around the
+                                       // axle), so the upper part of the wheels sits in wheel wells as on a real vehicle.
+    let mut profile = vec![v2(-2.15, 0.30)];
+    for axle in [-1.35f32, 1.35] {
+        let (r, y0) = (0.47f32, 0.40f32);
+        let start = std::f32::consts::PI + ((y0 - 0.30) / r).asin();
+        let end = -((y0 - 0.30) / r).asin();
+        for k in 0..=12 {
+            let a = start + (end - start) * k as f32 / 12.0;
+            profile.push(v2(axle + r * a.cos(), y0 + r * a.sin()));
+        }
+    }
+    profile.extend([
+        v2(2.05, 0.30),
+        v2(2.15, 0.50),
         v2(2.15, 0.92),
         v2(2.05, 1.02),
         v2(0.95, 1.10),
         v2(0.38, 1.80),
-    ];
+    ]);
     profile.extend(if pickup {
         // Short cab, then a covered load bed at waist height.
         [v2(-0.72, 1.84), v2(-0.80, 1.16), v2(-2.15, 1.12)]
@@ -529,18 +540,48 @@ fn vehicle(pickup: bool) -> Scene {
         for s in [1.0f32, -1.0] {
             let m = Mat4::from_translation(Vec3::new(x, 0.40, 0.0));
             let (z0, z1) = if s > 0.0 {
-                (0.66, 0.96)
+                (0.62, 0.90)
             } else {
-                (-0.96, -0.66)
+                (-0.90, -0.62)
             };
             b.cylinder(0.40, z0, z1, 32, m, tyre, tyre);
             let (r0, r1) = if s > 0.0 {
-                (0.95, 0.975)
+                (0.90, 0.915)
             } else {
-                (-0.975, -0.95)
+                (-0.915, -0.90)
             };
             b.cylinder(0.22, r0, r1, 24, m, rim, rim);
         }
+        // The dark wheel wells between the two tyres of an axle.
+        let m = Mat4::from_translation(Vec3::new(x, 0.40, 0.0));
+        b.cylinder(0.45, -0.61, 0.61, 24, m, trim, trim);
+    }
+    // Licence plates, front and back, and the door mirrors.
+    let plate = b.material("licence_plate", [0.88, 0.88, 0.84], 0.3, 30.0, false);
+    b.cuboid(
+        Vec3::new(2.30, 0.36, -0.26),
+        Vec3::new(2.312, 0.48, 0.26),
+        id,
+        plate,
+    );
+    b.cuboid(
+        Vec3::new(-2.292, 0.36, -0.26),
+        Vec3::new(-2.28, 0.48, 0.26),
+        id,
+        plate,
+    );
+    for s in [1.0f32, -1.0] {
+        let (z0, z1) = if s > 0.0 {
+            (0.90, 1.08)
+        } else {
+            (-1.08, -0.90)
+        };
+        b.cuboid(
+            Vec3::new(0.80, 1.14, z0),
+            Vec3::new(0.92, 1.26, z1),
+            id,
+            trim,
+        );
     }
     // Spare wheel on the back (the jeep only).
     if pickup {
