@@ -56,7 +56,8 @@ pub struct Args {
     /// Scene config whose [render] field of view and [environment] are used (default: defaults).
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Textures: original, natural, naive, random (simple textures on the paintable texels).
+    /// Textures: original, natural, naive, random (simple textures on the paintable texels), or
+    /// image files (PNG/JPEG atlases).
     #[arg(long, value_delimiter = ',', default_value = "original")]
     pub textures: Vec<String>,
     /// Renderers.
@@ -77,6 +78,9 @@ pub struct Args {
     /// CSV output file.
     #[arg(long, default_value = "bench-realism.csv")]
     pub csv: PathBuf,
+    /// Also write one CSV row per view (viewpoint, hit and best confidence per detector).
+    #[arg(long)]
+    pub per_view: Option<PathBuf>,
 }
 
 /// The conditions of a viewpoint set.
@@ -120,9 +124,15 @@ fn texture(name: &str, original: &Texture, mask: &[bool]) -> Result<Texture> {
     if name == "original" {
         return Ok(original.clone());
     }
-    let kind = Kind::from_str(name, true)
-        .map_err(|e| anyhow::anyhow!("unknown texture '{name}': {e} (or 'original')"))?;
-    let t = textures::generate(kind, original.width, 0)?;
+    let t = if name.ends_with(".png") || name.ends_with(".jpg") {
+        Texture::from_rgb8(&cac::io::load_rgb(std::path::Path::new(name))?)
+            .resized(original.width, original.height)
+    } else {
+        let kind = Kind::from_str(name, true).map_err(|e| {
+            anyhow::anyhow!("unknown texture '{name}': {e} (or 'original', or a PNG/JPEG file)")
+        })?;
+        textures::generate(kind, original.width, 0)?
+    };
     let mut a = original.clone();
     for (k, m) in mask.iter().enumerate() {
         if *m {
@@ -166,6 +176,9 @@ pub fn run(a: Args) -> Result<()> {
     let mut rows = vec![
         "mesh,renderer,texture,set,brightness,views,nanodet_p05,nanodet_mean_conf,centernet_p05,centernet_mean_conf,seconds".to_string(),
     ];
+    let mut per_view = vec![
+        "mesh,renderer,texture,set,brightness,view,azimuth,elevation,distance_ratio,nanodet_hit,nanodet_conf,centernet_hit,centernet_conf".to_string(),
+    ];
     for mesh in &a.meshes {
         let mut oc = cfg.object.clone();
         oc.mesh = mesh.clone();
@@ -180,6 +193,10 @@ pub fn run(a: Args) -> Result<()> {
         let env = Environment::new(cfg.environment.clone())?;
         for tname in &a.textures {
             let atlas = texture(tname, &original, &mask)?;
+            let tname = &std::path::Path::new(tname)
+                .file_stem()
+                .map(|s| s.to_string_lossy().to_string())
+                .unwrap_or(tname.clone());
             for &set in &a.sets {
                 for b in [Brightness::Bright, Brightness::Dark] {
                     let conds = views(set, &cfg, a.views, b, a.seed, a.photometric)?;
@@ -209,6 +226,15 @@ pub fn run(a: Args) -> Result<()> {
                                 cac::io::save_png_atomic(&d.join(format!("{i:02}.png")), img)?;
                             }
                         }
+                        for (i, cd) in conds.iter().enumerate() {
+                            let v = &cd.viewpoint;
+                            per_view.push(format!(
+                                "{short},{wname},{tname},{sname},{bname},{i},{:.1},{:.1},{:.2},{},{:.3},{},{:.3}",
+                                v.azimuth_deg.rem_euclid(360.0), v.elevation_deg, v.distance_ratio,
+                                scores[0][i].hit as u8, scores[0][i].best_true_conf,
+                                scores[1][i].hit as u8, scores[1][i].best_true_conf
+                            ));
+                        }
                         let (n, c) = (eval::summarise(&scores[0]), eval::summarise(&scores[1]));
                         println!(
                             "{short:<16} {wname:<8} {tname:<9} {sname:<10} {bname:<6} {:>8.3} {:>10.3} {:>8.3} {:>10.3} {secs:>6.0}",
@@ -224,6 +250,10 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     cac::io::write_atomic(&a.csv, (rows.join("\n") + "\n").as_bytes())?;
+    if let Some(p) = &a.per_view {
+        cac::io::write_atomic(p, (per_view.join("\n") + "\n").as_bytes())?;
+        println!("wrote {}", p.display());
+    }
     println!("wrote {}", a.csv.display());
     Ok(())
 }

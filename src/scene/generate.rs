@@ -13,6 +13,9 @@ struct Builder {
     scene: Scene,
     /// For each paintable face: its UV indices and its local rectangle (min, max) in metres.
     faces: Vec<(Vec<u32>, Vec2, Vec2)>,
+    /// Curvature of the next prisms' caps (shading normals only): the cap's normal tilts up
+    /// towards its top edge and down towards its bottom by up to this much (0 = flat).
+    cap_bulge: f32,
 }
 
 impl Builder {
@@ -20,6 +23,7 @@ impl Builder {
         Builder {
             scene: Scene::empty(name),
             faces: vec![],
+            cap_bulge: 0.0,
         }
     }
 
@@ -182,10 +186,23 @@ impl Builder {
                 self.faces
                     .push(((uv0..uv0 + n as u32).collect(), Vec2::ZERO, hi - lo));
             }
+            let n0 = self.scene.normals.len() as u32;
+            let bulge = self.cap_bulge;
+            if bulge > 0.0 {
+                let (cy, hy) = (0.5 * (lo.y + hi.y), 0.5 * (hi.y - lo.y).max(1e-6));
+                for &q in profile {
+                    let t = ((q.y - cy) / hy).clamp(-1.0, 1.0);
+                    let local = Vec3::new(0.0, bulge * t, dir * (z1 - z0).signum());
+                    self.scene
+                        .normals
+                        .push(nm.transform_vector3(local).normalize_or_zero());
+                }
+            }
             for e in &ears {
                 let p = e.map(|k| base + 2 * k as u32 + z_off);
                 let uv = cap_paint.then(|| e.map(|k| uv0 + k as u32));
-                self.tri(p, uv, None, cap_mat, outward);
+                let nrm = (bulge > 0.0).then(|| e.map(|k| n0 + k as u32));
+                self.tri(p, uv, nrm, cap_mat, outward);
             }
         }
     }
@@ -404,7 +421,11 @@ fn vehicle(pickup: bool) -> Scene {
     } else {
         [v2(-1.95, 1.84), v2(-2.12, 1.77), v2(-2.15, 1.02)]
     });
+    // Body sides curve like real panels (shading normals): the upper part faces the sky, the
+    // lower part the ground, so reflections and light grade down the side.
+    b.cap_bulge = 0.45;
     b.prism(&profile, -hw, hw, id, body, body, false);
+    b.cap_bulge = 0.0;
     // Side windows (thin closed panels on both sides).
     let front_win = [
         v2(0.80, 1.17),
