@@ -192,3 +192,50 @@ fn a_failing_blender_run_reports_its_stderr() {
         "{e}"
     );
 }
+
+#[test]
+fn with_a_ground_the_box_still_matches_and_the_ground_is_opaque() {
+    let (w, h) = (64usize, 48usize);
+    let mut scene = generate::jeep();
+    scene.normalise(0.0, None);
+    let atlas = scene.initial_atlas(64);
+    let r = Renderer::new(
+        scene,
+        RenderSettings {
+            width: w,
+            height: h,
+            samples: 16,
+            vfov_deg: 50.0,
+            atlas_res: 64,
+        },
+    )
+    .unwrap();
+    let env = Environment::new(EnvConfig::default()).unwrap();
+    let mut c = Condition::plain(Viewpoint::new(120.0, 18.0, 2.2), Brightness::Bright);
+    c.background_color = Some([1.0, 0.0, 1.0]);
+    c.ground_offset = [12.5, -40.0];
+    let s = BlenderSettings {
+        samples: 8,
+        mask_samples: 16,
+        threads: 2,
+        ..Default::default()
+    };
+    let v = blender::render_views(&r, &env, &[c.clone()], &atlas, &s, &device())
+        .unwrap()
+        .remove(0);
+    let plan = r
+        .plan(&c.viewpoint, &env.lighting(&c), &env.backdrop(&c))
+        .unwrap();
+    let (ours, theirs) = (plan.object_box.unwrap(), v.object_box.unwrap());
+    for k in 0..4 {
+        assert!((ours[k] - theirs[k]).abs() <= 1.0, "{ours:?} vs {theirs:?}");
+    }
+    // Looking down at 18°, the bottom row is all ground: no magenta backdrop shows through.
+    for x in 0..w as u32 {
+        let p = v.image.get_pixel(x, h as u32 - 1);
+        assert!(
+            !(p[0] > 200 && p[1] < 60 && p[2] > 200),
+            "backdrop at ({x}, bottom): {p:?}"
+        );
+    }
+}
