@@ -573,9 +573,52 @@ fn vehicle(pickup: bool) -> Scene {
             };
             b.cylinder(0.22, r0, r1, 24, m, rim, rim);
         }
-        // The dark wheel wells between the two tyres of an axle.
-        let m = Mat4::from_translation(Vec3::new(x, 0.40, 0.0));
-        b.cylinder(0.45, -0.61, 0.61, 24, m, trim, trim);
+        // The dark wheel wells: a half ring behind each tyre fills the arch above it.
+        let (a0, a1) = ((-15.0f32).to_radians(), 195.0f32.to_radians());
+        let arc = |r: f32, k: usize| {
+            let a = a0 + (a1 - a0) * k as f32 / 16.0;
+            v2(x + r * a.cos(), 0.40 + r * a.sin())
+        };
+        let well: Vec<Vec2> = (0..=16)
+            .map(|k| arc(0.465, k))
+            .chain((0..=16).rev().map(|k| arc(0.38, k)))
+            .collect();
+        b.prism(&well, 0.585, 0.61, id, trim, trim, false);
+        b.prism(&well, -0.61, -0.585, id, trim, trim, false);
+    }
+    // Door gaps (dark lines a few millimetres proud of the panel) and door handles.
+    let doors: &[(f32, f32)] = if pickup {
+        &[(0.92, -0.62)]
+    } else {
+        &[(0.92, -0.56), (-0.60, -1.62)]
+    };
+    for &(front, back) in doors {
+        for s in [1.0f32, -1.0] {
+            let (z0, z1) = if s > 0.0 {
+                (hw, hw + 0.004)
+            } else {
+                (-hw - 0.004, -hw)
+            };
+            for x in [front, back] {
+                b.cuboid(
+                    Vec3::new(x - 0.006, 0.34, z0),
+                    Vec3::new(x + 0.006, 1.12, z1),
+                    id,
+                    trim,
+                );
+            }
+            let (h0, h1) = if s > 0.0 {
+                (hw - 0.002, hw + 0.012)
+            } else {
+                (-hw - 0.012, -hw + 0.002)
+            };
+            b.cuboid(
+                Vec3::new(back + 0.10, 0.96, h0),
+                Vec3::new(back + 0.28, 1.01, h1),
+                id,
+                trim,
+            );
+        }
     }
     // Licence plates, front and back, and the door mirrors.
     let plate = b.material("licence_plate", [0.88, 0.88, 0.84], 0.3, 30.0, false);
