@@ -165,6 +165,9 @@ pub fn run(a: Args) -> Result<()> {
         samples: a.blender_samples,
         ..Default::default()
     };
+    if a.renderers.contains(&Which::Blender) {
+        println!("renderer 2: {}", blender::check(&bs)?);
+    }
     println!(
         "P@0.5 = car/truck at IoU >= 0.5, conf >= 0.3; {}² px, {} spp (cac), {} spp (Blender); {} views per row; photometric transforms {}",
         a.size, a.samples, a.blender_samples, a.views, if a.photometric { "on" } else { "off" }
