@@ -90,7 +90,7 @@ fn blender_matches_cac_in_mask_box_and_mean_colour() {
         );
         // Mean colour over pixels fully covered in both.
         let ours_img = render::to_images(&render::composite(
-            &[plan.clone()],
+            std::slice::from_ref(&plan),
             render::atlas_tensor(&atlas, &dev),
         ))
         .remove(0);
