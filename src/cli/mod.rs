@@ -7,6 +7,7 @@ pub mod bench;
 pub mod bench_attack;
 pub mod bench_eval;
 pub mod bench_methods;
+pub mod bench_realism;
 pub mod bench_render;
 pub mod bench_video;
 pub mod capture;
@@ -91,6 +92,8 @@ pub enum BenchCmd {
     Video(bench_video::Args),
     /// Evaluation throughput: images scored per second (render + detect + score) per detector.
     Eval(bench_eval::Args),
+    /// Is the original vehicle recognised? P@0.5 per mesh, viewpoint set, light and renderer.
+    Realism(bench_realism::Args),
 }
 
 pub fn run(cli: Cli) -> Result<()> {
@@ -116,5 +119,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Bench(BenchCmd::Attack(a)) => bench_attack::run(a),
         Command::Bench(BenchCmd::Video(a)) => bench_video::run(a),
         Command::Bench(BenchCmd::Eval(a)) => bench_eval::run(a),
+        Command::Bench(BenchCmd::Realism(a)) => bench_realism::run(a),
     }
 }

@@ -10,6 +10,7 @@ mod transforms;
 
 pub use transforms::{photometric, print_error};
 
+use crate::render::skyline::Skyline;
 use crate::render::{Backdrop, Background, Ground, Lighting, Viewpoint};
 use crate::scene::Texture;
 use anyhow::{bail, Context, Result};
@@ -50,11 +51,14 @@ pub struct LightLevel {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct EnvConfig {
-    /// Camera distance in object lengths (Table 3: 1.0 to 6.0).
+    /// Camera distance in object lengths (Table 3: 1.0 to 6.0; default 1.5 to 6.0, the 6–26 m at
+    /// which street and dash cameras see a 4.3 m vehicle whole).
     pub distance_ratio: [f32; 2],
     /// Image-plane translation of the object, fraction of the image (Table 3: ±0.05).
     pub translate: f32,
-    /// Camera elevation range in degrees for the free viewpoint set.
+    /// Camera elevation range in degrees for the free viewpoint set (default 0 to 20°: what
+    /// street and dash cameras see; the paper's semi-ellipsoid is 0 to 90°, see
+    /// docs/environment.md for P@0.5 on both).
     pub elevation_deg: [f32; 2],
     /// Restricted viewpoint: total azimuth span around each side (Table 3 / paper: 120°).
     pub restricted_alpha_deg: f32,
@@ -70,6 +74,8 @@ pub struct EnvConfig {
     pub ground_textures: Vec<PathBuf>,
     /// Metres per repetition of the ground texture.
     pub ground_tile_m: f32,
+    /// A distant skyline (buildings, trees) on the sky's horizon.
+    pub skyline: bool,
     /// Additive lighten/darken (Table 3: ±0.15).
     pub light_add: f32,
     /// Multiplicative lighten/darken (Table 3: 0.5 to 2.0).
@@ -89,9 +95,9 @@ pub struct EnvConfig {
 impl Default for EnvConfig {
     fn default() -> Self {
         EnvConfig {
-            distance_ratio: [1.0, 6.0],
+            distance_ratio: [1.5, 6.0],
             translate: 0.05,
-            elevation_deg: [0.0, 60.0],
+            elevation_deg: [0.0, 20.0],
             restricted_alpha_deg: 120.0,
             background_color: [0.1, 1.0],
             background_color_prob: 0.25,
@@ -99,6 +105,7 @@ impl Default for EnvConfig {
             ground: true,
             ground_textures: vec![],
             ground_tile_m: 3.0,
+            skyline: true,
             light_add: 0.15,
             light_mul: [0.5, 2.0],
             channel_add: 0.15,
@@ -338,6 +345,11 @@ impl Environment {
             (None, None) => Background::Sky {
                 horizon: [0.80 * dim, 0.85 * dim, 0.90 * dim],
                 zenith: [0.35 * dim, 0.55 * dim, 0.85 * dim],
+                // Each view faces another part of the ring (phase from the ground offset).
+                skyline: self.config.skyline.then(|| Skyline {
+                    phase_deg: cond.ground_offset[0] * 0.72,
+                    light: dim,
+                }),
             },
         };
         let ground = self.config.ground.then(|| Ground {

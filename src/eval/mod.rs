@@ -14,6 +14,7 @@ pub mod run;
 pub mod study;
 pub mod summary;
 pub mod textures;
+pub mod blender;
 mod views;
 pub use views::{evaluate, street_views, ViewResults};
 

@@ -16,6 +16,7 @@ pub mod composite;
 pub mod gbuffer;
 pub mod shade;
 mod sheet;
+pub mod skyline;
 pub use sheet::contact_sheet;
 
 pub use camera::{Camera, Intrinsics, Viewpoint};

@@ -38,8 +38,12 @@ impl Lighting {
 /// What is behind the object.
 #[derive(Clone, Debug)]
 pub enum Background {
-    /// A vertical gradient from horizon to zenith colour.
-    Sky { horizon: [f32; 3], zenith: [f32; 3] },
+    /// A vertical gradient from horizon to zenith colour, with an optional distant skyline.
+    Sky {
+        horizon: [f32; 3],
+        zenith: [f32; 3],
+        skyline: Option<super::skyline::Skyline>,
+    },
     /// A flat colour.
     Color([f32; 3]),
     /// An image stretched over the whole frame (screen space).
@@ -129,12 +133,45 @@ fn environment_colour(
         return [k; 3];
     }
     match &backdrop.background {
-        Background::Sky { horizon, zenith } => {
+        Background::Sky {
+            horizon, zenith, ..
+        } => {
             let t = r.y.max(0.0).sqrt();
             [0, 1, 2].map(|i| horizon[i] * (1.0 - t) + zenith[i] * t)
         }
         Background::Color(c) => *c,
         Background::Image(_) => image_mean,
+    }
+}
+
+/// The backdrop's colour seen along the view ray `dir` through pixel `(x, y)` of a `w x h`
+/// image: the sky gradient by ray height, a flat colour, or the image stretched over the frame.
+pub fn background_colour(
+    bg: &Background,
+    dir: Vec3,
+    x: usize,
+    y: usize,
+    w: usize,
+    h: usize,
+) -> [f32; 3] {
+    match bg {
+        Background::Sky {
+            horizon,
+            zenith,
+            skyline,
+        } => {
+            if let Some(c) = skyline.and_then(|s| s.colour(dir, *horizon)) {
+                return c;
+            }
+            let t = dir.y.max(0.0).sqrt();
+            [0, 1, 2].map(|i| horizon[i] * (1.0 - t) + zenith[i] * t)
+        }
+        Background::Color(c) => *c,
+        Background::Image(img) => {
+            let (x, y) = (x as f32 + 0.5, y as f32 + 0.5);
+            let uv = Vec2::new(x / w as f32, 1.0 - y / h as f32);
+            sample(img, uv.clamp(Vec2::splat(0.001), Vec2::splat(0.999)))
+        }
     }
 }
 
@@ -179,19 +216,14 @@ pub fn plan(
             for sm in samples {
                 match sm.surface {
                     Surface::Sky => {
-                        let c = match &backdrop.background {
-                            Background::Sky { horizon, zenith } => {
-                                let t = sm.dir.y.max(0.0).sqrt();
-                                [0, 1, 2].map(|i| horizon[i] * (1.0 - t) + zenith[i] * t)
-                            }
-                            Background::Color(c) => *c,
-                            Background::Image(img) => {
-                                let (x, y) =
-                                    ((pi % g.width) as f32 + 0.5, (pi / g.width) as f32 + 0.5);
-                                let uv = Vec2::new(x / g.width as f32, 1.0 - y / g.height as f32);
-                                sample(img, uv.clamp(Vec2::splat(0.001), Vec2::splat(0.999)))
-                            }
-                        };
+                        let c = background_colour(
+                            &backdrop.background,
+                            sm.dir,
+                            pi % g.width,
+                            pi / g.width,
+                            g.width,
+                            g.height,
+                        );
                         add(&mut base, c, inv_s);
                     }
                     Surface::Ground => {

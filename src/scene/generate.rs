@@ -13,6 +13,9 @@ struct Builder {
     scene: Scene,
     /// For each paintable face: its UV indices and its local rectangle (min, max) in metres.
     faces: Vec<(Vec<u32>, Vec2, Vec2)>,
+    /// Curvature of the next prisms' caps (shading normals only): the cap's normal tilts up
+    /// towards its top edge and down towards its bottom by up to this much (0 = flat).
+    cap_bulge: f32,
 }
 
 impl Builder {
@@ -20,6 +23,7 @@ impl Builder {
         Builder {
             scene: Scene::empty(name),
             faces: vec![],
+            cap_bulge: 0.0,
         }
     }
 
@@ -182,10 +186,23 @@ impl Builder {
                 self.faces
                     .push(((uv0..uv0 + n as u32).collect(), Vec2::ZERO, hi - lo));
             }
+            let n0 = self.scene.normals.len() as u32;
+            let bulge = self.cap_bulge;
+            if bulge > 0.0 {
+                let (cy, hy) = (0.5 * (lo.y + hi.y), 0.5 * (hi.y - lo.y).max(1e-6));
+                for &q in profile {
+                    let t = ((q.y - cy) / hy).clamp(-1.0, 1.0);
+                    let local = Vec3::new(0.0, bulge * t, dir * (z1 - z0).signum());
+                    self.scene
+                        .normals
+                        .push(nm.transform_vector3(local).normalize_or_zero());
+                }
+            }
             for e in &ears {
                 let p = e.map(|k| base + 2 * k as u32 + z_off);
                 let uv = cap_paint.then(|| e.map(|k| uv0 + k as u32));
-                self.tri(p, uv, None, cap_mat, outward);
+                let nrm = (bulge > 0.0).then(|| e.map(|k| n0 + k as u32));
+                self.tri(p, uv, nrm, cap_mat, outward);
             }
         }
     }
@@ -378,22 +395,37 @@ fn vehicle(pickup: bool) -> Scene {
     let (hw, zw) = (0.9f32, 0.006f32); // half width, panel thickness
                                        // Side profile (x forward, y up), counter-clockwise: underbody, nose, hood, windshield, then
                                        // the roof and back, which differ between the two styles.
-    let mut profile = vec![
-        v2(-2.15, 0.40),
-        v2(2.05, 0.40),
-        v2(2.15, 0.55),
+                                       // The sill runs 0.30 m above the ground and arches over each wheel (radius 0.47 around the
+                                       // axle), so the upper part of the wheels sits in wheel wells as on a real vehicle.
+    let mut profile = vec![v2(-2.15, 0.30)];
+    for axle in [-1.35f32, 1.35] {
+        let (r, y0) = (0.47f32, 0.40f32);
+        let start = std::f32::consts::PI + ((y0 - 0.30) / r).asin();
+        let end = -((y0 - 0.30) / r).asin();
+        for k in 0..=12 {
+            let a = start + (end - start) * k as f32 / 12.0;
+            profile.push(v2(axle + r * a.cos(), y0 + r * a.sin()));
+        }
+    }
+    profile.extend([
+        v2(2.05, 0.30),
+        v2(2.15, 0.50),
         v2(2.15, 0.92),
         v2(2.05, 1.02),
         v2(0.95, 1.10),
         v2(0.38, 1.80),
-    ];
+    ]);
     profile.extend(if pickup {
         // Short cab, then a covered load bed at waist height.
         [v2(-0.72, 1.84), v2(-0.80, 1.16), v2(-2.15, 1.12)]
     } else {
         [v2(-1.95, 1.84), v2(-2.12, 1.77), v2(-2.15, 1.02)]
     });
+    // Body sides curve like real panels (shading normals): the upper part faces the sky, the
+    // lower part the ground, so reflections and light grade down the side.
+    b.cap_bulge = 0.45;
     b.prism(&profile, -hw, hw, id, body, body, false);
+    b.cap_bulge = 0.0;
     // Side windows (thin closed panels on both sides).
     let front_win = [
         v2(0.80, 1.17),
@@ -529,18 +561,91 @@ fn vehicle(pickup: bool) -> Scene {
         for s in [1.0f32, -1.0] {
             let m = Mat4::from_translation(Vec3::new(x, 0.40, 0.0));
             let (z0, z1) = if s > 0.0 {
-                (0.66, 0.96)
+                (0.62, 0.90)
             } else {
-                (-0.96, -0.66)
+                (-0.90, -0.62)
             };
             b.cylinder(0.40, z0, z1, 32, m, tyre, tyre);
             let (r0, r1) = if s > 0.0 {
-                (0.95, 0.975)
+                (0.90, 0.915)
             } else {
-                (-0.975, -0.95)
+                (-0.915, -0.90)
             };
             b.cylinder(0.22, r0, r1, 24, m, rim, rim);
         }
+        // The dark wheel wells: a half ring behind each tyre fills the arch above it.
+        let (a0, a1) = ((-15.0f32).to_radians(), 195.0f32.to_radians());
+        let arc = |r: f32, k: usize| {
+            let a = a0 + (a1 - a0) * k as f32 / 16.0;
+            v2(x + r * a.cos(), 0.40 + r * a.sin())
+        };
+        let well: Vec<Vec2> = (0..=16)
+            .map(|k| arc(0.465, k))
+            .chain((0..=16).rev().map(|k| arc(0.38, k)))
+            .collect();
+        b.prism(&well, 0.585, 0.61, id, trim, trim, false);
+        b.prism(&well, -0.61, -0.585, id, trim, trim, false);
+    }
+    // Door gaps (dark lines a few millimetres proud of the panel) and door handles.
+    let doors: &[(f32, f32)] = if pickup {
+        &[(0.92, -0.62)]
+    } else {
+        &[(0.92, -0.56), (-0.60, -1.62)]
+    };
+    for &(front, back) in doors {
+        for s in [1.0f32, -1.0] {
+            let (z0, z1) = if s > 0.0 {
+                (hw, hw + 0.004)
+            } else {
+                (-hw - 0.004, -hw)
+            };
+            for x in [front, back] {
+                b.cuboid(
+                    Vec3::new(x - 0.006, 0.34, z0),
+                    Vec3::new(x + 0.006, 1.12, z1),
+                    id,
+                    trim,
+                );
+            }
+            let (h0, h1) = if s > 0.0 {
+                (hw - 0.002, hw + 0.012)
+            } else {
+                (-hw - 0.012, -hw + 0.002)
+            };
+            b.cuboid(
+                Vec3::new(back + 0.10, 0.96, h0),
+                Vec3::new(back + 0.28, 1.01, h1),
+                id,
+                trim,
+            );
+        }
+    }
+    // Licence plates, front and back, and the door mirrors.
+    let plate = b.material("licence_plate", [0.88, 0.88, 0.84], 0.3, 30.0, false);
+    b.cuboid(
+        Vec3::new(2.30, 0.36, -0.26),
+        Vec3::new(2.312, 0.48, 0.26),
+        id,
+        plate,
+    );
+    b.cuboid(
+        Vec3::new(-2.292, 0.36, -0.26),
+        Vec3::new(-2.28, 0.48, 0.26),
+        id,
+        plate,
+    );
+    for s in [1.0f32, -1.0] {
+        let (z0, z1) = if s > 0.0 {
+            (0.90, 1.08)
+        } else {
+            (-1.08, -0.90)
+        };
+        b.cuboid(
+            Vec3::new(0.80, 1.14, z0),
+            Vec3::new(0.92, 1.26, z1),
+            id,
+            trim,
+        );
     }
     // Spare wheel on the back (the jeep only).
     if pickup {

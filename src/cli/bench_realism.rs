@@ -1,0 +1,262 @@
+//! `cac bench realism`: is the *original* vehicle recognised at all? P@0.5 of each detector for
+//! each mesh × texture × renderer × viewpoint set × brightness, printed as a table and written as
+//! CSV. Viewpoint sets: `street` (12-ish azimuths, elevation 5–15°, distance ratio 1.5, the
+//! demo's evaluation views), `free` (the config's free viewpoint distribution) and `hemisphere`
+//! (the same with elevation 0–90°). Photometric transforms are off unless `--photometric`.
+//! With `--renderers cac,blender` every view is also re-rendered by Blender (Cycles, CPU) at the
+//! same camera and lighting (see docs/blender.md). A benchmark, not a test: it asserts nothing.
+
+use super::device;
+use anyhow::{Context, Result};
+use cac::attack::textures::{self, Kind};
+use cac::config::SceneConfig;
+use cac::detect::{self, Detector};
+use cac::environment::{Brightness, Condition, Environment, ViewpointSet};
+use cac::eval::{self, blender, Protocol};
+use cac::render::{RenderSettings, Renderer};
+use cac::scene::Texture;
+use clap::ValueEnum;
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum ViewSet {
+    Street,
+    Free,
+    Hemisphere,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Which {
+    Cac,
+    Blender,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Built-in object names or mesh files (OBJ/glTF/GLB).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "pickup,jeep,../shared/meshes/CesiumMilkTruck/CesiumMilkTruck.glb"
+    )]
+    pub meshes: Vec<String>,
+    /// Viewpoint sets.
+    #[arg(long, value_delimiter = ',', default_value = "street,free,hemisphere")]
+    pub sets: Vec<ViewSet>,
+    /// Views per set and brightness level.
+    #[arg(long, default_value_t = 12)]
+    pub views: usize,
+    /// Image side (pixels).
+    #[arg(long, default_value_t = 416)]
+    pub size: usize,
+    /// Samples per pixel of cac's renderer.
+    #[arg(long, default_value_t = 4)]
+    pub samples: usize,
+    /// Scene config whose [render] field of view and [environment] are used (default: defaults).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Textures: original, natural, naive, random (simple textures on the paintable texels), or
+    /// image files (PNG/JPEG atlases).
+    #[arg(long, value_delimiter = ',', default_value = "original")]
+    pub textures: Vec<String>,
+    /// Renderers.
+    #[arg(long, value_delimiter = ',', default_value = "cac")]
+    pub renderers: Vec<Which>,
+    /// Cycles samples per pixel for the Blender renderer.
+    #[arg(long, default_value_t = 32)]
+    pub blender_samples: usize,
+    /// Apply the sampled photometric transforms (lighten/darken, print error, noise) too.
+    #[arg(long)]
+    pub photometric: bool,
+    /// Seed of the sampled viewpoint sets.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Save every rendered view under this folder.
+    #[arg(long)]
+    pub save: Option<PathBuf>,
+    /// CSV output file.
+    #[arg(long, default_value = "bench-realism.csv")]
+    pub csv: PathBuf,
+    /// Also write one CSV row per view (viewpoint, hit and best confidence per detector).
+    #[arg(long)]
+    pub per_view: Option<PathBuf>,
+}
+
+/// The conditions of a viewpoint set.
+fn views(
+    set: ViewSet,
+    cfg: &SceneConfig,
+    n: usize,
+    b: Brightness,
+    seed: u64,
+    photometric: bool,
+) -> Result<Vec<Condition>> {
+    let mut env_cfg = cfg.environment.clone();
+    let conds = match set {
+        ViewSet::Street => return Ok(eval::street_views(n, 1.5, b)),
+        ViewSet::Free => Environment::new(env_cfg)?.sample_n(n, ViewpointSet::Free, b, seed),
+        ViewSet::Hemisphere => {
+            env_cfg.elevation_deg = [0.0, 90.0];
+            Environment::new(env_cfg)?.sample_n(n, ViewpointSet::Free, b, seed)
+        }
+    };
+    Ok(conds
+        .into_iter()
+        .map(|c| {
+            if photometric {
+                c
+            } else {
+                Condition {
+                    light_add: 0.0,
+                    light_mul: 1.0,
+                    channel_add: [0.0; 3],
+                    channel_mul: [1.0; 3],
+                    noise_std: 0.0,
+                    ..c
+                }
+            }
+        })
+        .collect())
+}
+
+fn texture(name: &str, original: &Texture, mask: &[bool]) -> Result<Texture> {
+    if name == "original" {
+        return Ok(original.clone());
+    }
+    let t = if name.ends_with(".png") || name.ends_with(".jpg") {
+        Texture::from_rgb8(&cac::io::load_rgb(std::path::Path::new(name))?)
+            .resized(original.width, original.height)
+    } else {
+        let kind = Kind::from_str(name, true).map_err(|e| {
+            anyhow::anyhow!("unknown texture '{name}': {e} (or 'original', or a PNG/JPEG file)")
+        })?;
+        textures::generate(kind, original.width, 0)?
+    };
+    let mut a = original.clone();
+    for (k, m) in mask.iter().enumerate() {
+        if *m {
+            a.texels[k] = t.texels[k];
+        }
+    }
+    Ok(a)
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let mut cfg = match &a.config {
+        Some(p) => SceneConfig::from_file(p)?,
+        None => SceneConfig::default(),
+    };
+    cfg.render = RenderSettings {
+        width: a.size,
+        height: a.size,
+        samples: a.samples,
+        ..cfg.render
+    };
+    let dir = detect::fetch::ensure_models()?;
+    let dev = device::inference();
+    let dets: Vec<Box<dyn Detector>> = ["nanodet", "centernet"]
+        .iter()
+        .map(|n| detect::load(n, &dir, &dev))
+        .collect::<Result<_>>()?;
+    let all: Vec<&dyn Detector> = dets.iter().map(|d| d.as_ref()).collect();
+    let proto = Protocol::default();
+    let bs = blender::BlenderSettings {
+        samples: a.blender_samples,
+        ..Default::default()
+    };
+    if a.renderers.contains(&Which::Blender) {
+        println!("renderer 2: {}", blender::check(&bs)?);
+    }
+    println!(
+        "P@0.5 = car/truck at IoU >= 0.5, conf >= 0.3; {}² px, {} spp (cac), {} spp (Blender); {} views per row; photometric transforms {}",
+        a.size, a.samples, a.blender_samples, a.views, if a.photometric { "on" } else { "off" }
+    );
+    println!(
+        "{:<16} {:<8} {:<9} {:<10} {:<6} {:>8} {:>10} {:>8} {:>10} {:>6}",
+        "mesh", "renderer", "texture", "set", "light", "nanodet", "conf", "centernet", "conf", "s"
+    );
+    let mut rows = vec![
+        "mesh,renderer,texture,set,brightness,views,nanodet_p05,nanodet_mean_conf,centernet_p05,centernet_mean_conf,seconds".to_string(),
+    ];
+    let mut per_view = vec![
+        "mesh,renderer,texture,set,brightness,view,azimuth,elevation,distance_ratio,nanodet_hit,nanodet_conf,centernet_hit,centernet_conf".to_string(),
+    ];
+    for mesh in &a.meshes {
+        let mut oc = cfg.object.clone();
+        oc.mesh = mesh.clone();
+        let scene = oc.load().with_context(|| format!("loading mesh {mesh}"))?;
+        let short = std::path::Path::new(mesh)
+            .file_stem()
+            .map(|s| s.to_string_lossy().to_string())
+            .unwrap_or(mesh.clone());
+        let original = scene.initial_atlas(cfg.render.atlas_res);
+        let mask = cac::attack::baselines::atlas::paintable_texels(&scene, cfg.render.atlas_res);
+        let r = Renderer::new(scene, cfg.render.clone())?;
+        let env = Environment::new(cfg.environment.clone())?;
+        for tname in &a.textures {
+            let atlas = texture(tname, &original, &mask)?;
+            let tname = &std::path::Path::new(tname)
+                .file_stem()
+                .map(|s| s.to_string_lossy().to_string())
+                .unwrap_or(tname.clone());
+            for &set in &a.sets {
+                for b in [Brightness::Bright, Brightness::Dark] {
+                    let conds = views(set, &cfg, a.views, b, a.seed, a.photometric)?;
+                    for &which in &a.renderers {
+                        let t0 = Instant::now();
+                        let (scores, images) = match which {
+                            Which::Cac => {
+                                let o =
+                                    eval::evaluate(&r, &env, &conds, &atlas, &all, &proto, &dev)?;
+                                (o.scores, o.images)
+                            }
+                            Which::Blender => {
+                                let views =
+                                    blender::render_views(&r, &env, &conds, &atlas, &bs, &dev)?;
+                                let s = blender::score_views(&views, &all, &proto, &dev)?;
+                                (s, views.into_iter().map(|v| v.image).collect())
+                            }
+                        };
+                        let secs = t0.elapsed().as_secs_f64();
+                        let wname = format!("{which:?}").to_lowercase();
+                        let sname = format!("{set:?}").to_lowercase();
+                        let bname = format!("{b:?}").to_lowercase();
+                        if let Some(dir) = &a.save {
+                            let d = dir.join(format!("{short}_{wname}_{tname}_{sname}_{bname}"));
+                            std::fs::create_dir_all(&d)?;
+                            for (i, img) in images.iter().enumerate() {
+                                cac::io::save_png_atomic(&d.join(format!("{i:02}.png")), img)?;
+                            }
+                        }
+                        for (i, cd) in conds.iter().enumerate() {
+                            let v = &cd.viewpoint;
+                            per_view.push(format!(
+                                "{short},{wname},{tname},{sname},{bname},{i},{:.1},{:.1},{:.2},{},{:.3},{},{:.3}",
+                                v.azimuth_deg.rem_euclid(360.0), v.elevation_deg, v.distance_ratio,
+                                scores[0][i].hit as u8, scores[0][i].best_true_conf,
+                                scores[1][i].hit as u8, scores[1][i].best_true_conf
+                            ));
+                        }
+                        let (n, c) = (eval::summarise(&scores[0]), eval::summarise(&scores[1]));
+                        println!(
+                            "{short:<16} {wname:<8} {tname:<9} {sname:<10} {bname:<6} {:>8.3} {:>10.3} {:>8.3} {:>10.3} {secs:>6.0}",
+                            n.p_at_05, n.mean_best_true_conf, c.p_at_05, c.mean_best_true_conf
+                        );
+                        rows.push(format!(
+                            "{short},{wname},{tname},{sname},{bname},{},{:.4},{:.4},{:.4},{:.4},{secs:.1}",
+                            conds.len(), n.p_at_05, n.mean_best_true_conf, c.p_at_05, c.mean_best_true_conf
+                        ));
+                    }
+                }
+            }
+        }
+    }
+    cac::io::write_atomic(&a.csv, (rows.join("\n") + "\n").as_bytes())?;
+    if let Some(p) = &a.per_view {
+        cac::io::write_atomic(p, (per_view.join("\n") + "\n").as_bytes())?;
+        println!("wrote {}", p.display());
+    }
+    println!("wrote {}", a.csv.display());
+    Ok(())
+}

@@ -1,0 +1,241 @@
+//! The second renderer (Blender, Cycles on the CPU) against cac's own: at the same camera poses
+//! the object's mask and box agree within a pixel (this checks the OpenCV → Blender camera
+//! conversion, including a shifted principal point and a non-square image), and the mean colour
+//! of the object agrees within a stated tolerance under the same lighting levels.
+//! Needs `blender` on the PATH (or `CAC_BLENDER`); CI installs it (.ci/run).
+
+use cac::environment::{Brightness, Condition, EnvConfig, Environment};
+use cac::eval::blender::{self, BlenderSettings};
+use cac::render::{self, RenderSettings, Renderer, Viewpoint};
+use cac::scene::generate;
+
+fn device() -> burn::tensor::Device {
+    burn::tensor::Device::from(burn::backend::FlexDevice)
+}
+
+fn conditions() -> Vec<Condition> {
+    let mut a = Condition::plain(
+        Viewpoint {
+            azimuth_deg: 35.0,
+            elevation_deg: 12.0,
+            distance_ratio: 1.6,
+            shift: [0.06, -0.04],
+        },
+        Brightness::Bright,
+    );
+    a.background_color = Some([0.2, 0.4, 0.6]);
+    let mut b = Condition::plain(Viewpoint::new(215.0, 28.0, 1.9), Brightness::Dark);
+    b.sun_azimuth_deg = 300.0;
+    b.background_color = Some([0.9, 0.9, 0.9]);
+    vec![a, b]
+}
+
+#[test]
+fn blender_matches_cac_in_mask_box_and_mean_colour() {
+    let (w, h) = (96usize, 64usize);
+    let mut scene = generate::pickup();
+    scene.normalise(0.0, None);
+    let atlas = scene.initial_atlas(128);
+    let r = Renderer::new(
+        scene,
+        RenderSettings {
+            width: w,
+            height: h,
+            samples: 16,
+            vfov_deg: 45.0,
+            atlas_res: 128,
+        },
+    )
+    .unwrap();
+    // No ground: cac's ambient term is an unoccluded sky, which Cycles matches only without one.
+    let env = Environment::new(EnvConfig {
+        ground: false,
+        ..Default::default()
+    })
+    .unwrap();
+    let conds = conditions();
+    let dev = device();
+    let s = BlenderSettings {
+        samples: 64,
+        mask_samples: 16,
+        threads: 2,
+        ..Default::default()
+    };
+    let views = blender::render_views(&r, &env, &conds, &atlas, &s, &dev)
+        .expect("Blender must be installed (CI installs it: .ci/run)");
+    assert_eq!(views.len(), conds.len());
+    for (i, (c, v)) in conds.iter().zip(&views).enumerate() {
+        let plan = r
+            .plan(&c.viewpoint, &env.lighting(c), &env.backdrop(c))
+            .unwrap();
+        let ours = plan.object_box.unwrap();
+        let theirs = v.object_box.expect("object visible in Blender");
+        for k in 0..4 {
+            assert!(
+                (ours[k] - theirs[k]).abs() <= 1.0,
+                "view {i}: box {ours:?} (cac) vs {theirs:?} (Blender)"
+            );
+        }
+        // Coverage agrees pixel by pixel except along the silhouette.
+        let differ = plan
+            .coverage
+            .iter()
+            .zip(&v.coverage)
+            .filter(|(a, b)| (*a - *b).abs() > 0.5)
+            .count();
+        let area = plan.coverage.iter().filter(|&&a| a > 0.5).count();
+        assert!(
+            (differ as f32) < 0.03 * area as f32,
+            "view {i}: {differ} of {area} object pixels differ"
+        );
+        // Mean colour over pixels fully covered in both.
+        let ours_img = render::to_images(&render::composite(
+            std::slice::from_ref(&plan),
+            render::atlas_tensor(&atlas, &dev),
+        ))
+        .remove(0);
+        if let Some(d) = std::env::var_os("CAC_BLENDER_WORK") {
+            let d = std::path::Path::new(&d);
+            ours_img.save(d.join(format!("cac{i}.png"))).unwrap();
+            v.image.save(d.join(format!("blender{i}.png"))).unwrap();
+        }
+        let (mut m0, mut m1, mut n) = ([0f64; 3], [0f64; 3], 0usize);
+        for (k, (a, b)) in plan.coverage.iter().zip(&v.coverage).enumerate() {
+            if *a > 0.999 && *b > 0.999 {
+                let (x, y) = ((k % w) as u32, (k / w) as u32);
+                for ch in 0..3 {
+                    m0[ch] += ours_img.get_pixel(x, y)[ch] as f64 / 255.0;
+                    m1[ch] += v.image.get_pixel(x, y)[ch] as f64 / 255.0;
+                }
+                n += 1;
+            }
+        }
+        assert!(n > area / 2, "view {i}: too few interior pixels ({n})");
+        let mean = |m: [f64; 3]| m.map(|x| x / n as f64);
+        eprintln!(
+            "view {i}: mean colour cac {:.3?} Blender {:.3?}",
+            mean(m0),
+            mean(m1)
+        );
+        for ch in 0..3 {
+            let (a, b) = (m0[ch] / n as f64, m1[ch] / n as f64);
+            assert!(
+                (a - b).abs() < 0.07,
+                "view {i} channel {ch}: mean colour cac {a:.3} vs Blender {b:.3}"
+            );
+        }
+        // The backdrop (composited from cac's own) is identical where no object is seen.
+        let bg = c.background_color.unwrap();
+        let px = v
+            .coverage
+            .iter()
+            .position(|&a| a == 0.0)
+            .expect("some background");
+        let p = v.image.get_pixel((px % w) as u32, (px / w) as u32);
+        for ch in 0..3 {
+            assert!((p[ch] as f32 / 255.0 - bg[ch]).abs() < 1.5 / 255.0);
+        }
+    }
+}
+
+#[test]
+fn a_missing_blender_is_a_clear_error() {
+    let s = BlenderSettings {
+        executable: "/nonexistent/blender".into(),
+        ..Default::default()
+    };
+    let e = format!("{:#}", blender::check(&s).unwrap_err());
+    assert!(
+        e.contains("cannot run Blender") && e.contains("apt-get install blender"),
+        "{e}"
+    );
+}
+
+#[test]
+fn a_failing_blender_run_reports_its_stderr() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let fake = dir.path().join("blender");
+    std::fs::write(
+        &fake,
+        "#!/bin/sh\nif [ \"$3\" = --version ]; then echo 'Blender 9.9'; exit 0; fi\n\
+         echo 'Error: Python: Traceback: no such material' >&2; exit 3\n",
+    )
+    .unwrap();
+    std::fs::set_permissions(&fake, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let s = BlenderSettings {
+        executable: fake,
+        ..Default::default()
+    };
+    assert_eq!(blender::check(&s).unwrap(), "Blender 9.9");
+    let mut scene = generate::barrel();
+    scene.normalise(0.0, None);
+    let atlas = scene.initial_atlas(16);
+    let r = Renderer::new(
+        scene,
+        RenderSettings {
+            width: 16,
+            height: 16,
+            samples: 1,
+            vfov_deg: 45.0,
+            atlas_res: 16,
+        },
+    )
+    .unwrap();
+    let env = Environment::new(EnvConfig::default()).unwrap();
+    let e = blender::render_views(&r, &env, &conditions(), &atlas, &s, &device())
+        .err()
+        .expect("a failing Blender is an error");
+    let e = format!("{e:#}");
+    assert!(
+        e.contains("Blender failed") && e.contains("no such material"),
+        "{e}"
+    );
+}
+
+#[test]
+fn with_a_ground_the_box_still_matches_and_the_ground_is_opaque() {
+    let (w, h) = (64usize, 48usize);
+    let mut scene = generate::jeep();
+    scene.normalise(0.0, None);
+    let atlas = scene.initial_atlas(64);
+    let r = Renderer::new(
+        scene,
+        RenderSettings {
+            width: w,
+            height: h,
+            samples: 16,
+            vfov_deg: 50.0,
+            atlas_res: 64,
+        },
+    )
+    .unwrap();
+    let env = Environment::new(EnvConfig::default()).unwrap();
+    let mut c = Condition::plain(Viewpoint::new(120.0, 18.0, 2.2), Brightness::Bright);
+    c.background_color = Some([1.0, 0.0, 1.0]);
+    c.ground_offset = [12.5, -40.0];
+    let s = BlenderSettings {
+        samples: 8,
+        mask_samples: 16,
+        threads: 2,
+        ..Default::default()
+    };
+    let v = blender::render_views(&r, &env, &[c.clone()], &atlas, &s, &device())
+        .unwrap()
+        .remove(0);
+    let plan = r
+        .plan(&c.viewpoint, &env.lighting(&c), &env.backdrop(&c))
+        .unwrap();
+    let (ours, theirs) = (plan.object_box.unwrap(), v.object_box.unwrap());
+    for k in 0..4 {
+        assert!((ours[k] - theirs[k]).abs() <= 1.0, "{ours:?} vs {theirs:?}");
+    }
+    // Looking down at 18°, the bottom row is all ground: no magenta backdrop shows through.
+    for x in 0..w as u32 {
+        let p = v.image.get_pixel(x, h as u32 - 1);
+        assert!(
+            !(p[0] > 200 && p[1] < 60 && p[2] > 200),
+            "backdrop at ({x}, bottom): {p:?}"
+        );
+    }
+}
