@@ -25,7 +25,7 @@ pub struct ObjectConfig {
 impl Default for ObjectConfig {
     fn default() -> Self {
         ObjectConfig {
-            mesh: "jeep".into(),
+            mesh: "pickup".into(),
             paint: PaintRule::default(),
             yaw_deg: 0.0,
             length_m: None,

@@ -27,7 +27,7 @@ pub struct Args {
     pub views: usize,
 }
 
-/// The demo's scene: the built-in jeep, street-level training views (the distribution the
+/// The demo's scene: the built-in pickup, street-level training views (the distribution the
 /// evaluation views come from), the paper's photometric transforms.
 pub fn demo_scene() -> SceneConfig {
     let mut cfg = SceneConfig::default();

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 /// Bake the learned texture into files for full-colour 3D printing and paste-on sheets.
 #[derive(ClapArgs, Debug)]
 pub struct Args {
-    /// The object: an OBJ/glTF/GLB file, or a default object name (jeep, barrel, container).
+    /// The object: an OBJ/glTF/GLB file, or a default object name (pickup, jeep, barrel, container).
     #[arg(long)]
     pub mesh: PathBuf,
     /// The learned camouflage texture (PNG): the UV atlas of the paintable parts.

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 #[derive(clap::Subcommand, Debug)]
 pub enum Cmd {
-    /// Generate the default objects (jeep, barrel, container) into a folder.
+    /// Generate the default objects (pickup, jeep, barrel, container) into a folder.
     Generate {
         #[arg(long, default_value = "meshes")]
         out: PathBuf,

@@ -10,7 +10,7 @@ use std::path::PathBuf;
 
 #[derive(ClapArgs, Debug)]
 pub struct Args {
-    /// Scene config (TOML); defaults to the built-in jeep and the paper's environment.
+    /// Scene config (TOML); defaults to the built-in pickup and the paper's environment.
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Mesh file (OBJ/glTF/GLB) or built-in name; overrides the config.

@@ -18,7 +18,7 @@ pub struct Args {
     /// object; upc, camou: full atlas in 3D). See docs/attack.md.
     #[arg(long, value_enum, default_value_t = Method::Cac)]
     pub method: Method,
-    /// Scene config (TOML); defaults to the built-in jeep and the paper's environment.
+    /// Scene config (TOML); defaults to the built-in pickup and the paper's environment.
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Run folder (created; must be empty unless --resume).

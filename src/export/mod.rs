@@ -187,7 +187,7 @@ impl PrintMesh {
     }
 }
 
-/// Loads the mesh (a file, or a default object name: jeep, barrel, container) and checks that
+/// Loads the mesh (a file, or a default object name: pickup, jeep, barrel, container) and checks that
 /// every part the paint rule selects has UVs.
 pub fn load_mesh(path: &Path, opts: &LoadOptions) -> Result<Scene> {
     if !path.exists() {
