@@ -6,7 +6,7 @@
 use burn::tensor::{Device, Tensor, TensorData};
 use cac::detect::frcnn::weights::{HostTensor, StateDict};
 use cac::detect::frcnn::{Arch, FasterRcnn, FrcnnConfig};
-use cac::detect::{preprocess, Detector};
+use cac::detect::preprocess;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
@@ -240,4 +240,144 @@ fn mobilenet_v3_matches_torchvision() {
 #[test]
 fn resnet50_matches_torchvision() {
     conformance(Arch::ResNet50, &["chelsea"]);
+}
+
+// ---- weights files ----
+
+#[test]
+fn pth_reader_loads_torch_save_and_names_missing_unexpected_and_misshaped_keys() {
+    let arch = Arch::MobileNetV3Large320;
+    let sd = StateDict::read(&data("subset.pth")).unwrap();
+    let want = oracle_weights(arch);
+    assert!(sd.tensors.len() >= 15, "{} tensors", sd.tensors.len());
+    for (k, t) in &sd.tensors {
+        assert_eq!(Some(t), want.tensors.get(k), "{k}");
+    }
+    let err = FasterRcnn::from_state_dict(arch, &sd, arch.config(), &dev())
+        .err()
+        .expect("a subset is not a model")
+        .to_string();
+    assert!(err.contains("subset.pth"), "{err}");
+    assert!(
+        err.contains("missing keys: backbone.body.2.block.0.0.weight [64, 16, 1, 1]"),
+        "{err}"
+    );
+    assert!(!err.contains("unexpected"), "{err}");
+
+    let bad = StateDict::read(&data("bad.pth")).unwrap();
+    let err = FasterRcnn::from_state_dict(arch, &bad, arch.config(), &dev())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        err.contains("1 unexpected keys: extra.unexpected.weight"),
+        "{err}"
+    );
+    assert!(
+        err.contains(
+            "backbone.body.0.0.weight: the file has [16, 3, 5, 5], the model needs [16, 3, 3, 3]"
+        ),
+        "{err}"
+    );
+    let err = StateDict::read(&data("frcnn-mobilenet-v3-320-chelsea.json"))
+        .err()
+        .unwrap();
+    assert!(
+        format!("{err:#}").contains("frcnn-mobilenet-v3-320-chelsea.json"),
+        "{err:#}"
+    );
+}
+
+#[test]
+fn safetensors_and_prefixed_checkpoints_load_the_same_model() {
+    let arch = Arch::MobileNetV3Large320;
+    let sd = oracle_weights(arch);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("frcnn.safetensors");
+    let bytes: Vec<(String, Vec<u8>, Vec<usize>)> = sd
+        .tensors
+        .iter()
+        // A training checkpoint's layout: everything under `model.`.
+        .map(|(k, t)| {
+            (
+                format!("model.{k}"),
+                t.values.iter().flat_map(|v| v.to_le_bytes()).collect(),
+                t.shape.clone(),
+            )
+        })
+        .collect();
+    let views: Vec<(String, safetensors::tensor::TensorView)> = bytes
+        .iter()
+        .map(|(k, b, s)| {
+            (
+                k.clone(),
+                safetensors::tensor::TensorView::new(safetensors::Dtype::F32, s.clone(), b)
+                    .unwrap(),
+            )
+        })
+        .collect();
+    safetensors::serialize_to_file(views, None, &path).unwrap();
+    let a = FasterRcnn::load(arch.name(), &path, &dev()).unwrap();
+    let b = FasterRcnn::from_state_dict(arch, &sd, arch.config(), &dev()).unwrap();
+    let x = image("chelsea");
+    let (oa, ob) = (
+        a.run(x.clone()).unwrap().remove(0),
+        b.run(x).unwrap().remove(0),
+    );
+    assert_eq!(oa.proposals, ob.proposals);
+    assert_eq!(oa.class_logits, ob.class_logits);
+    assert_eq!(oa.detections, ob.detections);
+}
+
+// ---- gradients ----
+
+/// d(Σ class logits over the fixed proposals)/d(image) on a small image: equal to torchvision's
+/// autograd gradient, and to a central finite difference along a fixed direction.
+#[test]
+fn class_logit_gradient_matches_torch_and_finite_differences() {
+    let arch = Arch::MobileNetV3Large320;
+    let m =
+        FasterRcnn::from_state_dict(arch, &oracle_weights(arch), arch.config(), &dev()).unwrap();
+    let (shape, img) = npy(&data("grad-image.npy"));
+    let (h, w) = (shape[1], shape[2]);
+    let x0 = Tensor::<4>::from_data(TensorData::new(img.clone(), [1, 3, h, w]), &dev());
+    let props = m.proposals(x0).unwrap();
+    let (_, tp) = npy(&data("grad-proposals.npy"));
+    let mine: Vec<f32> = props[0].iter().flatten().copied().collect();
+    assert_eq!(mine.len(), tp.len());
+    assert!(mine.iter().zip(&tp).all(|(a, b)| (a - b).abs() <= 1e-3));
+    let loss = |x: Tensor<4>| {
+        let (f, g, _) = m.features(x).unwrap();
+        m.box_outputs(&f, g, &props).unwrap().0.sum()
+    };
+    let ad = Device::autodiff(dev());
+    let xa = Tensor::<4>::from_data(TensorData::new(img.clone(), [1, 3, h, w]), &ad).require_grad();
+    let l = loss(xa.clone());
+    let grad = xa.grad(&l.backward()).expect("gradient reaches the image");
+    let g: Vec<f32> = grad.into_data().convert::<f32>().try_to_vec().unwrap();
+    let (_, tg) = npy(&data("grad-image-grad.npy"));
+    let e = rel(&g, &tg);
+    eprintln!("image gradient vs torch autograd: max relative error {e:.2e}");
+    // Looser than the forward bound: a ReLU whose input is within rounding of 0 switches paths.
+    assert!(e <= 2e-3, "gradient relative error {e}");
+
+    // Finite differences (the random network is strongly non-linear: small step, loose bound).
+    let dir: Vec<f32> = uniform("direction", 3 * h * w)
+        .iter()
+        .map(|&v| v as f32)
+        .collect();
+    let analytic: f64 = g.iter().zip(&dir).map(|(a, b)| (a * b) as f64).sum();
+    let eps = 3e-4f32;
+    let shifted = |s: f32| {
+        let v: Vec<f32> = img.iter().zip(&dir).map(|(a, d)| a + s * d).collect();
+        loss(Tensor::from_data(TensorData::new(v, [1, 3, h, w]), &dev())).into_scalar::<f32>()
+            as f64
+    };
+    let numeric = (shifted(eps) - shifted(-eps)) / (2.0 * eps as f64);
+    let e = (analytic - numeric).abs() / numeric.abs().max(1e-6);
+    eprintln!("directional derivative: autodiff {analytic:.4}, finite difference {numeric:.4}, relative error {e:.2e}");
+    assert!(
+        e < 5e-2,
+        "autodiff {analytic} vs finite difference {numeric}"
+    );
 }

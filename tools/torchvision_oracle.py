@@ -168,6 +168,22 @@ def oracle(out, image_dir):
                   f"{props.shape[0]} proposals, {len(dets['labels'])} detections, "
                   f"logit range [{logits.min():.2f}, {logits.max():.2f}], "
                   f"features {[tuple(v.shape) for v in feats.values()]}")
+    # Gradient of the class logits summed over the (fixed) proposals, on a small image.
+    m = build("frcnn-mobilenet-v3-320")
+    h, w = 40, 56
+    yy, xx = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
+    img = np.stack([0.5 + 0.4 * np.sin(xx * 0.3 + c) * np.cos(yy * 0.2) for c in range(3)]).astype(np.float32)
+    x = torch.from_numpy(img).requires_grad_(True)
+    images, _ = m.transform([x])
+    feats = m.backbone(images.tensors)
+    props, _ = m.rpn(images, feats)
+    bf = m.roi_heads.box_roi_pool(feats, props, images.image_sizes)
+    logits, _ = m.roi_heads.box_predictor(m.roi_heads.box_head(bf))
+    logits.sum().backward()
+    np.save(os.path.join(out, "grad-image.npy"), img)
+    np.save(os.path.join(out, "grad-proposals.npy"), props[0].detach().numpy())
+    np.save(os.path.join(out, "grad-image-grad.npy"), x.grad.numpy().astype(np.float32))
+    print(f"gradient: {props[0].shape[0]} proposals, |grad| max {x.grad.abs().max():.3f}")
     # A real torch.save state_dict for the reader tests.
     m = build("frcnn-mobilenet-v3-320")
     sd = m.state_dict()

@@ -38,23 +38,26 @@ impl StateDict {
     }
 
     /// Reads a `.pth` / `.pt` (torch.save, zip or legacy pickle) or `.safetensors` file.
-    /// The format is told by the file's first bytes, not by its name.
+    /// The format is told by the file's first bytes (a safetensors header), not by its name.
     pub fn read(path: &Path) -> Result<Self> {
-        let mut head = [0u8; 8];
-        {
+        let mut head = [0u8; 9];
+        let len = {
             use std::io::Read;
             let mut f = std::fs::File::open(path)
                 .with_context(|| format!("cannot open weights file {}", path.display()))?;
             let n = f.read(&mut head).unwrap_or(0);
-            if n < 8 {
+            if n < 9 {
                 bail!("{}: too short to be a weights file", path.display());
             }
-        }
-        let torch_like = &head[..2] == b"PK" || head[0] == 0x80 || &head[..5] == b"ustar";
-        let tensors = if torch_like {
-            read_pth(path)?
-        } else {
+            f.metadata().map(|m| m.len()).unwrap_or(0)
+        };
+        // safetensors: an 8-byte little-endian header length, then a JSON header.
+        let header = u64::from_le_bytes(head[..8].try_into().expect("8 bytes"));
+        let safetensors = head[8] == b'{' && header.saturating_add(8) <= len;
+        let tensors = if safetensors {
             read_safetensors(path)?
+        } else {
+            read_pth(path)?
         };
         Ok(StateDict {
             source: path.display().to_string(),
