@@ -18,6 +18,7 @@ pub mod layers;
 pub mod postprocess;
 pub mod roi_align;
 pub mod rpn;
+pub mod synthetic;
 pub mod transform;
 pub mod weights;
 
