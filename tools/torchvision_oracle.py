@@ -199,7 +199,8 @@ def oracle(out, image_dir):
 def bench(name, threads, iters, size):
     """Forward and forward+backward (to the image) ms on CPU, printed as one JSON line."""
     torch.set_num_threads(threads)
-    m = build(name)
+    ctor = MODELS[name][0]
+    m = set_weights(ctor(weights=None, weights_backbone=None)).eval()  # torchvision's default sizes
     h, w = size
     x = torch.rand(3, h, w)
     with torch.no_grad():

@@ -80,7 +80,9 @@ pub fn run(a: DetectArgs) -> Result<()> {
     };
     let det: Box<dyn detect::Detector> = match (frcnn, &a.weights) {
         (Some(name), Some(w)) => Box::new(detect::FasterRcnn::load(name, w, &device)?),
-        (Some(name), None) => bail!("--model {name} needs --weights FILE (a torchvision state_dict)"),
+        (Some(name), None) => {
+            bail!("--model {name} needs --weights FILE (a torchvision state_dict)")
+        }
         (None, Some(_)) => bail!("--weights only applies to the Faster R-CNN models"),
         (None, None) => {
             let dir = match &a.models {

@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 
 pub mod bench;
 pub mod bench_attack;
+pub mod bench_frcnn;
 pub mod bench_methods;
 pub mod bench_render;
 pub mod config;

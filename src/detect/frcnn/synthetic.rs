@@ -89,4 +89,3 @@ pub fn state_dict(arch: Arch) -> StateDict {
         .collect();
     StateDict::from_map("oracle formula", map)
 }
-
