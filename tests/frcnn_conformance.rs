@@ -80,8 +80,8 @@ fn conformance(arch: Arch, images: &[&str]) -> [f64; 5] {
         assert_eq!(mine, labels, "{name} {stem}: detection labels/order");
         for (k, det) in out.detections.iter().enumerate() {
             let b = d["boxes"][k].as_array().unwrap();
-            for j in 0..4 {
-                let e = (det.bbox[j] as f64 - b[j].as_f64().unwrap()).abs();
+            for (mine, want) in det.bbox.iter().zip(b) {
+                let e = (*mine as f64 - want.as_f64().unwrap()).abs();
                 worst[3] = worst[3].max(e);
             }
             let e = (det.score as f64 - d["scores"][k].as_f64().unwrap()).abs();

@@ -25,6 +25,7 @@ pub fn image(stem: &str) -> Tensor<4> {
 
 // ---- the oracle's deterministic weights, without Python ----
 
+#[allow(unused_imports)]
 pub use cac::detect::frcnn::synthetic::{state_dict as oracle_weights, uniform};
 
 // ---- oracle files ----

@@ -109,8 +109,8 @@ impl Arch {
 }
 
 enum Backbone {
-    Mobile(MobileNetV3),
-    Res(ResNet50),
+    Mobile(Box<MobileNetV3>),
+    Res(Box<ResNet50>),
 }
 
 /// A torchvision Faster R-CNN on burn.
@@ -158,11 +158,11 @@ impl FasterRcnn {
         let mut l = Loader::new(sd, "rpn.head.cls_logits.weight");
         let (backbone, channels): (Backbone, Vec<usize>) = match arch {
             Arch::ResNet50 => (
-                Backbone::Res(ResNet50::load(&mut l, "backbone.body", dev)),
+                Backbone::Res(Box::new(ResNet50::load(&mut l, "backbone.body", dev))),
                 ResNet50::CHANNELS.to_vec(),
             ),
             _ => (
-                Backbone::Mobile(MobileNetV3::load(&mut l, "backbone.body", dev)),
+                Backbone::Mobile(Box::new(MobileNetV3::load(&mut l, "backbone.body", dev))),
                 MobileNetV3::CHANNELS.to_vec(),
             ),
         };
