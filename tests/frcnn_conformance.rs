@@ -180,6 +180,9 @@ fn safetensors_and_prefixed_checkpoints_load_the_same_model() {
             )
         })
         .collect();
+    // ... with other state beside it (ignored: it is outside the model's prefix).
+    let mut bytes = bytes;
+    bytes.push(("optimizer.state.0.momentum".into(), vec![0u8; 8], vec![2]));
     let views: Vec<(String, safetensors::tensor::TensorView)> = bytes
         .iter()
         .map(|(k, b, s)| {

@@ -3,8 +3,9 @@
 //! built. Every missing, unexpected or mis-shaped key is collected and reported at once.
 //!
 //! `num_batches_tracked` buffers (BatchNorm counters, absent from FrozenBatchNorm checkpoints)
-//! are ignored. A checkpoint whose keys all carry one extra prefix (`model.`, `module.`,
-//! `state_dict.`) is accepted with that prefix stripped.
+//! are ignored. A checkpoint whose model keys carry one extra prefix (`model.`, `module.`,
+//! `state_dict.`) is accepted with that prefix stripped; keys outside the prefix (optimizer
+//! state of a training checkpoint) are then ignored.
 
 use anyhow::{bail, Context, Result};
 use std::collections::{BTreeMap, BTreeSet};
@@ -230,7 +231,8 @@ impl<'a> Loader<'a> {
             .sd
             .tensors
             .keys()
-            .filter(|k| !self.used.contains(*k))
+            // With a prefix (a training checkpoint), only the keys under it are the model's.
+            .filter(|k| k.starts_with(&self.prefix) && !self.used.contains(*k))
             .cloned()
             .collect();
         if self.missing.is_empty() && self.mismatched.is_empty() && unexpected.is_empty() {
