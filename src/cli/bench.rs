@@ -1,6 +1,7 @@
 //! `cac bench detect`: forward and forward+backward time of both detectors at native
 //! resolution, batch 1 and 4, and the TFJS reference runner's wasm backend timed in the same
-//! run. Prints a table and writes a CSV. A benchmark, not a test: it asserts nothing.
+//! run; then the Faster R-CNN models against PyTorch ([`super::bench_frcnn`]). Prints tables
+//! and writes CSVs. A benchmark, not a test: it asserts nothing.
 
 use anyhow::{Context, Result};
 use burn::tensor::{Distribution, Tensor};
@@ -30,6 +31,18 @@ pub struct DetectBench {
     /// Image for the TFJS runner (default: a reference image from ../shared, else a noise PNG).
     #[arg(long)]
     pub image: Option<PathBuf>,
+    /// Only the Faster R-CNN models (skip CenterNet and NanoDet).
+    #[arg(long)]
+    pub frcnn_only: bool,
+    /// Skip the Faster R-CNN models.
+    #[arg(long)]
+    pub no_frcnn: bool,
+    /// Python with torch + torchvision for the PyTorch columns of the Faster R-CNN table.
+    #[arg(long, default_value = "python3")]
+    pub python: String,
+    /// CSV output file of the Faster R-CNN table.
+    #[arg(long, default_value = "bench-detect-frcnn.csv")]
+    pub frcnn_csv: PathBuf,
 }
 
 pub fn run(cmd: BenchCmd) -> Result<()> {
@@ -71,6 +84,18 @@ fn tfjs_wasm(runner: &Path, model: &str, image: &Path, models: &Path, runs: usiz
 }
 
 fn bench_detect(a: DetectBench) -> Result<()> {
+    if !a.frcnn_only {
+        bench_tfjs(&a)?;
+    }
+    if !a.no_frcnn {
+        let csv = super::bench_frcnn::bench(a.runs, &a.python)?;
+        cac::io::write_atomic(&a.frcnn_csv, csv.as_bytes())?;
+        println!("wrote {}", a.frcnn_csv.display());
+    }
+    Ok(())
+}
+
+fn bench_tfjs(a: &DetectBench) -> Result<()> {
     let models = detect::fetch::ensure_models()?;
     let inference = super::device::inference();
     let training = super::device::training();

@@ -1,6 +1,8 @@
-//! `cac detect IMAGE... --model centernet|nanodet`: run a COCO detector on images, print the
-//! detections (text or one JSON object per line), optionally dump raw tensors in the TFJS
-//! reference runner's schema and draw the boxes.
+//! `cac detect IMAGE... --model centernet|nanodet|frcnn-*`: run a COCO detector on images, print
+//! the detections (text or one JSON object per line), optionally dump raw tensors (the TFJS
+//! reference runner's schema; Faster R-CNN: proposals, class logits, box regression,
+//! detections) and draw the boxes. Faster R-CNN models need `--weights` (a torchvision
+//! state_dict, `.pth` or `.safetensors`).
 
 use anyhow::{bail, Result};
 use cac::detect::{self, Detection};
@@ -11,6 +13,15 @@ use std::path::{Path, PathBuf};
 pub enum Model {
     Centernet,
     Nanodet,
+    /// torchvision fasterrcnn_mobilenet_v3_large_320_fpn (needs --weights).
+    #[value(name = "frcnn-mobilenet-v3-320")]
+    FrcnnMobilenetV3_320,
+    /// torchvision fasterrcnn_mobilenet_v3_large_fpn (needs --weights).
+    #[value(name = "frcnn-mobilenet-v3")]
+    FrcnnMobilenetV3,
+    /// torchvision fasterrcnn_resnet50_fpn (needs --weights).
+    #[value(name = "frcnn-resnet50")]
+    FrcnnResnet50,
 }
 
 #[derive(Args, Debug)]
@@ -37,6 +48,9 @@ pub struct DetectArgs {
     /// Folder holding the model files (default: the cache, fetched on first use).
     #[arg(long)]
     pub models: Option<PathBuf>,
+    /// Faster R-CNN only: the torchvision state_dict (`torch.save` .pth or .safetensors).
+    #[arg(long)]
+    pub weights: Option<PathBuf>,
 }
 
 /// `out.ext` → `out-<image stem>.ext` when there are several images.
@@ -57,17 +71,32 @@ pub fn run(a: DetectArgs) -> Result<()> {
     if a.human && a.model != Model::Nanodet {
         bail!("--human only applies to --model nanodet");
     }
-    let dir = match &a.models {
-        Some(d) => d.clone(),
-        None => detect::fetch::ensure_models()?,
-    };
-    let name = match (a.model, a.human) {
-        (Model::Centernet, _) => "centernet",
-        (Model::Nanodet, false) => "nanodet",
-        (Model::Nanodet, true) => "nanodet-human",
-    };
     let device = super::device::inference();
-    let det = detect::load(name, &dir, &device)?;
+    let frcnn = match a.model {
+        Model::FrcnnMobilenetV3_320 => Some(detect::frcnn::MODELS[0]),
+        Model::FrcnnMobilenetV3 => Some(detect::frcnn::MODELS[1]),
+        Model::FrcnnResnet50 => Some(detect::frcnn::MODELS[2]),
+        _ => None,
+    };
+    let det: Box<dyn detect::Detector> = match (frcnn, &a.weights) {
+        (Some(name), Some(w)) => Box::new(detect::FasterRcnn::load(name, w, &device)?),
+        (Some(name), None) => {
+            bail!("--model {name} needs --weights FILE (a torchvision state_dict)")
+        }
+        (None, Some(_)) => bail!("--weights only applies to the Faster R-CNN models"),
+        (None, None) => {
+            let dir = match &a.models {
+                Some(d) => d.clone(),
+                None => detect::fetch::ensure_models()?,
+            };
+            let name = match (a.model, a.human) {
+                (Model::Nanodet, true) => "nanodet-human",
+                (Model::Nanodet, false) => "nanodet",
+                _ => "centernet",
+            };
+            detect::load(name, &dir, &device)?
+        }
+    };
     let many = a.images.len() > 1;
     for path in &a.images {
         let img = cac::io::load_rgb(path)?;

@@ -6,6 +6,7 @@ use clap::{Parser, Subcommand};
 pub mod bench;
 pub mod bench_attack;
 pub mod bench_eval;
+pub mod bench_frcnn;
 pub mod bench_methods;
 pub mod bench_realism;
 pub mod bench_render;

@@ -11,6 +11,7 @@
 
 pub mod centernet;
 pub mod fetch;
+pub mod frcnn;
 pub mod labels;
 pub mod nanodet;
 pub mod nms;
@@ -23,6 +24,7 @@ use burn::tensor::{Device, Tensor};
 use std::path::Path;
 
 pub use centernet::CenterNet;
+pub use frcnn::FasterRcnn;
 pub use nanodet::{NanoDet, NanoDetConfig};
 
 /// Dense pre-NMS candidates: one row per anchor location (all classes scored).

@@ -1,0 +1,131 @@
+//! `cac bench detect` (Faster R-CNN part): forward and forward+backward (class logits summed over
+//! the fixed proposals, to the image) ms of the three torchvision models on burn at their
+//! default sizes, with PyTorch on CPU at the same thread count side by side when `torch` is
+//! importable (tools/torchvision_oracle.py `--bench`, run as a subprocess). Fastest of `--runs`
+//! runs after a warm-up, on both sides. Synthetic weights:
+//! timings do not depend on the values beyond the proposal and detection counts.
+
+use anyhow::{Context, Result};
+use burn::tensor::{Distribution, Tensor};
+use cac::detect::frcnn::{synthetic, Arch, FasterRcnn, MODELS};
+use cac::detect::Detector;
+use std::path::Path;
+use std::process::Command;
+use std::time::Instant;
+
+/// The fastest run: on a shared machine the minimum is the least disturbed figure (the
+/// PyTorch side reports its minimum too).
+fn fastest(v: Vec<f64>) -> f64 {
+    v.into_iter().fold(f64::INFINITY, f64::min)
+}
+
+fn time(runs: usize, mut f: impl FnMut() -> Result<()>) -> Result<f64> {
+    f()?; // warm-up
+    let mut t = Vec::with_capacity(runs);
+    for _ in 0..runs {
+        let s = Instant::now();
+        f()?;
+        t.push(s.elapsed().as_secs_f64() * 1e3);
+    }
+    Ok(fastest(t))
+}
+
+/// PyTorch's (forward, forward+backward) ms, or None when torch cannot run.
+fn torch_ms(
+    python: &str,
+    model: &str,
+    threads: usize,
+    runs: usize,
+    (h, w): (usize, usize),
+) -> Option<(f64, f64)> {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/torchvision_oracle.py");
+    let out = Command::new(python)
+        .arg(script)
+        .args(["--bench", model, "--threads", &threads.to_string()])
+        .args(["--iters", &runs.to_string(), "--size", &format!("{h}x{w}")])
+        .output()
+        .ok()?;
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = text.lines().find(|l| l.contains("\"forward_ms\""))?;
+    let v: serde_json::Value = serde_json::from_str(line).ok()?;
+    Some((v["forward_ms"].as_f64()?, v["backward_ms"].as_f64()?))
+}
+
+/// Prints the table and returns the CSV text.
+pub fn bench(runs: usize, python: &str) -> Result<String> {
+    let inference = super::device::inference();
+    let training = super::device::training();
+    let threads = rayon::current_num_threads();
+    let mut rows = Vec::new();
+    println!(
+        "{:24} {:>9} {:>11} {:>12} {:>12} {:>14} {:>8} {:>8}",
+        "model",
+        "input",
+        "forward_ms",
+        "fwd+bwd_ms",
+        "torch_fwd_ms",
+        "torch_fwd+bwd",
+        "fwd/pt",
+        "bwd/pt"
+    );
+    for name in MODELS {
+        let arch = Arch::from_name(name)?;
+        let m = FasterRcnn::from_state_dict(
+            arch,
+            &synthetic::state_dict(arch),
+            arch.config(),
+            &inference,
+        )?;
+        let (w, h) = m.input_size();
+        let x = Tensor::<4>::random([1, 3, h, w], Distribution::Uniform(0.0, 1.0), &inference);
+        let fwd = time(runs, || m.run(x.clone()).map(|_| ()))?;
+        let xa = Tensor::<4>::random([1, 3, h, w], Distribution::Uniform(0.0, 1.0), &training);
+        let ma = FasterRcnn::from_state_dict(
+            arch,
+            &synthetic::state_dict(arch),
+            arch.config(),
+            &training,
+        )?;
+        let bwd = time(runs, || {
+            let x = xa.clone().require_grad();
+            let (f, g, _) = ma.features(x.clone())?;
+            let props = ma.rpn_proposals(&f, g)?;
+            let (logits, _) = ma.box_outputs(&f, g, &props).context("no proposal")?;
+            let grads = logits.sum().backward();
+            let grad = x.grad(&grads).context("no gradient")?;
+            let _ = grad.sum().into_scalar::<f32>();
+            Ok(())
+        })?;
+        let torch = torch_ms(python, name, threads, runs, (h, w));
+        let f = |v: Option<f64>, p: usize| v.map(|v| format!("{v:.p$}")).unwrap_or("n/a".into());
+        let (tf, tb) = (torch.map(|t| t.0), torch.map(|t| t.1));
+        let (rf, rb) = (tf.map(|t| fwd / t), tb.map(|t| bwd / t));
+        println!(
+            "{:24} {:>9} {:>11.1} {:>12.1} {:>12} {:>14} {:>8} {:>8}",
+            name,
+            format!("{w}x{h}"),
+            fwd,
+            bwd,
+            f(tf, 1),
+            f(tb, 1),
+            f(rf, 2),
+            f(rb, 2)
+        );
+        rows.push(format!(
+            "{name},{w}x{h},{threads},{fwd:.2},{bwd:.2},{},{},{},{}",
+            f(tf, 2),
+            f(tb, 2),
+            f(rf, 4),
+            f(rb, 4)
+        ));
+    }
+    if rows.iter().any(|r| r.contains("n/a")) {
+        eprintln!(
+            "note: PyTorch columns are n/a where `{python} -c 'import torch, torchvision'` fails"
+        );
+    }
+    Ok(format!(
+        "model,input,threads,forward_ms,forward_backward_ms,torch_forward_ms,torch_forward_backward_ms,forward_over_torch,backward_over_torch\n{}\n",
+        rows.join("\n")
+    ))
+}

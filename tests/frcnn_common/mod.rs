@@ -1,0 +1,60 @@
+//! Shared by the Faster R-CNN tests: the oracle's deterministic weights rebuilt without Python
+//! (the formula of tools/torchvision_oracle.py), the oracle files and reference images.
+#![allow(dead_code)]
+
+use burn::tensor::{Device, Tensor};
+use cac::detect::preprocess;
+use std::path::{Path, PathBuf};
+
+pub fn dev() -> Device {
+    Device::from(burn::backend::FlexDevice)
+}
+
+pub fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/frcnn")
+        .join(name)
+}
+
+pub fn image(stem: &str) -> Tensor<4> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join(format!("../shared/reference/images/{stem}.png"));
+    let img = cac::io::load_rgb(&p).expect("reference image (../shared/reference/images)");
+    preprocess::image_to_tensor(&img, &dev())
+}
+
+// ---- the oracle's deterministic weights, without Python ----
+
+#[allow(unused_imports)]
+pub use cac::detect::frcnn::synthetic::{state_dict as oracle_weights, uniform};
+
+// ---- oracle files ----
+
+/// A little-endian float32 C-order `.npy`: (shape, values).
+pub fn npy(path: &Path) -> (Vec<usize>, Vec<f32>) {
+    let b = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    assert_eq!(&b[..6], b"\x93NUMPY");
+    let hl = u16::from_le_bytes([b[8], b[9]]) as usize;
+    let header = std::str::from_utf8(&b[10..10 + hl]).unwrap();
+    assert!(
+        header.contains("'<f4'") && header.contains("'fortran_order': False"),
+        "{header}"
+    );
+    let shape_txt = header
+        .split("'shape': (")
+        .nth(1)
+        .unwrap()
+        .split(')')
+        .next()
+        .unwrap();
+    let shape: Vec<usize> = shape_txt
+        .split(',')
+        .filter(|s| !s.trim().is_empty())
+        .map(|s| s.trim().parse().unwrap())
+        .collect();
+    let values = b[10 + hl..]
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    (shape, values)
+}

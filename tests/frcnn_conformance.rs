@@ -1,0 +1,260 @@
+//! Faster R-CNN matched to torchvision: the three models rebuilt on the oracle's deterministic
+//! weights (tools/torchvision_oracle.py, files in tests/data/frcnn) give the same proposals,
+//! class logits, box regressions and detections; gradients reach the image; the `.pth` /
+//! safetensors readers load real files and name what is wrong with bad ones.
+
+mod frcnn_common;
+
+use burn::tensor::{Device, Tensor, TensorData};
+use cac::detect::frcnn::weights::StateDict;
+use cac::detect::frcnn::{Arch, FasterRcnn, FrcnnConfig};
+use frcnn_common::{data, dev, image, npy, oracle_weights, uniform};
+
+fn rel(a: &[f32], b: &[f32]) -> f64 {
+    cac::detect::raw::relative_error(a, b)
+}
+
+/// Runs one model on the oracle's images and checks every output; returns the worst errors
+/// (logits rel, regression rel, proposal px, detection box px, detection score).
+fn conformance(arch: Arch, images: &[&str]) -> [f64; 5] {
+    let name = arch.name();
+    let mut worst = [0f64; 5];
+    let mut model: Option<FasterRcnn> = None;
+    for stem in images {
+        let meta: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(data(&format!("{name}-{stem}.json"))).unwrap(),
+        )
+        .unwrap();
+        if model.is_none() {
+            let mut cfg: FrcnnConfig = arch.config();
+            cfg.min_size = meta["min_size"].as_u64().unwrap() as usize;
+            cfg.max_size = meta["max_size"].as_u64().unwrap() as usize;
+            model = Some(
+                FasterRcnn::from_state_dict(arch, &oracle_weights(arch), cfg, &dev()).unwrap(),
+            );
+        }
+        let m = model.as_ref().unwrap();
+        let out = m.run(image(stem)).unwrap().remove(0);
+        let rs = meta["resized_size"].as_array().unwrap();
+        assert_eq!(
+            out.geometry.resized.0 as u64,
+            rs[0].as_u64().unwrap(),
+            "{name} {stem}"
+        );
+        assert_eq!(
+            out.geometry.resized.1 as u64,
+            rs[1].as_u64().unwrap(),
+            "{name} {stem}"
+        );
+
+        let (ps, pv) = npy(&data(&format!("{name}-{stem}-proposals.npy")));
+        assert_eq!(out.proposals.len(), ps[0], "{name} {stem}: proposal count");
+        let mine: Vec<f32> = out.proposals.iter().flatten().copied().collect();
+        let dp = mine
+            .iter()
+            .zip(&pv)
+            .fold(0f64, |m, (a, b)| m.max((a - b).abs() as f64));
+        assert!(dp <= 1e-3, "{name} {stem}: proposals differ by {dp} px");
+        worst[2] = worst[2].max(dp);
+
+        let (_, lv) = npy(&data(&format!("{name}-{stem}-class_logits.npy")));
+        let e = rel(&out.class_logits, &lv);
+        assert!(e <= 1e-4, "{name} {stem}: class logits relative error {e}");
+        worst[0] = worst[0].max(e);
+        let (rs, rv) = npy(&data(&format!("{name}-{stem}-box_regression.npy")));
+        let e = rel(&out.box_regression[..rs[0] * rs[1]], &rv);
+        assert!(
+            e <= 1e-4,
+            "{name} {stem}: box regression relative error {e}"
+        );
+        worst[1] = worst[1].max(e);
+
+        let d = &meta["detections"];
+        let labels: Vec<usize> = d["labels"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_u64().unwrap() as usize)
+            .collect();
+        let mine: Vec<usize> = out.detections.iter().map(|d| d.label).collect();
+        assert_eq!(mine, labels, "{name} {stem}: detection labels/order");
+        for (k, det) in out.detections.iter().enumerate() {
+            let b = d["boxes"][k].as_array().unwrap();
+            for (mine, want) in det.bbox.iter().zip(b) {
+                let e = (*mine as f64 - want.as_f64().unwrap()).abs();
+                worst[3] = worst[3].max(e);
+            }
+            let e = (det.score as f64 - d["scores"][k].as_f64().unwrap()).abs();
+            worst[4] = worst[4].max(e);
+        }
+        assert!(
+            worst[3] <= 1e-3 && worst[4] <= 1e-4,
+            "{name} {stem}: detections differ {worst:?}"
+        );
+        eprintln!(
+            "{name} {stem}: {} proposals, {} detections; worst so far: logits {:.2e}, regression {:.2e}, proposals {:.2e} px, boxes {:.2e} px, scores {:.2e}",
+            out.proposals.len(), out.detections.len(), worst[0], worst[1], worst[2], worst[3], worst[4]
+        );
+    }
+    worst
+}
+
+#[test]
+fn mobilenet_v3_320_matches_torchvision() {
+    conformance(Arch::MobileNetV3Large320, &["chelsea", "astronaut"]);
+}
+
+/// torchvision run with `min_size=400` (the oracle's setting) to keep the test short.
+#[test]
+fn mobilenet_v3_matches_torchvision() {
+    conformance(Arch::MobileNetV3Large, &["chelsea"]);
+}
+
+/// torchvision run with `min_size=320` (the oracle's setting) to keep the test short.
+#[test]
+fn resnet50_matches_torchvision() {
+    conformance(Arch::ResNet50, &["chelsea"]);
+}
+
+// ---- weights files ----
+
+#[test]
+fn pth_reader_loads_torch_save_and_names_missing_unexpected_and_misshaped_keys() {
+    let arch = Arch::MobileNetV3Large320;
+    let sd = StateDict::read(&data("subset.pth")).unwrap();
+    let want = oracle_weights(arch);
+    assert!(sd.tensors.len() >= 15, "{} tensors", sd.tensors.len());
+    for (k, t) in &sd.tensors {
+        assert_eq!(Some(t), want.tensors.get(k), "{k}");
+    }
+    let err = FasterRcnn::from_state_dict(arch, &sd, arch.config(), &dev())
+        .err()
+        .expect("a subset is not a model")
+        .to_string();
+    assert!(err.contains("subset.pth"), "{err}");
+    assert!(
+        err.contains("missing keys: backbone.body.2.block.0.0.weight [64, 16, 1, 1]"),
+        "{err}"
+    );
+    assert!(!err.contains("unexpected"), "{err}");
+
+    let bad = StateDict::read(&data("bad.pth")).unwrap();
+    let err = FasterRcnn::from_state_dict(arch, &bad, arch.config(), &dev())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        err.contains("1 unexpected keys: extra.unexpected.weight"),
+        "{err}"
+    );
+    assert!(
+        err.contains(
+            "backbone.body.0.0.weight: the file has [16, 3, 5, 5], the model needs [16, 3, 3, 3]"
+        ),
+        "{err}"
+    );
+    let err = StateDict::read(&data("frcnn-mobilenet-v3-320-chelsea.json"))
+        .err()
+        .unwrap();
+    assert!(
+        format!("{err:#}").contains("frcnn-mobilenet-v3-320-chelsea.json"),
+        "{err:#}"
+    );
+}
+
+#[test]
+fn safetensors_and_prefixed_checkpoints_load_the_same_model() {
+    let arch = Arch::MobileNetV3Large320;
+    let sd = oracle_weights(arch);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("frcnn.safetensors");
+    let bytes: Vec<(String, Vec<u8>, Vec<usize>)> = sd
+        .tensors
+        .iter()
+        // A training checkpoint's layout: everything under `model.`.
+        .map(|(k, t)| {
+            (
+                format!("model.{k}"),
+                t.values.iter().flat_map(|v| v.to_le_bytes()).collect(),
+                t.shape.clone(),
+            )
+        })
+        .collect();
+    // ... with other state beside it (ignored: it is outside the model's prefix).
+    let mut bytes = bytes;
+    bytes.push(("optimizer.state.0.momentum".into(), vec![0u8; 8], vec![2]));
+    let views: Vec<(String, safetensors::tensor::TensorView)> = bytes
+        .iter()
+        .map(|(k, b, s)| {
+            (
+                k.clone(),
+                safetensors::tensor::TensorView::new(safetensors::Dtype::F32, s.clone(), b)
+                    .unwrap(),
+            )
+        })
+        .collect();
+    safetensors::serialize_to_file(views, None, &path).unwrap();
+    let a = FasterRcnn::load(arch.name(), &path, &dev()).unwrap();
+    let b = FasterRcnn::from_state_dict(arch, &sd, arch.config(), &dev()).unwrap();
+    let x = image("chelsea");
+    let (oa, ob) = (
+        a.run(x.clone()).unwrap().remove(0),
+        b.run(x).unwrap().remove(0),
+    );
+    assert_eq!(oa.proposals, ob.proposals);
+    assert_eq!(oa.class_logits, ob.class_logits);
+    assert_eq!(oa.detections, ob.detections);
+}
+
+// ---- gradients ----
+
+/// d(Σ class logits over the fixed proposals)/d(image) on a small image: equal to torchvision's
+/// autograd gradient, and to a central finite difference along a fixed direction.
+#[test]
+fn class_logit_gradient_matches_torch_and_finite_differences() {
+    let arch = Arch::MobileNetV3Large320;
+    let m =
+        FasterRcnn::from_state_dict(arch, &oracle_weights(arch), arch.config(), &dev()).unwrap();
+    let (shape, img) = npy(&data("grad-image.npy"));
+    let (h, w) = (shape[1], shape[2]);
+    let x0 = Tensor::<4>::from_data(TensorData::new(img.clone(), [1, 3, h, w]), &dev());
+    let props = m.proposals(x0).unwrap();
+    let (_, tp) = npy(&data("grad-proposals.npy"));
+    let mine: Vec<f32> = props[0].iter().flatten().copied().collect();
+    assert_eq!(mine.len(), tp.len());
+    assert!(mine.iter().zip(&tp).all(|(a, b)| (a - b).abs() <= 1e-3));
+    let loss = |x: Tensor<4>| {
+        let (f, g, _) = m.features(x).unwrap();
+        m.box_outputs(&f, g, &props).unwrap().0.sum()
+    };
+    let ad = Device::autodiff(dev());
+    let xa = Tensor::<4>::from_data(TensorData::new(img.clone(), [1, 3, h, w]), &ad).require_grad();
+    let l = loss(xa.clone());
+    let grad = xa.grad(&l.backward()).expect("gradient reaches the image");
+    let g: Vec<f32> = grad.into_data().convert::<f32>().try_to_vec().unwrap();
+    let (_, tg) = npy(&data("grad-image-grad.npy"));
+    let e = rel(&g, &tg);
+    eprintln!("image gradient vs torch autograd: max relative error {e:.2e}");
+    // Looser than the forward bound: a ReLU whose input is within rounding of 0 switches paths.
+    assert!(e <= 2e-3, "gradient relative error {e}");
+
+    // Finite differences (the random network is strongly non-linear: small step, loose bound).
+    let dir: Vec<f32> = uniform("direction", 3 * h * w)
+        .iter()
+        .map(|&v| v as f32)
+        .collect();
+    let analytic: f64 = g.iter().zip(&dir).map(|(a, b)| (a * b) as f64).sum();
+    let eps = 3e-4f32;
+    let shifted = |s: f32| {
+        let v: Vec<f32> = img.iter().zip(&dir).map(|(a, d)| a + s * d).collect();
+        loss(Tensor::from_data(TensorData::new(v, [1, 3, h, w]), &dev())).into_scalar::<f32>()
+            as f64
+    };
+    let numeric = (shifted(eps) - shifted(-eps)) / (2.0 * eps as f64);
+    let e = (analytic - numeric).abs() / numeric.abs().max(1e-6);
+    eprintln!("directional derivative: autodiff {analytic:.4}, finite difference {numeric:.4}, relative error {e:.2e}");
+    assert!(
+        e < 5e-2,
+        "autodiff {analytic} vs finite difference {numeric}"
+    );
+}
