@@ -168,32 +168,14 @@ fn safetensors_and_prefixed_checkpoints_load_the_same_model() {
     let sd = oracle_weights(arch);
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("frcnn.safetensors");
-    let bytes: Vec<(String, Vec<u8>, Vec<usize>)> = sd
-        .tensors
-        .iter()
-        // A training checkpoint's layout: everything under `model.`.
-        .map(|(k, t)| {
-            (
-                format!("model.{k}"),
-                t.values.iter().flat_map(|v| v.to_le_bytes()).collect(),
-                t.shape.clone(),
-            )
-        })
-        .collect();
-    // ... with other state beside it (ignored: it is outside the model's prefix).
-    let mut bytes = bytes;
-    bytes.push(("optimizer.state.0.momentum".into(), vec![0u8; 8], vec![2]));
-    let views: Vec<(String, safetensors::tensor::TensorView)> = bytes
-        .iter()
-        .map(|(k, b, s)| {
-            (
-                k.clone(),
-                safetensors::tensor::TensorView::new(safetensors::Dtype::F32, s.clone(), b)
-                    .unwrap(),
-            )
-        })
-        .collect();
-    safetensors::serialize_to_file(views, None, &path).unwrap();
+    // A training checkpoint's layout: everything under `model.`, with other state beside it
+    // (ignored: it is outside the model's prefix).
+    frcnn_common::write_safetensors(
+        &sd,
+        "model.",
+        &[("optimizer.state.0.momentum", &[2])],
+        &path,
+    );
     let a = FasterRcnn::load(arch.name(), &path, &dev()).unwrap();
     let b = FasterRcnn::from_state_dict(arch, &sd, arch.config(), &dev()).unwrap();
     let x = image("chelsea");

@@ -1,5 +1,6 @@
 //! Faster R-CNN at the edges: no proposal at all, images smaller than the smallest anchor,
-//! extreme logits; and the attack's dense-proposals loss running on its candidates.
+//! extreme logits; and the attack's dense-proposals loss running on its candidates, up to a
+//! whole `Trainer` on a checkpoint loaded by name.
 
 mod frcnn_common;
 
@@ -124,4 +125,85 @@ fn extreme_logits_give_finite_one_vs_rest_logits_and_gradients() {
         let s = 1.0 / (1.0 + (-l[c80]).exp());
         assert!((s - p[c91]).abs() < 1e-6, "{c80}: {s} vs {}", p[c91]);
     }
+}
+
+/// `detect::load("frcnn-…=FILE")` gives a detector the attack's `Trainer` steps on: the texture
+/// changes where the object is painted and every loss is finite. A bare model name, or a weights
+/// file on a one-stage detector, is a clear error.
+#[test]
+fn the_trainer_attacks_a_checkpoint_loaded_by_name() {
+    use cac::attack::{AttackConfig, Trainer};
+    use cac::environment::{EnvConfig, Environment};
+    use cac::render::{RenderSettings, Renderer};
+    let arch = Arch::MobileNetV3Large320;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("ckpt.safetensors");
+    frcnn_common::write_safetensors(&oracle_weights(arch), "", &[], &path);
+    let unused = std::path::Path::new("no-tfjs-models-needed");
+    let spec = format!("{}={}", arch.name(), path.display());
+    let det = cac::detect::load(&spec, unused, &dev()).unwrap();
+    let bare = cac::detect::load(arch.name(), unused, &dev())
+        .err()
+        .unwrap();
+    assert!(format!("{bare:#}").contains("=FILE.pth"), "{bare:#}");
+    let wrong = cac::detect::load("nanodet=x.pth", unused, &dev())
+        .err()
+        .unwrap();
+    assert!(
+        format!("{wrong:#}").contains("only Faster R-CNN"),
+        "{wrong:#}"
+    );
+
+    let mut scene = cac::scene::generate::pickup();
+    scene.normalise(0.0, None);
+    let settings = RenderSettings {
+        width: 96,
+        height: 96,
+        samples: 1,
+        vfov_deg: 45.0,
+        atlas_res: 32,
+    };
+    let r = Renderer::new(scene, settings).unwrap();
+    let env = Environment::new(EnvConfig {
+        distance_ratio: [1.2, 2.0],
+        elevation_deg: [0.0, 20.0],
+        ..Default::default()
+    })
+    .unwrap();
+    let init = r.scene.initial_atlas(32);
+    let cfg = AttackConfig {
+        models: vec![spec.clone()],
+        iterations: 3,
+        batch: 1,
+        top_n: 30,
+        lr: 0.05,
+        seed: 3,
+        checkpoint_every: 0,
+        ..Default::default()
+    };
+    let mut t = Trainer::new(
+        cfg,
+        &r,
+        &env,
+        vec![det.as_ref()],
+        Device::autodiff(dev()),
+        &init,
+    )
+    .unwrap();
+    for _ in 0..3 {
+        let log = t.step().unwrap();
+        assert!(log.loss.is_finite(), "loss {}", log.loss);
+    }
+    let before: Vec<f32> = init.texels.iter().flatten().copied().collect();
+    let changed = t
+        .state
+        .atlas
+        .iter()
+        .zip(&before)
+        .filter(|(a, b)| a != b)
+        .count();
+    assert!(
+        changed > 10,
+        "the attack changed only {changed} texel values"
+    );
 }

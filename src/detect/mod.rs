@@ -84,13 +84,36 @@ pub const MODELS: [&str; 2] = ["centernet", "nanodet"];
 
 /// Loads a detector by name (`centernet`, `nanodet`; `nanodet-human` is NanoDet with the
 /// upstream library's pre-/post-processing) from a folder holding the model files.
+///
+/// A torchvision Faster R-CNN is named with its checkpoint, `MODEL=FILE` (e.g.
+/// `frcnn-mobilenet-v3-320=ckpt.pth`, `.pth` or `.safetensors`); `dir` is not used for it. Its
+/// candidates are the RPN's fixed top-n proposals with the box head's class logits, so the attack
+/// and the evaluation take it like the one-stage detectors.
 pub fn load(name: &str, dir: &Path, device: &Device) -> Result<Box<dyn Detector>> {
+    if let Some((model, weights)) = name.split_once('=') {
+        anyhow::ensure!(
+            frcnn::MODELS.contains(&model),
+            "{name:?}: only Faster R-CNN models take a weights file (MODEL=FILE with MODEL one of {})",
+            frcnn::MODELS.join(", ")
+        );
+        return Ok(Box::new(FasterRcnn::load(
+            model,
+            Path::new(weights),
+            device,
+        )?));
+    }
+    if frcnn::MODELS.contains(&name) {
+        anyhow::bail!(
+            "{name} needs a torchvision checkpoint: write {name}=FILE.pth (or FILE.safetensors)"
+        );
+    }
     Ok(match name {
         "centernet" => Box::new(CenterNet::load(dir, device)?),
         "nanodet" => Box::new(NanoDet::load(dir, device, NanoDetConfig::default())?),
         "nanodet-human" => Box::new(NanoDet::load(dir, device, NanoDetConfig::human())?),
         other => anyhow::bail!(
-            "unknown detector {other:?}: expected centernet, nanodet or nanodet-human"
+            "unknown detector {other:?}: expected centernet, nanodet, nanodet-human or \
+             frcnn-mobilenet-v3-320|frcnn-mobilenet-v3|frcnn-resnet50=FILE.pth"
         ),
     })
 }

@@ -6,6 +6,7 @@
 //! per-image records, [`report`] writes the tables, plots and HTML, [`textures`] resolves the
 //! texture list, [`cache`] keeps finished textures so an interrupted evaluation resumes.
 
+pub mod blender;
 pub mod cache;
 pub mod gradcam;
 pub mod job;
@@ -14,7 +15,6 @@ pub mod run;
 pub mod study;
 pub mod summary;
 pub mod textures;
-pub mod blender;
 mod views;
 pub use views::{evaluate, street_views, ViewResults};
 

@@ -58,3 +58,39 @@ pub fn npy(path: &Path) -> (Vec<usize>, Vec<f32>) {
         .collect();
     (shape, values)
 }
+
+/// Writes a state_dict as a `.safetensors` file (float32), each key prefixed with `prefix`, plus
+/// `extra` zero-filled tensors (other state a training checkpoint holds beside the model).
+pub fn write_safetensors(
+    sd: &cac::detect::frcnn::weights::StateDict,
+    prefix: &str,
+    extra: &[(&str, &[usize])],
+    path: &Path,
+) {
+    let mut bytes: Vec<(String, Vec<u8>, Vec<usize>)> = sd
+        .tensors
+        .iter()
+        .map(|(k, t)| {
+            (
+                format!("{prefix}{k}"),
+                t.values.iter().flat_map(|v| v.to_le_bytes()).collect(),
+                t.shape.clone(),
+            )
+        })
+        .collect();
+    for (k, shape) in extra {
+        let n: usize = shape.iter().product();
+        bytes.push((k.to_string(), vec![0u8; 4 * n], shape.to_vec()));
+    }
+    let views: Vec<(String, safetensors::tensor::TensorView)> = bytes
+        .iter()
+        .map(|(k, b, s)| {
+            (
+                k.clone(),
+                safetensors::tensor::TensorView::new(safetensors::Dtype::F32, s.clone(), b)
+                    .unwrap(),
+            )
+        })
+        .collect();
+    safetensors::serialize_to_file(views, None, path).unwrap();
+}
