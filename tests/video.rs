@@ -164,7 +164,16 @@ fn probe_reads_codec_rotation_and_variable_frame_times() {
             want[k]
         );
         assert!((probed[k] - want[k]).abs() < 1e-3);
-        assert!(psnr(&fr.image, &f.frames[k]) > PSNR_MIN);
+        // Against the raw RGB frame (4:2:0 chroma and the codec together: 35-42 dB measured), and
+        // clearly closer to its own frame than to its neighbours (the turntable moves 15° a frame).
+        let q = psnr(&fr.image, &f.frames[k]);
+        assert!(q > PSNR_MIN - 3.0, "frame {k}: PSNR {q:.1} dB");
+        for j in [k.wrapping_sub(1), k + 1] {
+            if let Some(other) = f.frames.get(j) {
+                let qn = psnr(&fr.image, other);
+                assert!(q > qn + 3.0, "frame {k}: {q:.1} dB, frame {j}: {qn:.1} dB");
+            }
+        }
         k += 1;
     }
     assert_eq!(k, N);
