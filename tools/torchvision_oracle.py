@@ -196,24 +196,29 @@ def oracle(out, image_dir):
     torch.save(bad, os.path.join(out, "bad.pth"))
 
 
-def bench(name, threads, iters, size):
-    """Forward and forward+backward (to the image) ms on CPU, printed as one JSON line."""
+def bench(name, threads, iters, size, device="cpu"):
+    """Forward and forward+backward (to the image) ms on `device` (cpu, or cuda), printed as one
+    JSON line. On CUDA each timed run ends with a synchronisation."""
     torch.set_num_threads(threads)
     ctor = MODELS[name][0]
-    m = set_weights(ctor(weights=None, weights_backbone=None)).eval()  # torchvision's default sizes
+    m = set_weights(ctor(weights=None, weights_backbone=None)).eval().to(device)  # default sizes
     h, w = size
-    x = torch.rand(3, h, w)
+    x = torch.rand(3, h, w, device=device)
+    sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
     with torch.no_grad():
         m([x])
     fwd = []
     for _ in range(iters):
+        sync()
         t0 = time.perf_counter()
         with torch.no_grad():
             m([x])
+        sync()
         fwd.append((time.perf_counter() - t0) * 1e3)
     bwd = []
     for _ in range(iters):
         xi = x.clone().requires_grad_(True)
+        sync()
         t0 = time.perf_counter()
         images, _ = m.transform([xi])
         feats = m.backbone(images.tensors)
@@ -222,9 +227,10 @@ def bench(name, threads, iters, size):
         bf = m.roi_heads.box_roi_pool(feats, props, images.image_sizes)
         logits, _ = m.roi_heads.box_predictor(m.roi_heads.box_head(bf))
         logits.sum().backward()
+        sync()
         bwd.append((time.perf_counter() - t0) * 1e3)
     print(json.dumps({"model": name, "threads": threads, "forward_ms": min(fwd), "backward_ms": min(bwd),
-                      "torch": torch.__version__}))
+                      "device": device, "torch": torch.__version__}))
 
 
 if __name__ == "__main__":
@@ -235,9 +241,10 @@ if __name__ == "__main__":
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--iters", type=int, default=3)
     ap.add_argument("--size", default="480x640", help="bench image HxW")
+    ap.add_argument("--device", default="cpu", help="bench device: cpu or cuda")
     a = ap.parse_args()
     if a.bench:
-        bench(a.bench, a.threads, a.iters, tuple(int(s) for s in a.size.split("x")))
+        bench(a.bench, a.threads, a.iters, tuple(int(s) for s in a.size.split("x")), a.device)
     else:
         torch.set_num_threads(2)
         oracle(a.out, a.images)

@@ -30,11 +30,12 @@ fn time(runs: usize, mut f: impl FnMut() -> Result<()>) -> Result<f64> {
     Ok(fastest(t))
 }
 
-/// PyTorch's (forward, forward+backward) ms, or None when torch cannot run.
+/// PyTorch's (forward, forward+backward) ms on `device` (cpu or cuda), or None when torch cannot
+/// run there.
 fn torch_ms(
     python: &str,
     model: &str,
-    threads: usize,
+    (threads, device): (usize, &str),
     runs: usize,
     (h, w): (usize, usize),
 ) -> Option<(f64, f64)> {
@@ -43,6 +44,7 @@ fn torch_ms(
         .arg(script)
         .args(["--bench", model, "--threads", &threads.to_string()])
         .args(["--iters", &runs.to_string(), "--size", &format!("{h}x{w}")])
+        .args(["--device", device])
         .output()
         .ok()?;
     let text = String::from_utf8_lossy(&out.stdout);
@@ -56,6 +58,9 @@ pub fn bench(runs: usize, python: &str) -> Result<String> {
     let inference = super::device::inference();
     let training = super::device::training();
     let threads = rayon::current_num_threads();
+    // Like against like: on the GPU, PyTorch runs on CUDA on the same card.
+    let torch_device = if super::device::is_gpu() { "cuda" } else { "cpu" };
+    println!("PyTorch columns: {torch_device}, {threads} threads");
     let mut rows = Vec::new();
     println!(
         "{:24} {:>9} {:>11} {:>12} {:>12} {:>14} {:>8} {:>8}",
@@ -96,7 +101,7 @@ pub fn bench(runs: usize, python: &str) -> Result<String> {
             let _ = grad.sum().into_scalar::<f32>();
             Ok(())
         })?;
-        let torch = torch_ms(python, name, threads, runs, (h, w));
+        let torch = torch_ms(python, name, (threads, torch_device), runs, (h, w));
         let f = |v: Option<f64>, p: usize| v.map(|v| format!("{v:.p$}")).unwrap_or("n/a".into());
         let (tf, tb) = (torch.map(|t| t.0), torch.map(|t| t.1));
         let (rf, rb) = (tf.map(|t| fwd / t), tb.map(|t| bwd / t));

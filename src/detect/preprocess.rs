@@ -1,8 +1,10 @@
 //! Differentiable image pre-processing shared by the detectors and the graph executor:
 //! bilinear resize with the exact tfjs-cpu index formula, image ↔ tensor conversion.
 //!
-//! The resize is two gathers (`select`) and two lerps per axis, so gradients flow back to the
-//! source image. Index and weight tables are computed in f64 like tfjs-cpu; the lerps run in f32
+//! The resize is two gathers (`select`) and a lerp per axis, so gradients flow back to the
+//! source image; an integer up-scaling whose table is a shift per phase (the detectors' 2×
+//! feature up-sampling) runs as shifted slices and an interleave instead, with the same lerp
+//! and the same values. Index and weight tables are computed in f64 like tfjs-cpu; the lerps run in f32
 //! on the device (tfjs-cpu runs them in f64 and rounds once: the difference is ~1 ulp).
 
 use burn::tensor::{Device, Int, Tensor, TensorData};
@@ -58,8 +60,11 @@ fn resize_axis(x: Tensor<4>, axis: usize, out: usize, align: bool, half: bool) -
     if input == out {
         return x; // every formula reduces to the identity
     }
-    let device = x.device();
     let (lo, hi, frac) = resize_table(input, out, align, half);
+    if let Some(phases) = phase_shifts(input, out, &lo, &hi, &frac) {
+        return resize_by_phases(x, axis, &phases);
+    }
+    let device = x.device();
     let idx = |v: Vec<i64>| Tensor::<1, Int>::from_data(TensorData::new(v, [out]), &device);
     let a = x.clone().select(axis, idx(lo));
     let b = x.select(axis, idx(hi));
@@ -67,6 +72,85 @@ fn resize_axis(x: Tensor<4>, axis: usize, out: usize, align: bool, half: bool) -
     wshape[axis] = out;
     let w = Tensor::<1>::from_data(TensorData::new(frac, [out]), &device).reshape(wshape);
     a.clone() + (b - a) * w
+}
+
+/// One output phase `r = k·i + p` of an integer up-scaling by `k`: reads input `i + lo` and
+/// `i + hi` (clamped to the axis) with weight `frac`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Phase {
+    lo: isize,
+    hi: isize,
+    frac: f32,
+}
+
+/// The per-phase shifts that reproduce the table exactly, when the output is an integer
+/// multiple `k` of the input: for every output, the same indices and weight, or a table entry
+/// with `lo == hi` that the shifts also map to that one index (the lerp then gives `x[lo]`
+/// whatever the weight). None where the table is not of that form.
+fn phase_shifts(
+    input: usize,
+    out: usize,
+    lo: &[i64],
+    hi: &[i64],
+    frac: &[f32],
+) -> Option<Vec<Phase>> {
+    if input < 2 || out <= input || !out.is_multiple_of(input) {
+        return None;
+    }
+    let k = out / input;
+    let clamp = |v: isize| v.clamp(0, input as isize - 1) as i64;
+    let mid = input / 2;
+    (0..k)
+        .map(|p| {
+            let r = k * mid + p;
+            let ph = Phase {
+                lo: lo[r] as isize - mid as isize,
+                hi: hi[r] as isize - mid as isize,
+                frac: frac[r],
+            };
+            let fits = (0..input).all(|i| {
+                let r = k * i + p;
+                let (l, h) = (clamp(i as isize + ph.lo), clamp(i as isize + ph.hi));
+                (lo[r], hi[r], frac[r]) == (l, h, ph.frac) || (lo[r] == hi[r] && l == lo[r] && h == lo[r])
+            });
+            fits.then_some(ph)
+        })
+        .collect()
+}
+
+/// `x` shifted by `d` along `axis`, reading clamped indices: `y[i] = x[clamp(i + d)]`.
+fn shifted(x: Tensor<4>, axis: usize, d: isize) -> Tensor<4> {
+    let n = x.dims()[axis];
+    let m = d.unsigned_abs().min(n);
+    if d == 0 {
+        x
+    } else if d > 0 {
+        let edge = x.clone().narrow(axis, n - 1, 1).repeat_dim(axis, m);
+        Tensor::cat(vec![x.narrow(axis, m, n - m), edge], axis)
+    } else {
+        let edge = x.clone().narrow(axis, 0, 1).repeat_dim(axis, m);
+        Tensor::cat(vec![edge, x.narrow(axis, 0, n - m)], axis)
+    }
+}
+
+/// The integer up-scaling of `phase_shifts`: each phase is a lerp of two shifted copies (or one
+/// copy, when its weight is 0 and both shifts agree), and the phases are interleaved.
+fn resize_by_phases(x: Tensor<4>, axis: usize, phases: &[Phase]) -> Tensor<4> {
+    let parts: Vec<Tensor<4>> = phases
+        .iter()
+        .map(|p| {
+            let a = shifted(x.clone(), axis, p.lo);
+            if p.lo == p.hi || p.frac == 0.0 {
+                a
+            } else {
+                let b = shifted(x.clone(), axis, p.hi);
+                a.clone() + (b - a).mul_scalar(p.frac)
+            }
+        })
+        .collect();
+    let mut dims = x.dims();
+    dims[axis] *= phases.len();
+    Tensor::stack::<5>(parts, axis + 1).reshape(dims)
 }
 
 /// An 8-bit RGB image as a `[1, 3, H, W]` tensor in [0, 1] (value / 255).

@@ -214,6 +214,9 @@ impl Graph {
             device: device.clone(),
         };
         ops::prepare_conv_weights(&mut g)?;
+        if std::env::var_os("CAC_NO_FUSE").is_none() {
+            super::fuse::hard_swish(&mut g);
+        }
         Ok(g)
     }
 
@@ -361,6 +364,7 @@ impl Graph {
         let mut values: HashMap<usize, Vec<Value>> = HashMap::new();
         let profile = std::env::var_os("CAC_PROFILE_GRAPH").is_some();
         let mut op_ms: HashMap<String, f64> = HashMap::new();
+        let mut node_ms: Vec<(f64, usize, Vec<usize>)> = Vec::new();
         for (step, &i) in order.iter().enumerate() {
             let started = std::time::Instant::now();
             let node = &self.nodes[i];
@@ -400,8 +404,11 @@ impl Graph {
                 if let Some(Value::Float(f)) = out.first() {
                     let _ = f.t.clone().slice([0..1, 0..1, 0..1, 0..1]).into_data();
                 }
-                *op_ms.entry(node.op().to_string()).or_default() +=
-                    started.elapsed().as_secs_f64() * 1e3;
+                let ms = started.elapsed().as_secs_f64() * 1e3;
+                *op_ms.entry(node.op().to_string()).or_default() += ms;
+                if let Some(Value::Float(f)) = out.first() {
+                    node_ms.push((ms, i, f.shape.clone()));
+                }
             }
             values.insert(i, out);
             if injected.contains_key(&i) {
@@ -417,6 +424,11 @@ impl Graph {
             let mut v: Vec<_> = op_ms.into_iter().collect();
             v.sort_by(|a, b| b.1.total_cmp(&a.1));
             eprintln!("graph profile (ms per op type): {v:.1?}");
+            node_ms.sort_by(|a, b| b.0.total_cmp(&a.0));
+            for (ms, i, shape) in node_ms.iter().take(30) {
+                let n = &self.nodes[*i];
+                eprintln!("  {ms:7.2} ms  {:28} {shape:?}  {}", n.op(), n.name());
+            }
         }
         wanted
             .iter()

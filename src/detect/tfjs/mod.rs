@@ -1,10 +1,11 @@
 //! A general importer for TensorFlow.js graph models (`model.json` + weight shards) that runs
 //! the graph as burn tensor ops: [`model`] reads the files, [`graph`] plans and executes,
-//! [`ops`] holds the TF op semantics.
+//! [`ops`] holds the TF op semantics, [`fuse`] rewrites elementwise chains into fewer ops.
 //!
 //! It supports the ops used by common MobileNet/CSP-style detectors (see `ops.rs`); any other
 //! op is reported with the node's name when a requested output depends on it.
 
+pub mod fuse;
 pub mod graph;
 pub mod model;
 pub mod ops;
