@@ -59,7 +59,11 @@ pub fn bench(runs: usize, python: &str) -> Result<String> {
     let training = super::device::training();
     let threads = rayon::current_num_threads();
     // Like against like: on the GPU, PyTorch runs on CUDA on the same card.
-    let torch_device = if super::device::is_gpu() { "cuda" } else { "cpu" };
+    let torch_device = if super::device::is_gpu() {
+        "cuda"
+    } else {
+        "cpu"
+    };
     println!("PyTorch columns: {torch_device}, {threads} threads");
     let mut rows = Vec::new();
     println!(

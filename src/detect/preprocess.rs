@@ -61,9 +61,19 @@ fn resize_axis(x: Tensor<4>, axis: usize, out: usize, align: bool, half: bool) -
         return x; // every formula reduces to the identity
     }
     let (lo, hi, frac) = resize_table(input, out, align, half);
-    if let Some(phases) = phase_shifts(input, out, &lo, &hi, &frac) {
-        return resize_by_phases(x, axis, &phases);
+    match phase_shifts(input, out, &lo, &hi, &frac) {
+        Some(phases) => resize_by_phases(x, axis, &phases),
+        None => resize_by_gather(x, axis, (lo, hi, frac)),
     }
+}
+
+/// The general resize of one axis: gather the two source rows of every output, then lerp.
+fn resize_by_gather(
+    x: Tensor<4>,
+    axis: usize,
+    (lo, hi, frac): (Vec<i64>, Vec<i64>, Vec<f32>),
+) -> Tensor<4> {
+    let out = lo.len();
     let device = x.device();
     let idx = |v: Vec<i64>| Tensor::<1, Int>::from_data(TensorData::new(v, [out]), &device);
     let a = x.clone().select(axis, idx(lo));
@@ -111,7 +121,8 @@ fn phase_shifts(
             let fits = (0..input).all(|i| {
                 let r = k * i + p;
                 let (l, h) = (clamp(i as isize + ph.lo), clamp(i as isize + ph.hi));
-                (lo[r], hi[r], frac[r]) == (l, h, ph.frac) || (lo[r] == hi[r] && l == lo[r] && h == lo[r])
+                (lo[r], hi[r], frac[r]) == (l, h, ph.frac)
+                    || (lo[r] == hi[r] && l == lo[r] && h == lo[r])
             });
             fits.then_some(ph)
         })
@@ -173,6 +184,50 @@ pub fn images_to_tensor(imgs: &[image::RgbImage], device: &Device) -> Tensor<4> 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The phase path gives exactly the gather path's values, for the up-scalings it takes.
+    #[test]
+    fn phase_resize_equals_gather_resize() {
+        let device = Device::from(burn::backend::FlexDevice);
+        let mut taken = 0;
+        for (n, k) in [
+            (2usize, 2usize),
+            (5, 2),
+            (13, 2),
+            (7, 3),
+            (4, 4),
+            (1, 2),
+            (6, 1),
+        ] {
+            for (align, half) in [(false, false), (false, true), (true, false)] {
+                let out = n * k;
+                let x = Tensor::<4>::random(
+                    [1, 2, n, 3],
+                    burn::tensor::Distribution::Uniform(-1.0, 1.0),
+                    &device,
+                );
+                let (lo, hi, frac) = resize_table(n, out, align, half);
+                let want = resize_by_gather(x.clone(), 2, (lo.clone(), hi.clone(), frac.clone()));
+                let got = resize_axis(x, 2, out, align, half);
+                assert_eq!(got.dims(), [1, 2, out, 3]);
+                let (a, b) = (got.into_data(), want.into_data());
+                assert_eq!(a, b, "n {n} k {k} align {align} half {half}");
+                taken += phase_shifts(n, out, &lo, &hi, &frac).is_some() as usize;
+            }
+        }
+        // The detectors' cases (2× with and without half-pixel centres) do take the phase path.
+        for half in [false, true] {
+            let (lo, hi, frac) = resize_table(26, 52, false, half);
+            assert!(
+                phase_shifts(26, 52, &lo, &hi, &frac).is_some(),
+                "half {half}"
+            );
+        }
+        assert!(
+            taken >= 6,
+            "only {taken} configurations took the phase path"
+        );
+    }
 
     #[test]
     fn resize_tables_follow_tfjs_cpu() {

@@ -73,7 +73,9 @@ pub fn hard_swish(g: &mut Graph) -> usize {
     for &(i, x, c) in &rewrites {
         let node = &mut g.nodes[i];
         node.def.op = "HardSwish".into();
-        node.def.attr.insert("scale".into(), serde_json::json!({ "f": 6.0 * c as f64 }));
+        node.def
+            .attr
+            .insert("scale".into(), serde_json::json!({ "f": 6.0 * c as f64 }));
         node.inputs = vec![x];
     }
     rewrites.len()

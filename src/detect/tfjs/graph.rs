@@ -159,8 +159,17 @@ pub struct Graph {
 }
 
 impl Graph {
-    /// Builds the executable graph: resolves every input reference, uploads float constants.
+    /// Builds the executable graph: resolves every input reference, uploads float constants,
+    /// and fuses elementwise chains (see [`super::fuse`]).
     pub fn new(model: GraphModel, device: &Device) -> Result<Self> {
+        let mut g = Self::unfused(model, device)?;
+        super::fuse::hard_swish(&mut g);
+        Ok(g)
+    }
+
+    /// [`Graph::new`] without the fusions: every node runs as written in the file (for parity
+    /// checks of the fusions).
+    pub fn unfused(model: GraphModel, device: &Device) -> Result<Self> {
         let source = model.path.display().to_string();
         let mut index = HashMap::new();
         for (i, n) in model.nodes.iter().enumerate() {
@@ -214,9 +223,6 @@ impl Graph {
             device: device.clone(),
         };
         ops::prepare_conv_weights(&mut g)?;
-        if std::env::var_os("CAC_NO_FUSE").is_none() {
-            super::fuse::hard_swish(&mut g);
-        }
         Ok(g)
     }
 
