@@ -57,7 +57,8 @@ fn fastest(v: Vec<f64>) -> f64 {
     v.into_iter().fold(f64::INFINITY, f64::min)
 }
 
-fn time(runs: usize, mut f: impl FnMut() -> Result<()>) -> Result<f64> {
+/// Fastest ms of `runs` timed calls of `f`, after one warm-up call.
+pub(super) fn time(runs: usize, mut f: impl FnMut() -> Result<()>) -> Result<f64> {
     f()?; // warm-up
     let mut t = Vec::with_capacity(runs);
     for _ in 0..runs {

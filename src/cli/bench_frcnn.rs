@@ -1,9 +1,9 @@
 //! `cac bench detect` (Faster R-CNN part): forward and forward+backward (class logits summed over
 //! the fixed proposals, to the image) ms of the three torchvision models on burn at their
-//! default sizes, with PyTorch on CPU at the same thread count side by side when `torch` is
-//! importable (tools/torchvision_oracle.py `--bench`, run as a subprocess). Fastest of `--runs`
-//! runs after a warm-up, on both sides. Synthetic weights:
-//! timings do not depend on the values beyond the proposal and detection counts.
+//! default sizes, with PyTorch side by side when `torch` is importable (same thread count; on
+//! CUDA when `CAC_DEVICE=gpu`; tools/torchvision_oracle.py `--bench`, run as a subprocess).
+//! Fastest of `--runs` runs after a warm-up, on both sides. Synthetic weights: timings do not
+//! depend on the values beyond the proposal and detection counts.
 
 use anyhow::{Context, Result};
 use burn::tensor::{Distribution, Tensor};
@@ -11,24 +11,8 @@ use cac::detect::frcnn::{synthetic, Arch, FasterRcnn, MODELS};
 use cac::detect::Detector;
 use std::path::Path;
 use std::process::Command;
-use std::time::Instant;
 
-/// The fastest run: on a shared machine the minimum is the least disturbed figure (the
-/// PyTorch side reports its minimum too).
-fn fastest(v: Vec<f64>) -> f64 {
-    v.into_iter().fold(f64::INFINITY, f64::min)
-}
-
-fn time(runs: usize, mut f: impl FnMut() -> Result<()>) -> Result<f64> {
-    f()?; // warm-up
-    let mut t = Vec::with_capacity(runs);
-    for _ in 0..runs {
-        let s = Instant::now();
-        f()?;
-        t.push(s.elapsed().as_secs_f64() * 1e3);
-    }
-    Ok(fastest(t))
-}
+use super::bench::time;
 
 /// PyTorch's (forward, forward+backward) ms on `device` (cpu or cuda), or None when torch cannot
 /// run there.

@@ -79,28 +79,17 @@ fn read_pth(path: &Path) -> Result<BTreeMap<String, HostTensor>> {
         let bytes = t
             .read()
             .with_context(|| format!("{}: cannot read tensor {name}", path.display()))?;
-        let values: Vec<f32> = match t.dtype() {
-            DType::F32 => bytes
-                .chunks_exact(4)
-                .map(|b| f32::from_ne_bytes([b[0], b[1], b[2], b[3]]))
-                .collect(),
-            DType::F64 => bytes
-                .chunks_exact(8)
-                .map(|b| f64::from_ne_bytes(b.try_into().unwrap()) as f32)
-                .collect(),
-            DType::F16 => bytes
-                .chunks_exact(2)
-                .map(|b| half::f16::from_ne_bytes([b[0], b[1]]).to_f32())
-                .collect(),
-            DType::BF16 => bytes
-                .chunks_exact(2)
-                .map(|b| half::bf16::from_ne_bytes([b[0], b[1]]).to_f32())
-                .collect(),
+        let kind = match t.dtype() {
+            DType::F32 => FloatKind::F32,
+            DType::F64 => FloatKind::F64,
+            DType::F16 => FloatKind::F16,
+            DType::BF16 => FloatKind::BF16,
             other => bail!(
                 "{}: tensor {name} has dtype {other:?}; float weights expected",
                 path.display()
             ),
         };
+        let values = floats_le(&bytes, kind);
         out.insert(
             name,
             HostTensor {
@@ -110,6 +99,39 @@ fn read_pth(path: &Path) -> Result<BTreeMap<String, HostTensor>> {
         );
     }
     Ok(out)
+}
+
+/// The float element types a weight file may hold.
+#[derive(Clone, Copy, Debug)]
+enum FloatKind {
+    F32,
+    F64,
+    F16,
+    BF16,
+}
+
+/// Little-endian float elements as f32: torch.save archives and safetensors both store
+/// little-endian data.
+fn floats_le(bytes: &[u8], kind: FloatKind) -> Vec<f32> {
+    let two = |b: &[u8]| [b[0], b[1]];
+    match kind {
+        FloatKind::F32 => bytes
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect(),
+        FloatKind::F64 => bytes
+            .chunks_exact(8)
+            .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")) as f32)
+            .collect(),
+        FloatKind::F16 => bytes
+            .chunks_exact(2)
+            .map(|b| half::f16::from_le_bytes(two(b)).to_f32())
+            .collect(),
+        FloatKind::BF16 => bytes
+            .chunks_exact(2)
+            .map(|b| half::bf16::from_le_bytes(two(b)).to_f32())
+            .collect(),
+    }
 }
 
 fn read_safetensors(path: &Path) -> Result<BTreeMap<String, HostTensor>> {
@@ -127,29 +149,17 @@ fn read_safetensors(path: &Path) -> Result<BTreeMap<String, HostTensor>> {
         if ignored(&name) {
             continue;
         }
-        let d = view.data();
-        let values: Vec<f32> = match view.dtype() {
-            Dtype::F32 => d
-                .chunks_exact(4)
-                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-                .collect(),
-            Dtype::F64 => d
-                .chunks_exact(8)
-                .map(|b| f64::from_le_bytes(b.try_into().unwrap()) as f32)
-                .collect(),
-            Dtype::F16 => d
-                .chunks_exact(2)
-                .map(|b| half::f16::from_le_bytes([b[0], b[1]]).to_f32())
-                .collect(),
-            Dtype::BF16 => d
-                .chunks_exact(2)
-                .map(|b| half::bf16::from_le_bytes([b[0], b[1]]).to_f32())
-                .collect(),
+        let kind = match view.dtype() {
+            Dtype::F32 => FloatKind::F32,
+            Dtype::F64 => FloatKind::F64,
+            Dtype::F16 => FloatKind::F16,
+            Dtype::BF16 => FloatKind::BF16,
             other => bail!(
                 "{}: tensor {name} has dtype {other:?}; float weights expected",
                 path.display()
             ),
         };
+        let values = floats_le(view.data(), kind);
         out.insert(
             name,
             HostTensor {
