@@ -10,7 +10,7 @@
 # cache (`cac models fetch`, or CAC_CACHE_DIR pointing at a copy). The first GPU run of each
 # model compiles and autotunes its kernels (tens of seconds); CUBECL_AUTOTUNE_LEVEL=minimal
 # shortens that.
-set -u
+set -euo pipefail
 CAC=${CAC:-target/release/cac}
 IMAGE=${IMAGE:?set IMAGE to a photo}
 OUT=${OUT:-gpu-check}

@@ -4,8 +4,8 @@
 //! The resize is two gathers (`select`) and a lerp per axis, so gradients flow back to the
 //! source image; an integer up-scaling whose table is a shift per phase (the detectors' 2×
 //! feature up-sampling) runs as shifted slices and an interleave instead, with the same lerp
-//! and the same values. Index and weight tables are computed in f64 like tfjs-cpu; the lerps run in f32
-//! on the device (tfjs-cpu runs them in f64 and rounds once: the difference is ~1 ulp).
+//! and the same values. Index and weight tables are computed in f64 like tfjs-cpu; the lerps
+//! run in f32 on the device (tfjs-cpu runs them in f64 and rounds once: ~1 ulp apart).
 
 use burn::tensor::{Device, Int, Tensor, TensorData};
 
@@ -132,9 +132,13 @@ fn phase_shifts(
 /// `x` shifted by `d` along `axis`, reading clamped indices: `y[i] = x[clamp(i + d)]`.
 fn shifted(x: Tensor<4>, axis: usize, d: isize) -> Tensor<4> {
     let n = x.dims()[axis];
-    let m = d.unsigned_abs().min(n);
+    let m = d.unsigned_abs();
     if d == 0 {
         x
+    } else if m >= n {
+        // Every index clamps to the same end.
+        let at = if d > 0 { n - 1 } else { 0 };
+        x.narrow(axis, at, 1).repeat_dim(axis, n)
     } else if d > 0 {
         let edge = x.clone().narrow(axis, n - 1, 1).repeat_dim(axis, m);
         Tensor::cat(vec![x.narrow(axis, m, n - m), edge], axis)
@@ -227,6 +231,23 @@ mod tests {
             taken >= 6,
             "only {taken} configurations took the phase path"
         );
+    }
+
+    /// `shifted` reads clamped indices, also for shifts as long as the axis.
+    #[test]
+    fn shifts_clamp_to_the_ends() {
+        let device = Device::from(burn::backend::FlexDevice);
+        let x = Tensor::<4>::from_data(TensorData::new(vec![1f32, 2., 3.], [1, 1, 3, 1]), &device);
+        let read = |d: isize| {
+            shifted(x.clone(), 2, d)
+                .into_data()
+                .to_vec::<f32>()
+                .unwrap()
+        };
+        assert_eq!(read(1), [2., 3., 3.]);
+        assert_eq!(read(-1), [1., 1., 2.]);
+        assert_eq!(read(5), [3., 3., 3.]);
+        assert_eq!(read(-3), [1., 1., 1.]);
     }
 
     #[test]

@@ -324,11 +324,17 @@ fn conv(g: &Graph, i: usize, args: &[&Value]) -> Result<FloatValue> {
     if !fused.is_empty() && fused[0] != "BiasAdd" {
         bail!("fused_ops {fused:?} is not supported (BiasAdd first expected)");
     }
-    let y = if !depthwise && channels <= IM2COL_MAX_CHANNELS && kh * kw > 1 {
-        conv_im2col(x.to_nchw(), w, bias, stride, dil, [ph, pw])
-    } else {
-        let options = ConvOptions::new_with_padding(stride, [ph, pw], dil, groups);
-        conv2d(x.to_nchw(), w, bias, options)
+    let im2col = !depthwise && channels <= IM2COL_MAX_CHANNELS && kh * kw > 1;
+    let y = match im2col {
+        true => conv_im2col(x.to_nchw(), w.clone(), bias.clone(), stride, dil, [ph, pw]),
+        false => None,
+    };
+    let y = match y {
+        Some(y) => y,
+        None => {
+            let options = ConvOptions::new_with_padding(stride, [ph, pw], dil, groups);
+            conv2d(x.to_nchw(), w, bias, options)
+        }
     };
     let y = match activation_op.as_deref() {
         None => y,
@@ -344,24 +350,20 @@ fn conv(g: &Graph, i: usize, args: &[&Value]) -> Result<FloatValue> {
     Ok(FloatValue::from_nchw(y))
 }
 
-/// The `k[0]·k[1]` taps of a sliding window over NCHW `x` padded with `fill`, as strided views
-/// (row-major tap order), each of the output's spatial size. (A max-pool as the maximum of these
-/// views was tried: slower than Flex's `max_pool2d`, 9.6 against 6.1 ms on NanoDet's pool.)
+/// The `k[0]·k[1]` taps of a sliding window over NCHW `x` zero-padded by `ph`, `pw`, as strided
+/// views (row-major tap order), each of the output's spatial size `out`.
 fn taps(
     x: Tensor<4>,
     k: [usize; 2],
     stride: [usize; 2],
     dil: [usize; 2],
     [ph, pw]: [(usize, usize); 2],
-    fill: f32,
+    [oh, ow]: [usize; 2],
 ) -> Vec<Tensor<4>> {
-    let [_, _, h, w] = x.dims();
-    let oh = (h + ph.0 + ph.1 - dil[0] * (k[0] - 1) - 1) / stride[0] + 1;
-    let ow = (w + pw.0 + pw.1 - dil[1] * (k[1] - 1) - 1) / stride[1] + 1;
     let xp = if ph == (0, 0) && pw == (0, 0) {
         x
     } else {
-        x.pad([ph, pw], PadMode::Constant(fill))
+        x.pad([ph, pw], PadMode::Constant(0.0))
     };
     let view = |start: usize, n: usize, step: usize| {
         Slice::new(
@@ -387,11 +389,25 @@ fn taps(
 /// Dense convolutions with at most this many input channels (the RGB stem) run as im2col + gemm.
 const IM2COL_MAX_CHANNELS: usize = 4;
 
+/// Output size of a convolution along one axis, or None where the padded input is shorter than
+/// the dilated kernel.
+fn conv_out(
+    input: usize,
+    (b, e): (usize, usize),
+    k: usize,
+    stride: usize,
+    dil: usize,
+) -> Option<usize> {
+    let span = dil * (k - 1) + 1;
+    (input + b + e).checked_sub(span).map(|d| d / stride + 1)
+}
+
 /// A dense convolution of an input with few channels as im2col + a 1×1 convolution (one gemm):
 /// the `kh·kw` taps are strided views of the zero-padded input, stacked along the channels
 /// (tap-major). Flex runs such a layer tap by tap over the output, which does not vectorise
-/// with stride 2: CenterNet's 3→16 stem took 11.8 ms that way and takes about 2 ms this way.
-/// Same sums, in another order: agrees with `conv2d` to float rounding (tested).
+/// with stride 2: CenterNet's 3→16 stem took 11.8 ms that way and takes 4–5 ms this way.
+/// Same sums, in another order: agrees with `conv2d` to float rounding (tested). None where the
+/// window does not fit the padded input (the caller then leaves the case to `conv2d`).
 fn conv_im2col(
     x: Tensor<4>,
     w: Tensor<4>,
@@ -399,12 +415,20 @@ fn conv_im2col(
     stride: [usize; 2],
     dil: [usize; 2],
     [ph, pw]: [(usize, usize); 2],
-) -> Tensor<4> {
-    let c = x.dims()[1];
+) -> Option<Tensor<4>> {
+    let [_, c, h, wd] = x.dims();
     let [o, _, kh, kw] = w.dims();
-    let cols = Tensor::cat(taps(x, [kh, kw], stride, dil, [ph, pw], 0.0), 1); // (ky·kw+kx)·c+ci
+    let oh = conv_out(h, ph, kh, stride[0], dil[0])?;
+    let ow = conv_out(wd, pw, kw, stride[1], dil[1])?;
+    let cols = taps(x, [kh, kw], stride, dil, [ph, pw], [oh, ow]);
+    let cols = Tensor::cat(cols, 1); // channel (ky·kw + kx)·c + ci
     let w = w.permute([0, 2, 3, 1]).reshape([o, kh * kw * c, 1, 1]);
-    conv2d(cols, w, bias, ConvOptions::new([1, 1], [0, 0], [1, 1], 1))
+    Some(conv2d(
+        cols,
+        w,
+        bias,
+        ConvOptions::new([1, 1], [0, 0], [1, 1], 1),
+    ))
 }
 
 // ---------------------------------------------------------------- elementwise
@@ -765,6 +789,8 @@ fn pad(g: &Graph, op: &str, args: &[&Value]) -> Result<FloatValue> {
     })
 }
 
+/// (A max-pool as the maximum of the window's strided views, like `taps`, was tried: slower than
+/// Flex's `max_pool2d`, 9.6 against 6.1 ms on NanoDet's pool.)
 fn max_pool(g: &Graph, node: &super::graph::Node, args: &[&Value]) -> Result<FloatValue> {
     nhwc_only(node)?;
     let x = float_arg(g, args, 0)?;
@@ -922,7 +948,7 @@ mod tests {
             let b = Tensor::<1>::random([6], Distribution::Uniform(-1.0, 1.0), &dev);
             let opts = ConvOptions::new_with_padding([stride; 2], pad, [dil; 2], 1);
             let want = conv2d(x.clone(), w.clone(), Some(b.clone()), opts);
-            let got = conv_im2col(x, w, Some(b), [stride; 2], [dil; 2], pad);
+            let got = conv_im2col(x, w, Some(b), [stride; 2], [dil; 2], pad).unwrap();
             assert_eq!(got.dims(), want.dims(), "c {c} k {k} s {stride} d {dil}");
             let err = (got - want).abs().max().into_scalar::<f32>();
             assert!(
@@ -930,6 +956,10 @@ mod tests {
                 "c {c} k {k} s {stride} d {dil}: max error {err}"
             );
         }
+        // A window larger than the padded input: no im2col (the caller falls back to conv2d).
+        let x = Tensor::<4>::zeros([1, 3, 2, 2], &dev);
+        let w = Tensor::<4>::zeros([4, 3, 3, 3], &dev);
+        assert!(conv_im2col(x, w, None, [1, 1], [1, 1], [(0, 0), (0, 0)]).is_none());
     }
 
     #[test]
