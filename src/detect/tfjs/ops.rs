@@ -934,8 +934,16 @@ mod tests {
     /// asymmetric SAME padding, dilation, a bias.
     #[test]
     fn im2col_conv_equals_conv2d() {
-        use burn::tensor::{Device, Distribution};
+        use burn::tensor::{Device, TensorData};
+        use rand::{Rng, SeedableRng};
         let dev = Device::from(burn::backend::FlexDevice);
+        // Seeded host values (the device's own generator is shared by parallel tests).
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut uniform = |shape: Vec<usize>| {
+            let n = shape.iter().product();
+            let v: Vec<f32> = (0..n).map(|_| rng.random_range(-1.0f32..1.0)).collect();
+            TensorData::new(v, shape)
+        };
         for (c, k, stride, dil, pad) in [
             (3, 3, 2, 1, [(0, 1), (0, 1)]),
             (3, 3, 1, 1, [(1, 1), (1, 1)]),
@@ -943,9 +951,9 @@ mod tests {
             (4, 3, 1, 2, [(2, 2), (0, 0)]),
             (1, 2, 3, 1, [(0, 0), (0, 0)]),
         ] {
-            let x = Tensor::<4>::random([2, c, 17, 12], Distribution::Uniform(-1.0, 1.0), &dev);
-            let w = Tensor::<4>::random([6, c, k, k], Distribution::Uniform(-1.0, 1.0), &dev);
-            let b = Tensor::<1>::random([6], Distribution::Uniform(-1.0, 1.0), &dev);
+            let x = Tensor::<4>::from_data(uniform(vec![2, c, 17, 12]), &dev);
+            let w = Tensor::<4>::from_data(uniform(vec![6, c, k, k]), &dev);
+            let b = Tensor::<1>::from_data(uniform(vec![6]), &dev);
             let opts = ConvOptions::new_with_padding([stride; 2], pad, [dil; 2], 1);
             let want = conv2d(x.clone(), w.clone(), Some(b.clone()), opts);
             let got = conv_im2col(x, w, Some(b), [stride; 2], [dil; 2], pad).unwrap();
