@@ -56,7 +56,7 @@
 
 /* ---- motion engine -------------------------------------------------------------------------- */
 #define STEP_TIMER_HZ 2000000UL /* Timer1 at F_CPU/8 */
-#define RAMP_HZ 1000UL          /* Timer2 ramp/clock tick */
+#define RAMP_HZ 977UL           /* Timer0 ramp tick: F_CPU/64/256 = 976.56 Hz */
 #define MIN_STEP_RATE 31UL      /* slowest step rate (16-bit compare interval at 2 MHz) */
 #define STEP_PULSE_US 2         /* STEP high time (A4988 >= 1 us, DRV8825 >= 1.9 us) */
 #define IDLE_KEEP_ENABLED 1     /* hold torque between moves (0: disable drivers when idle) */

@@ -42,11 +42,11 @@ void motion_init(void)
     TCCR1A = 0;
     TCCR1B = _BV(CS11);
     TIMSK1 = 0;
-    /* Timer2: CTC at 1 kHz (F_CPU/64/250). */
-    TCCR2A = _BV(WGM21);
-    TCCR2B = _BV(CS22);
-    OCR2A = (uint8_t)(F_CPU / 64 / RAMP_HZ - 1);
-    TIMSK2 = _BV(OCIE2A);
+    /* Timer0: overflow at F_CPU/64/256 = 976.5625 Hz. (Not Timer0: simavr emulates Timer0,
+     * the one with an asynchronous clock option, cycle by cycle, 20 times slower.) */
+    TCCR0A = 0;
+    TCCR0B = _BV(CS01) | _BV(CS00);
+    TIMSK0 = _BV(TOIE0);
 }
 
 uint32_t clock_ms(void)
@@ -195,7 +195,7 @@ ISR(TIMER1_COMPA_vect) { step(0, STEP_BIT0, &OCR1A, _BV(OCIE1A)); }
 ISR(TIMER1_COMPB_vect) { step(1, STEP_BIT1, &OCR1B, _BV(OCIE1B)); }
 
 /* Ramp tick: interruptible, so that step pulses are not delayed by the divisions. */
-ISR(TIMER2_COMPA_vect, ISR_NOBLOCK)
+ISR(TIMER0_OVF_vect, ISR_NOBLOCK)
 {
     ms_ticks++;
     for (uint8_t a = 0; a < 2; a++) {

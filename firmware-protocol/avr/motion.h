@@ -1,5 +1,5 @@
 /* Step generation: one Timer1 compare channel per axis fires each step (exact step timing, up
- * to ~40k steps/s per axis), a 1 kHz Timer2 tick ramps the speed (trapezoidal profile: constant
+ * to ~40k steps/s per axis), a 1 kHz Timer0 tick ramps the speed (trapezoidal profile: constant
  * acceleration, cruise, deceleration planned from the remaining steps) and keeps the clock. */
 #ifndef CAC_MOTION_H
 #define CAC_MOTION_H

@@ -15,6 +15,7 @@
  *                        tmin=<shortest table step interval, cycles> rmin=.. estop=<0|1>
  *                        rx=<bytes into the UART> tx=<bytes out of it> txdrop=..
  *                        trate=<most table steps in a 5 ms window, as steps/s> rrate=..
+ *   STATE             -> STATE pc=<byte address> state=<simavr cpu state> sp=<stack pointer>
  *   MINRESET          -> OK   (restart the shortest-interval and step-rate measurements)
  *   ESTOP 0|1         -> OK   (release / press the e-stop button)
  *   NEAR auto|0|1     -> OK   (rail switch follows the rail / forced released / forced active)
@@ -64,7 +65,7 @@ static int estop_pressed;
 static int near_mode = -1;         /* -1 auto, 0 released, 1 active */
 static uint64_t resets, wdt_resets;
 static uint64_t total_cycles, last_cycle;
-static uint64_t rx_bytes, tx_bytes, tx_dropped;
+static uint64_t rx_bytes, tx_bytes, tx_dropped, runs;
 static avr_irq_t *index_irq, *near_irq, *estop_irq, *uart_in;
 static int uart_xon = 1;
 static int in_index = -1, in_near = -1, in_estop = -1; /* last levels driven */
@@ -227,6 +228,10 @@ static void control(char *line)
                (unsigned long long)rmin, estop_pressed, (unsigned long long)rx_bytes,
                (unsigned long long)tx_bytes, (unsigned long long)tx_dropped,
                 (unsigned long long)(win_max[0] * 200), (unsigned long long)(win_max[1] * 200));
+    } else if (!strncmp(line, "STATE", 5)) {
+        fprintf(ctl_out, "STATE pc=0x%x state=%d sp=0x%x runs=%llu cycles=%llu\n", avr->pc,
+                avr->state, avr->data[0x5d] | avr->data[0x5e] << 8, (unsigned long long)runs,
+                (unsigned long long)now_cycles());
     } else if (!strncmp(line, "MINRESET", 8)) {
         tmin = rmin = last_tstep = last_rstep = 0;
         win_max[0] = win_max[1] = win_count[0] = win_count[1] = 0;
@@ -373,6 +378,7 @@ int main(int argc, char **argv)
         uint64_t until = now_cycles() + F_CPU / 4000;
         while (now_cycles() < until) {
             int st = avr_run(avr);
+            runs++;
             if (in_index < 0)
                 drive_sensors(1);
             if (st == cpu_Done || st == cpu_Crashed) {
