@@ -83,7 +83,11 @@ fn shared_vectors() {
             }
         };
         match (f[0], f.len()) {
-            ("crc", 3) => check("crc", format!("{:04X}", crc16(&unescape(f[1]))), f[2].into()),
+            ("crc", 3) => check(
+                "crc",
+                format!("{:04X}", crc16(&unescape(f[1]))),
+                f[2].into(),
+            ),
             ("frame", 3) => {
                 let line = unescape(f[1]);
                 let got = match Frame::parse(&line) {
@@ -124,7 +128,11 @@ fn shared_vectors() {
                     }
                 }
                 let want = f.get(2).map(|w| unescape(w)).unwrap_or_default();
-                check("stream", lines.join("|"), String::from_utf8_lossy(&want).into());
+                check(
+                    "stream",
+                    lines.join("|"),
+                    String::from_utf8_lossy(&want).into(),
+                );
             }
             ("reply", 3) => {
                 let fr = Frame::parse(f[2].as_bytes()).expect("reply vector frames");
@@ -144,8 +152,8 @@ fn shared_vectors() {
             ("event", 2) => {
                 let fr = Frame::parse(f[1].as_bytes()).expect("event vector frames");
                 assert_eq!(fr.seq, SeqField::Event, "vectors.txt:{lineno}");
-                let ev = Event::parse(fr.body)
-                    .unwrap_or_else(|e| panic!("vectors.txt:{lineno}: {e}"));
+                let ev =
+                    Event::parse(fr.body).unwrap_or_else(|e| panic!("vectors.txt:{lineno}: {e}"));
                 let mut buf = LineBuf::new();
                 encode_event(&ev, &mut buf).unwrap();
                 check(
