@@ -1,0 +1,540 @@
+//! The compiled AVR firmware (`firmware-protocol/avr/`, ATmega328P at 16 MHz) in simavr, driven
+//! over a pseudo-terminal by cac's own `SerialTransport` and `Turntable` driver, with every step
+//! counted on the STEP/DIR pins by the harness (`ttsim`), not taken from the firmware's word.
+//! Skips (with a message) when gcc-avr/simavr are missing, except under `CI=true`.
+#![cfg(unix)]
+
+mod firmware_avr_support;
+
+use cac::physical::{Axis, SerialTransport, Transport, Turntable, TurntableError};
+use cac::sim::FaultConfig;
+use firmware_avr_support::*;
+use firmware_protocol::{ErrorCode, FaultCode, LineAssembler};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+const S: Duration = Duration::from_secs(10);
+
+fn lock() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+#[test]
+fn c_unit_test_of_the_parser_on_the_shared_vectors() {
+    let Some(b) = built() else { return };
+    let out = std::process::Command::new("make")
+        .arg("-C")
+        .arg(avr_dir())
+        .arg(format!("BUILD={}", b.build.display()))
+        .arg("test")
+        .output()
+        .unwrap();
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    println!("{text}");
+    assert!(
+        out.status.success() && text.contains(", 0 failures"),
+        "{text}"
+    );
+}
+
+/// Moves `axis` with the driver and checks the pins: the pulses during the move equal the
+/// commanded distance in steps, all in the commanded direction.
+fn checked_move(tt: &mut Turntable<SerialTransport>, avr: &mut Avr, target: i32, home_phys: i64) {
+    let before = avr.counts();
+    let from = tt.position(Axis::Turntable).expect("homed");
+    let r = tt
+        .move_to(Axis::Turntable, target)
+        .unwrap_or_else(|e| panic!("move to {target}: {e}"));
+    assert_eq!(r.position, target);
+    let after = avr.counts();
+    let want = table_steps(target.into()) - table_steps(from.into());
+    let pulses = after.get("tpulses") - before.get("tpulses");
+    let net = after.get("tpos") - before.get("tpos");
+    assert_eq!(
+        net, want,
+        "move {from} -> {target} m°: net steps on the pins"
+    );
+    assert_eq!(
+        pulses,
+        want.abs(),
+        "move {from} -> {target} m°: every pulse in the commanded direction"
+    );
+    assert_eq!(
+        avr.table_start + after.get("tpos") - home_phys,
+        table_steps(target.into())
+    );
+    assert_eq!(after.get("bad"), 0, "steps while the drivers were disabled");
+}
+
+#[test]
+fn driver_scenarios_counted_on_the_pins() {
+    let Some(b) = built() else { return };
+    let _g = lock();
+    let t0 = Instant::now();
+    let mut avr = Avr::spawn(&b, 5_000, 9_000);
+    let port = SerialTransport::open(avr.path(), 115_200).unwrap();
+    let mut tt = Turntable::open(port, driver_config()).expect("open the emulated board");
+    assert_eq!(tt.info().fw, "cac-avr-1.0");
+    assert_eq!(tt.info().rail, Some((0, 400_000)));
+    tt.set_speed(Axis::Turntable, 180_000).unwrap();
+    tt.set_accel(Axis::Turntable, 720_000).unwrap();
+    // Homing runs forward to the next index mark: 12800 - 5000 steps.
+    assert_eq!(tt.home(Axis::Turntable).unwrap(), 0);
+    let home = avr.table_phys();
+    assert_eq!(home, TABLE_STEPS_PER_REV, "homed on the index mark");
+    for target in [90_000, 15_000, -45_000, 123_457, 359_999, 0] {
+        checked_move(&mut tt, &mut avr, target, home);
+    }
+    let r = tt.move_by(Axis::Turntable, -30_000).unwrap();
+    assert_eq!(r.position, -30_000);
+    assert_eq!(avr.table_phys() - home, table_steps(-30_000));
+    let st = tt.status(Axis::Turntable).unwrap();
+    assert!(
+        st.homed && !st.moving && st.pos == -30_000 && st.target == -30_000,
+        "{st:?}"
+    );
+    assert_eq!(st.fault, FaultCode::None);
+    // Speed/acceleration limits.
+    for (r, what) in [
+        (tt.set_speed(Axis::Turntable, 0), "speed 0"),
+        (tt.set_speed(Axis::Turntable, 720_001), "speed above max"),
+        (tt.set_accel(Axis::Rail, 1_000_001), "rail accel above max"),
+    ] {
+        assert!(
+            matches!(
+                r,
+                Err(TurntableError::Refused {
+                    code: ErrorCode::Range,
+                    ..
+                })
+            ),
+            "{what}: {r:?}"
+        );
+    }
+    // Rail: homes onto the near-end switch, then moves by 80 steps/mm.
+    assert_eq!(tt.home(Axis::Rail).unwrap(), 0);
+    assert_eq!(avr.rail_phys(), 0, "rail homed at the near-end switch");
+    tt.set_speed(Axis::Rail, 200_000).unwrap();
+    tt.move_to(Axis::Rail, 250_000).unwrap();
+    assert_eq!(avr.rail_phys(), 250 * RAIL_STEPS_PER_MM);
+    let rp = avr.counts().get("rpulses");
+    let r = tt.move_to(Axis::Rail, 400_001);
+    assert!(
+        matches!(
+            r,
+            Err(TurntableError::Refused {
+                code: ErrorCode::Limit,
+                ..
+            })
+        ),
+        "{r:?}"
+    );
+    assert_eq!(
+        avr.counts().get("rpulses"),
+        rp,
+        "a refused move does not step"
+    );
+    // ESTOP: drivers disabled, homing lost, motion refused until CLEAR, then homes again.
+    tt.estop().unwrap();
+    assert_eq!(avr.counts().get("en"), 0, "drivers disabled after ESTOP");
+    let st = tt.status(Axis::Turntable).unwrap();
+    assert!(!st.homed && st.fault == FaultCode::Estop, "{st:?}");
+    assert!(matches!(
+        tt.move_to(Axis::Turntable, 0),
+        Err(TurntableError::Fault(FaultCode::Estop))
+    ));
+    tt.clear_fault().unwrap();
+    tt.move_to(Axis::Turntable, 45_000).unwrap();
+    let phys = avr.table_phys();
+    assert_eq!(
+        (phys - table_steps(45_000)).rem_euclid(TABLE_STEPS_PER_REV),
+        0,
+        "re-homed, at 45°"
+    );
+    // Hardware e-stop button: the fault latches; CLEAR is refused while it is held.
+    assert_eq!(avr.ctl("ESTOP 1"), "OK");
+    std::thread::sleep(Duration::from_millis(200));
+    assert_eq!(tt.status(Axis::Turntable).unwrap().fault, FaultCode::Estop);
+    assert!(matches!(
+        tt.clear_fault(),
+        Err(TurntableError::Refused {
+            code: ErrorCode::Estop,
+            ..
+        })
+    ));
+    assert_eq!(avr.ctl("ESTOP 0"), "OK");
+    tt.clear_fault().unwrap();
+    let c = avr.counts();
+    assert_eq!((c.get("bad"), c.get("resets"), c.get("wdt")), (0, 0, 0));
+    println!(
+        "driver scenarios: {:.1} s wall, {:.1} s emulated, {:?}",
+        t0.elapsed().as_secs_f64(),
+        c.get("us") as f64 * 1e-6,
+        tt.stats()
+    );
+}
+
+#[test]
+fn raw_stop_estop_reset_and_retry_replay_on_the_pins() {
+    let Some(b) = built() else { return };
+    let _g = lock();
+    let mut avr = Avr::spawn(&b, 100, 2_000);
+    let mut r = Raw::new(SerialTransport::open(avr.path(), 115_200).unwrap());
+    r.t.write_all(b"\n").unwrap();
+    r.pump(Duration::from_millis(300));
+    r.lines.clear();
+    assert_eq!(r.cmd(1, "HOME 1"), "ERR BOOTED", "locked until HELLO");
+    assert!(r
+        .cmd(2, "HELLO")
+        .starts_with("OK PROTO=1 FW=cac-avr-1.0 AXES=2 RAIL=0:400000"));
+    assert_eq!(r.cmd(3, "MOVE_ABS 1 0"), "ERR NOTHOMED");
+    assert_eq!(r.cmd(4, "MOVE_ABS 2 400001"), "ERR NOTHOMED");
+    assert_eq!(r.cmd(5, "FLY"), "ERR BADCMD");
+    assert_eq!(r.cmd(6, "HOME 3"), "ERR NOAXIS");
+    assert_eq!(r.cmd(7, "SPEED 1 360000"), "OK");
+    assert_eq!(r.cmd(8, "ACCEL 1 720000"), "OK");
+    assert!(r.cmd(9, "HOME 1").starts_with("OK ETA="));
+    r.expect("! DONE SEQ=9 AXIS=1 POS=0 END=REACHED", S);
+    let home = avr.table_phys();
+    assert_eq!(home, TABLE_STEPS_PER_REV);
+    // A retried MOVE_REL (the identical line three times) moves once: the reply cache.
+    let p0 = avr.counts().get("tpulses");
+    for _ in 0..3 {
+        r.send(10, "MOVE_REL 1 15000");
+    }
+    let replies: Vec<String> = (0..3).map(|_| r.expect("10 ", S)).collect();
+    assert!(
+        replies.iter().all(|l| l == &replies[0]) && replies[0].starts_with("10 OK ETA="),
+        "{replies:?}"
+    );
+    r.expect("! DONE SEQ=10 AXIS=1 POS=15000 END=REACHED", S);
+    r.pump(Duration::from_millis(200));
+    assert!(
+        !r.lines.iter().any(|l| l.contains("DONE")),
+        "one DONE only: {:?}",
+        r.lines
+    );
+    assert_eq!(
+        avr.counts().get("tpulses") - p0,
+        table_steps(15_000),
+        "moved once"
+    );
+    // Maximum step rate: a fast long move at 720°/s = 25600 steps/s.
+    assert_eq!(r.cmd(11, "SPEED 1 720000"), "OK");
+    assert_eq!(r.cmd(12, "ACCEL 1 2000000"), "OK");
+    assert_eq!(avr.ctl("MINRESET"), "OK");
+    assert_eq!(r.cmd(13, "MOVE_REL 1 720000"), "OK ETA=1360");
+    r.expect(
+        "! DONE SEQ=13 AXIS=1 POS=735000 END=REACHED",
+        Duration::from_secs(30),
+    );
+    let c = avr.counts();
+    let rate = c.get("trate");
+    println!(
+        "step rate: {rate} steps/s over the busiest 5 ms; shortest step interval {} cycles",
+        c.get("tmin")
+    );
+    assert!(rate >= 24_000, "step rate {rate} steps/s");
+    assert_eq!(avr.table_phys() - home, table_steps(735_000));
+    // STOP mid-move: decelerates (steps after the STOP reply), ends STOPPED where the pins say.
+    assert_eq!(r.cmd(14, "SPEED 1 180000"), "OK");
+    assert_eq!(r.cmd(15, "ACCEL 1 180000"), "OK");
+    assert!(r.cmd(16, "MOVE_ABS 1 0").starts_with("OK ETA="));
+    std::thread::sleep(Duration::from_millis(1500));
+    assert_eq!(r.cmd(17, "STOP"), "OK");
+    let at_stop = avr.counts().get("tpulses");
+    let done = r.expect("! DONE SEQ=16 AXIS=1 ", S);
+    assert!(done.contains("END=STOPPED"), "{done}");
+    let pos: i64 = done
+        .split("POS=")
+        .nth(1)
+        .unwrap()
+        .split(' ')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(
+        avr.counts().get("tpulses") > at_stop,
+        "controlled stop: it decelerated"
+    );
+    let phys = avr.table_phys() - home;
+    assert!(
+        (table_steps(pos) - phys).abs() <= 1,
+        "POS={pos} but the pins say {phys} steps"
+    );
+    assert!(pos > 0 && pos < 735_000, "stopped on the way: {pos}");
+    // ESTOP mid-move: halts at once, drivers off, DONE ABORTED then FAULT.
+    assert!(r.cmd(18, "MOVE_ABS 1 0").starts_with("OK ETA="));
+    std::thread::sleep(Duration::from_millis(500));
+    assert_eq!(r.cmd(19, "ESTOP"), "OK");
+    r.expect("! DONE SEQ=18 AXIS=1 ", S)
+        .contains("END=ABORTED")
+        .then_some(())
+        .expect("ABORTED");
+    r.expect("! FAULT CODE=ESTOP", S);
+    let c1 = avr.counts();
+    std::thread::sleep(Duration::from_millis(300));
+    assert_eq!(
+        avr.counts().get("tpulses"),
+        c1.get("tpulses"),
+        "no step after ESTOP"
+    );
+    assert_eq!(c1.get("en"), 0);
+    assert_eq!(r.cmd(20, "HOME 1"), "ERR ESTOP");
+    assert_eq!(r.cmd(21, "CLEAR"), "OK");
+    assert_eq!(r.cmd(22, "MOVE_ABS 1 0"), "ERR NOTHOMED");
+    // RESET mid-move: OK, then BOOT; the pins stop; the device is locked and unhomed.
+    assert!(r.cmd(23, "HOME 1").starts_with("OK ETA="));
+    r.expect("! DONE SEQ=23", S);
+    assert!(r.cmd(24, "MOVE_REL 1 360000").starts_with("OK ETA="));
+    std::thread::sleep(Duration::from_millis(400));
+    assert_eq!(r.cmd(25, "RESET"), "OK");
+    r.expect("! BOOT PROTO=1 FW=cac-avr-1.0 REASON=RESET", S);
+    let c2 = avr.counts();
+    std::thread::sleep(Duration::from_millis(300));
+    assert_eq!(
+        avr.counts().get("tpulses"),
+        c2.get("tpulses"),
+        "no step after the reboot"
+    );
+    assert_eq!(
+        r.cmd(26, "STATUS 1"),
+        "OK POS=0 TGT=0 MOV=0 HOMED=0 FAULT=NONE SEQ=0"
+    );
+    assert_eq!(
+        r.cmd(24, "MOVE_REL 1 360000"),
+        "ERR BOOTED",
+        "a stale retry after the reboot"
+    );
+    assert!(r.cmd(27, "HELLO").starts_with("OK PROTO=1"));
+    // External reset (DTR auto-reset when a port opens).
+    assert_eq!(avr.ctl("RESET"), "OK");
+    r.expect("! BOOT PROTO=1 FW=cac-avr-1.0 REASON=RESET", S);
+    let c = avr.counts();
+    assert_eq!(
+        (c.get("bad"), c.get("resets")),
+        (0, 2),
+        "the RESET command and the external one"
+    );
+}
+
+#[test]
+fn link_faults_each_move_once_on_the_step_pin() {
+    let Some(b) = built() else { return };
+    let _g = lock();
+    let t0 = Instant::now();
+    let avr = Arc::new(Mutex::new(Avr::spawn(&b, 3_000, 0)));
+    let dev_path = avr.lock().unwrap().path().to_string();
+    let faults = FaultConfig {
+        seed: 5,
+        drop_byte: 0.004,
+        garble_byte: 0.004,
+        delay_chunk: 0.05,
+        max_delay: Duration::from_millis(500),
+        disconnect_per_write: 0.01,
+        disconnect_for: Duration::from_millis(800),
+        reset_on_reconnect: 0.5,
+        ..FaultConfig::none()
+    };
+    let link = FaultyLink::spawn(&dev_path, faults, avr.clone());
+    let port = SerialTransport::open(link.path(), 115_200).unwrap();
+    let mut tt = Turntable::open(port, driver_config()).expect("open through the faulty link");
+    tt.set_speed(Axis::Turntable, 360_000).unwrap();
+    tt.set_accel(Axis::Turntable, 1_440_000).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let moves = 16;
+    let mut exact = 0;
+    for i in 0..moves {
+        let target = rng.random_range(-12..=12) * 15_000;
+        let from = tt.position(Axis::Turntable);
+        let (c0, redone0) = (
+            avr.lock().unwrap().counts(),
+            tt.stats().redone_moves + tt.stats().homings,
+        );
+        let rep = tt
+            .move_to(Axis::Turntable, target)
+            .unwrap_or_else(|e| panic!("move {i}: {e}"));
+        assert_eq!(rep.position, target);
+        let c1 = avr.lock().unwrap().counts();
+        let phys = avr.lock().unwrap().table_start + c1.get("tpos");
+        assert_eq!(
+            (phys - table_steps(target.into())).rem_euclid(TABLE_STEPS_PER_REV),
+            0,
+            "move {i}: the table is not at {target} m° by the pins"
+        );
+        // Without a reboot or homing on the way, the pins saw exactly this move, once.
+        if c1.get("resets") == c0.get("resets")
+            && tt.stats().redone_moves + tt.stats().homings == redone0
+        {
+            if let Some(from) = from {
+                let want = (table_steps(target.into()) - table_steps(from.into())).abs();
+                assert_eq!(
+                    c1.get("tpulses") - c0.get("tpulses"),
+                    want,
+                    "move {i}: pulses"
+                );
+                exact += 1;
+            }
+        }
+    }
+    let c = avr.lock().unwrap().counts();
+    assert_eq!(c.get("bad"), 0);
+    assert_eq!(c.get("wdt"), 0, "no watchdog reset");
+    let f = link.counts();
+    println!(
+        "link faults: {moves} moves ({exact} with exact pulse counts), injected {f}; chip resets {}; driver {:?}; {:.1} s",
+        c.get("resets"),
+        tt.stats(),
+        t0.elapsed().as_secs_f64()
+    );
+    assert!(f.dropped + f.garbled > 3 && f.delayed > 0, "{f}");
+    assert!(exact >= moves / 2, "too few moves checked exactly: {exact}");
+}
+
+#[test]
+fn fuzz_random_and_mutated_lines() {
+    let Some(b) = built() else { return };
+    let _g = lock();
+    let secs: u64 = std::env::var("CAC_AVR_FUZZ_SECS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(20);
+    let mut avr = Avr::spawn(&b, 0, 0);
+    let mut r = Raw::new(SerialTransport::open(avr.path(), 115_200).unwrap());
+    r.t.write_all(b"\n").unwrap();
+    r.pump(Duration::from_millis(300));
+    r.lines.clear();
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let words = [
+        "HELLO",
+        "PING",
+        "HOME",
+        "MOVE_ABS",
+        "MOVE_REL",
+        "SPEED",
+        "ACCEL",
+        "STATUS",
+        "STOP",
+        "ESTOP",
+        "CLEAR",
+        "1",
+        "2",
+        "3",
+        "0",
+        "-5",
+        "90000",
+        "4294967296",
+        "x",
+        "",
+        "move_abs",
+        "-0",
+        "01",
+    ];
+    let bases = [
+        "1 HELLO *7DF0",
+        "4 MOVE_ABS 1 90000 *8B97",
+        "8 STATUS 1 *D4A5",
+        "6 SPEED 1 45000 *4D04",
+        "3 HOME 1 *4371",
+    ];
+    let (mut sent, mut bytes, mut expected_total, mut replies, mut events, mut unexpected) =
+        (0u64, 0u64, 0u64, 0u64, 0u64, Vec::new());
+    let mut seq: u16 = 100;
+    let end = Instant::now() + Duration::from_secs(secs);
+    while Instant::now() < end {
+        let mut batch = Vec::new();
+        for _ in 0..8 {
+            let line: Vec<u8> = match rng.random_range(0..3) {
+                0 => (0..rng.random_range(0..130))
+                    .map(|_| rng.random::<u8>())
+                    .collect(),
+                1 => {
+                    let mut l = bases[rng.random_range(0..bases.len())].as_bytes().to_vec();
+                    for _ in 0..rng.random_range(1..4) {
+                        let i = rng.random_range(0..l.len());
+                        match rng.random_range(0..3) {
+                            0 => l[i] = rng.random(),
+                            1 => l.insert(i, rng.random()),
+                            _ => {
+                                l.remove(i);
+                            }
+                        }
+                    }
+                    l
+                }
+                _ => {
+                    seq = if seq >= 60_000 { 100 } else { seq + 1 };
+                    let body: Vec<&str> = (0..rng.random_range(1..6))
+                        .map(|_| words[rng.random_range(0..words.len())])
+                        .collect();
+                    let mut l = Raw::<SerialTransport>::line(seq, &body.join(" "));
+                    l.pop();
+                    l
+                }
+            };
+            batch.extend_from_slice(&line);
+            batch.push(b'\n');
+            sent += 1;
+        }
+        // The oracle: the crate's own receive path says which lines a device must answer.
+        let mut asm = LineAssembler::new();
+        let mut expected = Vec::new();
+        for &byte in &batch {
+            if let Some(Ok(l)) = asm.push(byte) {
+                if let Ok(f) = firmware_protocol::Frame::parse(l) {
+                    if let firmware_protocol::SeqField::Seq(s) = f.seq {
+                        assert!(
+                            !f.body.starts_with("RESET"),
+                            "the fuzzer must not reboot the board"
+                        );
+                        expected.push(s.get());
+                    }
+                }
+            }
+        }
+        seq = if seq >= 60_000 { 100 } else { seq + 1 };
+        let sentinel = seq;
+        batch.extend_from_slice(&Raw::<SerialTransport>::line(sentinel, "PING"));
+        bytes += batch.len() as u64;
+        r.t.write_all(&batch).unwrap();
+        let t = Instant::now();
+        let mut got = Vec::new();
+        'wait: loop {
+            assert!(
+                t.elapsed() < Duration::from_secs(10),
+                "the firmware hung: no answer to PING {sentinel} after {sent} lines"
+            );
+            r.pump(Duration::from_millis(10));
+            while let Some(l) = r.lines.pop_front() {
+                if l.starts_with("! ") {
+                    events += 1;
+                    assert!(!l.starts_with("! BOOT"), "the firmware rebooted: {l}");
+                    continue;
+                }
+                let s: u16 = l.split(' ').next().unwrap().parse().unwrap();
+                if s == sentinel {
+                    break 'wait;
+                }
+                got.push(s);
+                replies += 1;
+            }
+        }
+        expected_total += expected.len() as u64;
+        if got != expected {
+            unexpected.push(format!("expected replies to {expected:?}, got {got:?}"));
+        }
+    }
+    let c = avr.counts();
+    println!(
+        "fuzz: {sent} lines ({bytes} bytes) in {secs} s; {expected_total} well-framed, {replies} replies, {events} events, {} bad lines from the device; hangs 0, watchdog resets {}, resets {}, unexpected {}",
+        r.bad, c.get("wdt"), c.get("resets"), unexpected.len()
+    );
+    assert!(unexpected.is_empty(), "{}", unexpected.join("\n"));
+    assert_eq!(r.bad, 0, "the device sent malformed lines");
+    assert_eq!((c.get("wdt"), c.get("resets")), (0, 0));
+    assert!(expected_total > 0 && sent > 100);
+}
