@@ -31,6 +31,16 @@ impl Adam {
     /// One step on `x` with gradient `g`, then clip `x` to [0, 1]. Non-finite gradient entries
     /// are treated as zero (and counted in the return value).
     pub fn step(&mut self, x: &mut [f32], g: &[f32]) -> usize {
+        self.step_within(x, g, 0.0, 1.0)
+    }
+
+    /// One step without the projection (for parameters that are not colours, e.g. the coarse
+    /// levels of [`super::pyramid`]; the caller projects what they compose to).
+    pub fn step_unclipped(&mut self, x: &mut [f32], g: &[f32]) -> usize {
+        self.step_within(x, g, f32::NEG_INFINITY, f32::INFINITY)
+    }
+
+    fn step_within(&mut self, x: &mut [f32], g: &[f32], lo: f32, hi: f32) -> usize {
         assert_eq!(x.len(), g.len());
         self.t += 1;
         let (b1, b2) = (self.beta1, self.beta2);
@@ -48,7 +58,7 @@ impl Adam {
             self.v[i] = b2 * self.v[i] + (1.0 - b2) * gi * gi;
             let mh = self.m[i] / c1;
             let vh = self.v[i] / c2;
-            x[i] = (x[i] - self.lr * mh / (vh.sqrt() + self.eps)).clamp(0.0, 1.0);
+            x[i] = (x[i] - self.lr * mh / (vh.sqrt() + self.eps)).clamp(lo, hi);
         }
         bad
     }

@@ -1,15 +1,33 @@
-//! The dense-proposals objective: fix the top-n proposals after NMS (no gradient through the
-//! selection), then score the class prediction in every one of them.
+//! The dense-proposals objective: fix a set of proposals (no gradient through the selection),
+//! then score the class prediction in every one of them.
 //!
-//! The two detectors here classify with independent per-class sigmoids, not a softmax, so the
-//! paper's "targeted cross-entropy" becomes the binary cross-entropy of every class against the
-//! one-hot target: raise the target class and suppress all others, in every fixed proposal,
+//! **Which proposals** ([`ProposalRule`]). The paper fixes Faster R-CNN's top-n RPN proposals
+//! after NMS; those sit on objects. A one-stage detector's top-n over the whole image do not:
+//! most are small or off the object, and asking every one of them to be the target teaches the
+//! texture to paint a crowd of little targets instead of turning the object into one. cac's
+//! default ([`ProposalRule::Overlap`]) is the one-stage counterpart of the paper's proposals: per
+//! image, every candidate whose box overlaps the object's ground-truth box (from the renderer)
+//! with IoU ≥ `overlap_iou` (0.5, the protocol's own threshold), the `n` best by class score when
+//! more; where none reaches it, the single best-overlapping candidate. [`ProposalRule::TopN`] is
+//! the literal rule (top-n after class-agnostic NMS over the whole image), kept for the ablation
+//! and for the baselines that attack proposals (ShapeShifter, UPC).
 //!
-//! `L = 1/|P| Σ_{i∈P} Σ_c [ softplus(z_ic) − y_c · z_ic ]`,  `y = onehot(target)`,
+//! **The loss.** The detectors here classify with independent per-class sigmoids, not a softmax,
+//! so the paper's "targeted cross-entropy" becomes the binary cross-entropy of every class
+//! against the one-hot target: raise the target class and suppress all others, in every fixed
+//! proposal,
 //!
-//! which is `−log σ(z_it) − Σ_{c≠t} log(1 − σ(z_ic))` per proposal. The non-targeted "hide" mode
-//! uses `y = 0` (suppress every class). `softplus(x) = max(x, 0) + log1p(exp(−|x|))` never
-//! overflows, so logits of ±1e4 give finite losses and gradients.
+//! `ℓ_i = Σ_c [ softplus(z_ic) − y_c · z_ic ]`,  `y = onehot(target)`,
+//!
+//! which is `−log σ(z_it) − Σ_{c≠t} log(1 − σ(z_ic))`. The non-targeted "hide" mode uses `y = 0`
+//! (suppress every class). Under `TopN` the loss is the mean of `ℓ_i` over all fixed proposals of
+//! the batch; under `Overlap` it is the mean over images of each image's mean (images with the
+//! object far away, and so few overlapping candidates, weigh as much as close ones):
+//!
+//! `L = 1/|B'| Σ_{b∈B'} 1/|P_b| Σ_{i∈P_b} ℓ_i`, `B'` the images with at least one proposal.
+//!
+//! `softplus(x) = max(x, 0) + log1p(exp(−|x|))` never overflows, so logits of ±1e4 give finite
+//! losses and gradients.
 
 use crate::detect::{nms, Candidates};
 use anyhow::{bail, Result};
@@ -23,6 +41,113 @@ pub enum Goal {
     Targeted(usize),
     /// Every class suppressed in every fixed proposal.
     Hide,
+}
+
+/// Which candidates the loss fixes as proposals (module docs).
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    serde::Serialize,
+    serde::Deserialize,
+    clap::ValueEnum,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum ProposalRule {
+    /// Candidates whose box overlaps the object's box (IoU ≥ the threshold), top n of them.
+    #[default]
+    Overlap,
+    /// Top n after class-agnostic NMS over the whole image (the paper's literal rule).
+    #[value(name = "topn")]
+    #[serde(rename = "topn")]
+    TopN,
+}
+
+impl ProposalRule {
+    pub fn name(self) -> &'static str {
+        match self {
+            ProposalRule::Overlap => "overlap",
+            ProposalRule::TopN => "topn",
+        }
+    }
+}
+
+/// IoU of two `x1, y1, x2, y2` boxes (0 for empty ones).
+pub fn iou(a: &[f32; 4], b: &[f32; 4]) -> f32 {
+    let iw = (a[2].min(b[2]) - a[0].max(b[0])).max(0.0);
+    let ih = (a[3].min(b[3]) - a[1].max(b[1])).max(0.0);
+    let inter = iw * ih;
+    let area = |q: &[f32; 4]| (q[2] - q[0]).max(0.0) * (q[3] - q[1]).max(0.0);
+    let union = area(a) + area(b) - inter;
+    if union > 0.0 && union.is_finite() {
+        inter / union
+    } else {
+        0.0
+    }
+}
+
+/// Per image, the candidates overlapping its object's box: IoU ≥ `min_iou`, the `n` with the
+/// highest best-class score among them; where none reaches `min_iou`, the one with the highest
+/// IoU (if any overlaps at all). An image without an object (`None`) gets none. Read from host
+/// copies: no gradient flows through the selection.
+pub fn select_overlapping(
+    c: &Candidates,
+    objects: &[Option<[f32; 4]>],
+    n: usize,
+    min_iou: f64,
+) -> Result<Vec<Vec<usize>>> {
+    let [b, num, classes] = c.scores.dims();
+    if objects.len() != b {
+        bail!("{} object boxes for {b} images", objects.len());
+    }
+    let scores = host(&c.scores)?;
+    let boxes = host(&c.boxes)?;
+    let mut out = Vec::with_capacity(b);
+    for (k, obj) in objects.iter().enumerate() {
+        let Some(obj) = obj else {
+            out.push(vec![]);
+            continue;
+        };
+        let overlaps: Vec<(usize, f32)> = (0..num)
+            .map(|i| {
+                let q = &boxes[(k * num + i) * 4..(k * num + i + 1) * 4];
+                let o = iou(&[q[0], q[1], q[2], q[3]], obj);
+                (i, if o.is_finite() { o } else { 0.0 })
+            })
+            .collect();
+        let mut sel: Vec<usize> = overlaps
+            .iter()
+            .filter(|(_, o)| *o as f64 >= min_iou)
+            .map(|(i, _)| *i)
+            .collect();
+        if sel.is_empty() {
+            let best =
+                overlaps
+                    .iter()
+                    .copied()
+                    .fold((usize::MAX, 0.0f32), |a, x| if x.1 > a.1 { x } else { a });
+            if best.0 != usize::MAX {
+                sel.push(best.0);
+            }
+        }
+        if sel.len() > n {
+            let best = |i: usize| {
+                scores[(k * num + i) * classes..(k * num + i + 1) * classes]
+                    .iter()
+                    .copied()
+                    .filter(|v| v.is_finite())
+                    .fold(f32::MIN, f32::max)
+            };
+            sel.sort_by(|&x, &y| best(y).total_cmp(&best(x)).then(x.cmp(&y)));
+            sel.truncate(n);
+            sel.sort_unstable();
+        }
+        out.push(sel);
+    }
+    Ok(out)
 }
 
 /// Per image, the indices of the fixed proposals: candidates ranked by their best class score,
@@ -103,6 +228,43 @@ pub fn proposals_loss(logits: Tensor<3>, sel: &[Vec<usize>], goal: Goal) -> Resu
     Ok(loss.sum() / m as f64)
 }
 
+/// The per-image-mean loss of [`ProposalRule::Overlap`]: each image's proposals averaged, then
+/// the images that have any (module docs). Empty everywhere: a zero loss (zero gradient).
+pub fn proposals_loss_per_image(
+    logits: Tensor<3>,
+    sel: &[Vec<usize>],
+    goal: Goal,
+) -> Result<Tensor<1>> {
+    let [b, n, classes] = logits.dims();
+    if sel.len() != b {
+        bail!("{} proposal sets for {b} images", sel.len());
+    }
+    let images = sel.iter().filter(|s| !s.is_empty()).count();
+    let (mut rows, mut weights) = (Vec::new(), Vec::new());
+    for (k, s) in sel.iter().enumerate() {
+        for &i in s {
+            rows.push((k * n + i) as i64);
+            weights.push(1.0 / (s.len() * images) as f32);
+        }
+    }
+    if rows.is_empty() {
+        return Ok(logits.sum() * 0.0);
+    }
+    let m = rows.len();
+    let device = logits.device();
+    let idx = Tensor::<1, Int>::from_data(TensorData::new(rows, [m]), &device);
+    let z = logits.reshape([b * n, classes]).select(0, idx);
+    let mut per = softplus(z.clone()).sum_dim(1); // [m, 1]
+    if let Goal::Targeted(t) = goal {
+        if t >= classes {
+            bail!("target class {t} is out of range for {classes} classes");
+        }
+        per = per - z.slice([0..m, t..t + 1]);
+    }
+    let w = Tensor::<2>::from_data(TensorData::new(weights, [m, 1]), (&device, per.dtype()));
+    Ok((per * w).sum())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -138,6 +300,72 @@ mod tests {
         assert!(g.iter().all(|v| v.is_finite()));
         // d/dz of the target's term is σ(z) − 1 (< 0: raising z lowers the loss); others σ(z) > 0.
         assert!(g[1] < 0.0 && g[0] > 0.0 && g[2] > 0.0, "{g:?}");
+    }
+
+    #[test]
+    fn overlap_rule_keeps_the_candidates_on_the_object() {
+        let d = dev();
+        // Four candidates: on the object, half on it, off it, a huge box around everything.
+        let boxes = vec![
+            10.0f32, 10.0, 50.0, 50.0, 10.0, 10.0, 30.0, 50.0, 60.0, 60.0, 90.0, 90.0, 0.0, 0.0,
+            100.0, 100.0,
+        ];
+        let scores = vec![0.1f32, 0.9, 0.2, 0.8, 0.7, 0.3, 0.05, 0.01];
+        let c = Candidates {
+            boxes: Tensor::<3>::from_data(TensorData::new(boxes, [1, 4, 4]), &d),
+            scores: Tensor::<3>::from_data(TensorData::new(scores.clone(), [1, 4, 2]), &d),
+            logits: Tensor::<3>::from_data(TensorData::new(scores, [1, 4, 2]), &d),
+        };
+        let obj = [Some([12.0f32, 10.0, 50.0, 48.0])];
+        assert_eq!(
+            select_overlapping(&c, &obj, 10, 0.5).unwrap(),
+            vec![vec![0, 1]]
+        );
+        // Capped at n by best class score: candidate 0 (0.9) beats 1 (0.8).
+        assert_eq!(select_overlapping(&c, &obj, 1, 0.5).unwrap(), vec![vec![0]]);
+        // Nothing at IoU >= 0.99: the best-overlapping one alone.
+        assert_eq!(
+            select_overlapping(&c, &obj, 10, 0.99).unwrap(),
+            vec![vec![0]]
+        );
+        // No object in view: no proposals; a wrong count of boxes is an error.
+        assert_eq!(
+            select_overlapping(&c, &[None], 10, 0.5).unwrap(),
+            vec![Vec::<usize>::new()]
+        );
+        assert!(select_overlapping(&c, &[], 10, 0.5).is_err());
+        assert_eq!(iou(&[0.0, 0.0, 0.0, 0.0], &[0.0, 0.0, 0.0, 0.0]), 0.0);
+    }
+
+    #[test]
+    fn per_image_loss_weighs_images_equally() {
+        let d = dev();
+        let z = vec![2.0f32, -1.0, 0.5, 1e4, -1e4, 3.0, -2.0, 1.0];
+        let t = Tensor::<3>::from_data(TensorData::new(z, [2, 2, 2]), &d).require_grad();
+        let sp = |x: f64| x.max(0.0) + (-x.abs()).exp().ln_1p();
+        let l = |a: f64, b: f64| sp(a) + sp(b) - b; // target class 1
+                                                    // Image 0 has two proposals, image 1 one: each image's mean, then the mean of images.
+        let got =
+            proposals_loss_per_image(t.clone(), &[vec![0, 1], vec![1]], Goal::Targeted(1)).unwrap();
+        let want = ((l(2.0, -1.0) + l(0.5, 1e4)) / 2.0 + l(-2.0, 1.0)) / 2.0;
+        let v = got
+            .clone()
+            .into_data()
+            .convert::<f64>()
+            .try_to_vec::<f64>()
+            .unwrap()[0];
+        assert!((v - want).abs() / want < 1e-5, "{v} vs {want}");
+        let g = t
+            .grad(&got.backward())
+            .unwrap()
+            .into_data()
+            .convert::<f32>();
+        assert!(g.try_to_vec::<f32>().unwrap().iter().all(|v| v.is_finite()));
+        let e = proposals_loss_per_image(t, &[vec![], vec![]], Goal::Hide).unwrap();
+        assert_eq!(
+            e.into_data().convert::<f32>().try_to_vec::<f32>().unwrap()[0],
+            0.0
+        );
     }
 
     #[test]

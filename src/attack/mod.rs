@@ -3,8 +3,9 @@
 //!
 //! Each iteration draws a batch of environment conditions (seeded by the run seed and the
 //! iteration number, so a resumed run draws the same batches), renders them differentiably, runs
-//! every source detector, fixes its top-n proposals after NMS, and takes an Adam step on the atlas
-//! that lowers the mean loss over all fixed proposals ([`loss`]); the atlas is clipped to [0, 1].
+//! every source detector, fixes its proposals (by default the candidates on the object, see
+//! [`loss`]), and takes an Adam step on the atlas that lowers the loss over them; the atlas is
+//! clipped to [0, 1].
 //! Only texels that paintable surfaces sample ever receive a gradient, so only they change.
 //!
 //! Long runs checkpoint every K iterations into the run folder; [`Trainer::resume`] continues
@@ -13,6 +14,7 @@
 pub mod adam;
 pub mod baselines;
 pub mod loss;
+pub mod pyramid;
 pub mod report;
 pub mod textures;
 
@@ -24,7 +26,7 @@ use adam::Adam;
 use anyhow::{bail, Context, Result};
 pub use baselines::Method;
 use burn::tensor::{Device, Tensor, TensorData};
-use loss::Goal;
+use loss::{Goal, ProposalRule};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -43,10 +45,16 @@ pub struct AttackConfig {
     pub target: String,
     /// Non-targeted mode: suppress every class.
     pub hide: bool,
-    /// Fixed proposals per image (the paper's n).
+    /// Which candidates become the fixed proposals (`loss` module docs). Runs written before
+    /// the rule existed used top-n, so a run.json without it reads as `topn`.
+    #[serde(default = "legacy_rule")]
+    pub proposals: ProposalRule,
+    /// Fixed proposals per image at most (the paper's n).
     pub top_n: usize,
-    /// IoU of the class-agnostic NMS that picks the proposals.
+    /// IoU of the class-agnostic NMS that picks the `topn` proposals.
     pub nms_iou: f64,
+    /// Least IoU with the object's box of an `overlap` proposal.
+    pub overlap_iou: f64,
     pub batch: usize,
     pub iterations: usize,
     pub lr: f32,
@@ -54,6 +62,9 @@ pub struct AttackConfig {
     /// Write a checkpoint every this many iterations (0: only at the end).
     pub checkpoint_every: usize,
     pub viewpoints: ViewpointSet,
+    /// Levels of the atlas's multi-scale parameterisation (1: texel by texel; [`pyramid`]).
+    #[serde(default = "one_scale")]
+    pub scales: usize,
     /// 2D methods: side of the trained patch in texels.
     pub patch_res: usize,
     /// 2D methods: tiles of the patch across the atlas side when it is put on the object.
@@ -66,8 +77,10 @@ impl Default for AttackConfig {
             models: vec!["nanodet".into()],
             target: "person".into(),
             hide: false,
+            proposals: ProposalRule::Overlap,
             top_n: 300,
             nms_iou: 0.7,
+            overlap_iou: 0.5,
             batch: 2,
             iterations: 200,
             lr: 0.02,
@@ -75,10 +88,19 @@ impl Default for AttackConfig {
             checkpoint_every: 10,
             viewpoints: ViewpointSet::Free,
             method: Method::Cac,
+            scales: 1,
             patch_res: 128,
             patch_tiles: 4,
         }
     }
+}
+
+fn one_scale() -> usize {
+    1
+}
+
+fn legacy_rule() -> ProposalRule {
+    ProposalRule::TopN
 }
 
 impl AttackConfig {
@@ -99,6 +121,9 @@ impl AttackConfig {
         if self.batch == 0 || self.top_n == 0 {
             bail!("batch and top_n must be positive");
         }
+        if !(self.overlap_iou > 0.0 && self.overlap_iou <= 1.0) {
+            bail!("--overlap-iou must be in (0, 1], got {}", self.overlap_iou);
+        }
         if !(self.lr > 0.0 && self.lr.is_finite()) {
             bail!("learning rate must be positive");
         }
@@ -111,6 +136,13 @@ impl AttackConfig {
                 } else {
                     "already hides the vehicle (it is non-targeted)"
                 }
+            );
+        }
+        if self.scales != 1 && (self.method.is_2d() || !(1..=8).contains(&self.scales)) {
+            bail!(
+                "--scales must be 1..=8, and 1 for the 2D methods (got {} with {})",
+                self.scales,
+                self.method.name()
             );
         }
         if self.method.is_2d() && !(4..=2048).contains(&self.patch_res) {
@@ -143,7 +175,11 @@ pub struct IterationLog {
 pub struct Checkpoint {
     pub iteration: usize,
     pub atlas_res: usize,
+    /// Levels of the parameterisation: `atlas` holds all of them ([`pyramid`]); 1 for a plain
+    /// atlas and for 2D patches.
+    pub scales: usize,
     pub adam: Adam,
+    /// The optimised parameters: the atlas itself (row-major RGB) when `scales` is 1.
     pub atlas: Vec<f32>,
     pub log: Vec<IterationLog>,
 }
@@ -158,6 +194,9 @@ pub struct Trainer<'a> {
     pub device: Device,
     pub state: Checkpoint,
     pub run_dir: Option<PathBuf>,
+    /// Texels a paintable surface can sample (where the coarse levels of a multi-scale
+    /// parameterisation act; empty for one level).
+    paintable: Vec<bool>,
 }
 
 impl<'a> Trainer<'a> {
@@ -191,13 +230,21 @@ impl<'a> Trainer<'a> {
         } else {
             init.clone()
         };
+        pyramid::check(res, config.scales)?;
         let atlas: Vec<f32> = init.texels.iter().flatten().copied().collect();
+        let atlas = pyramid::from_atlas(&atlas, res, config.scales);
         let state = Checkpoint {
             iteration: 0,
             atlas_res: res,
+            scales: config.scales,
             adam: Adam::new(atlas.len(), config.lr),
             atlas,
             log: vec![],
+        };
+        let paintable = if config.scales > 1 {
+            baselines::atlas::paintable_texels(&renderer.scene, res)
+        } else {
+            vec![]
         };
         Ok(Trainer {
             config,
@@ -207,6 +254,7 @@ impl<'a> Trainer<'a> {
             device,
             state,
             run_dir: None,
+            paintable,
         })
     }
 
@@ -219,6 +267,14 @@ impl<'a> Trainer<'a> {
                 run_dir.display(),
                 ck.atlas_res,
                 self.renderer.settings.atlas_res
+            );
+        }
+        if ck.scales != self.config.scales {
+            bail!(
+                "{}: checkpoint has {} atlas levels, the config asks for {}",
+                run_dir.display(),
+                ck.scales,
+                self.config.scales
             );
         }
         self.state = ck;
@@ -237,11 +293,23 @@ impl<'a> Trainer<'a> {
             width: r,
             height: r,
             texels: self
-                .state
-                .atlas
+                .composed()
                 .chunks_exact(3)
                 .map(|c| [c[0], c[1], c[2]])
                 .collect(),
+        }
+    }
+
+    /// The atlas the parameters compose to (row-major RGB).
+    fn composed(&self) -> Vec<f32> {
+        let (r, k) = (self.state.atlas_res, self.state.scales);
+        if k == 1 {
+            self.state.atlas.clone()
+        } else {
+            // Projected parameters compose to [0, 1] up to rounding; the clamp removes that.
+            let mut a = pyramid::compose(&self.state.atlas, r, k, &self.paintable);
+            a.iter_mut().for_each(|v| *v = v.clamp(0.0, 1.0));
+            a
         }
     }
 
@@ -259,19 +327,18 @@ impl<'a> Trainer<'a> {
             })
             .collect::<Result<Vec<_>>>()?;
         let r = self.state.atlas_res;
-        let atlas = Tensor::<4>::from_data(
-            TensorData::new(self.state.atlas.clone(), [1, r, r, 3]),
-            &self.device,
-        )
-        .require_grad();
+        let atlas =
+            Tensor::<4>::from_data(TensorData::new(self.composed(), [1, r, r, 3]), &self.device)
+                .require_grad();
         let images = environment::photometric(
             render::composite(&plans, environment::print_error(atlas.clone(), &conds)),
             &conds,
         );
         let ms_render = t0.elapsed().as_secs_f64() * 1e3;
         let t1 = Instant::now();
-        let (loss, proposals) = ensemble_loss(&self.detectors, &images, &self.config, goal)?;
-        let loss = loss;
+        let objects: Vec<_> = plans.iter().map(|p| p.object_box).collect();
+        let (loss, proposals) =
+            ensemble_loss(&self.detectors, &images, &objects, &self.config, goal)?;
         let loss_value = loss
             .clone()
             .into_data()
@@ -294,7 +361,14 @@ impl<'a> Trainer<'a> {
         if !loss_value.is_finite() {
             bail!("iteration {i}: the loss is not finite ({loss_value})");
         }
-        self.state.adam.step(&mut self.state.atlas, &g);
+        let k = self.state.scales;
+        if k == 1 {
+            self.state.adam.step(&mut self.state.atlas, &g);
+        } else {
+            let gp = pyramid::adjoint(&g, r, k, &self.paintable);
+            self.state.adam.step_unclipped(&mut self.state.atlas, &gp);
+            pyramid::project(&mut self.state.atlas, r, k, &self.paintable);
+        }
         let ms_optimiser = t3.elapsed().as_secs_f64() * 1e3;
         let log = IterationLog {
             iteration: i,
@@ -369,18 +443,27 @@ impl Run for Trainer<'_> {
 }
 
 /// The loss of one image batch averaged over the source detectors (an ensemble), and the number of
-/// fixed proposals it was taken over. Shared by the 3D trainer and the 2D patch trainer.
+/// fixed proposals it was taken over; `objects` are the object's boxes in the images. Shared by the
+/// 3D trainer and the 2D patch trainer.
 pub fn ensemble_loss(
     detectors: &[&dyn Detector],
     images: &Tensor<4>,
+    objects: &[Option<[f32; 4]>],
     config: &AttackConfig,
     goal: Goal,
 ) -> Result<(Tensor<1>, usize)> {
     let mut total: Option<Tensor<1>> = None;
     let mut proposals = 0;
+    let sel = baselines::objectives::Selection {
+        rule: config.proposals,
+        top_n: config.top_n,
+        nms_iou: config.nms_iou,
+        overlap_iou: config.overlap_iou,
+        objects,
+    };
     for det in detectors {
         let c = det.candidates(images.clone())?;
-        let (l, n) = baselines::objective(config.method, c, config.top_n, config.nms_iou, goal)?;
+        let (l, n) = baselines::objective(config.method, c, &sel, goal)?;
         proposals += n;
         total = Some(match total {
             Some(t) => t + l,
@@ -407,7 +490,7 @@ pub fn save_checkpoint(run_dir: &Path, ck: &Checkpoint) -> Result<()> {
     crate::io::write_atomic(&tmp.join("adam_m.f32"), &bin(&ck.adam.m))?;
     crate::io::write_atomic(&tmp.join("adam_v.f32"), &bin(&ck.adam.v))?;
     let meta = serde_json::json!({
-        "iteration": ck.iteration, "atlas_res": ck.atlas_res,
+        "iteration": ck.iteration, "atlas_res": ck.atlas_res, "scales": ck.scales,
         "adam": {"lr": ck.adam.lr, "beta1": ck.adam.beta1, "beta2": ck.adam.beta2, "eps": ck.adam.eps, "t": ck.adam.t},
         "log": ck.log,
     });
@@ -449,11 +532,20 @@ pub fn load_checkpoint(run_dir: &Path) -> Result<Checkpoint> {
     let res = meta["atlas_res"]
         .as_u64()
         .context("checkpoint lacks atlas_res")? as usize;
+    // Checkpoints written before the multi-scale parameterisation hold one level.
+    let scales = meta["scales"].as_u64().unwrap_or(1) as usize;
+    if !(1..=8).contains(&scales) {
+        bail!(
+            "{}: checkpoint has {scales} atlas levels (1..=8)",
+            dir.display()
+        );
+    }
     let atlas = f32s("atlas.f32")?;
     let (m, v) = (f32s("adam_m.f32")?, f32s("adam_v.f32")?);
-    if atlas.len() != res * res * 3 || m.len() != atlas.len() || v.len() != atlas.len() {
+    let want = pyramid::len(res, scales);
+    if atlas.len() != want || m.len() != want || v.len() != want {
         bail!(
-            "{}: checkpoint arrays do not match a {res}² atlas",
+            "{}: checkpoint arrays do not match a {res}² atlas in {scales} level(s)",
             dir.display()
         );
     }
@@ -472,6 +564,7 @@ pub fn load_checkpoint(run_dir: &Path) -> Result<Checkpoint> {
     Ok(Checkpoint {
         iteration: meta["iteration"].as_u64().context("iteration")? as usize,
         atlas_res: res,
+        scales,
         adam,
         atlas,
         log,

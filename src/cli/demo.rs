@@ -1,13 +1,19 @@
 //! `cac demo`: the main job on the embedded defaults. A short dense-proposals attack on the
-//! default vehicle against NanoDet (target "person"), then before/after P@0.5 and targeted success
-//! on street-level views, with CenterNet as an unseen (transfer) model.
+//! default vehicle against NanoDet (target "person"), trained on the evaluation protocol's own
+//! distribution (scaled down: 320² renders), then scored as `cac eval` scores: before/after P@0.5
+//! and "person" success on protocol views (FV and RV, bright and dark, distance ratio 1.5–6) drawn
+//! with a seed the training never saw, with CenterNet as an unseen (transfer) model. The view
+//! sheets draw each detector's boxes and labels.
 
 use super::{device, train};
-use anyhow::Result;
+use anyhow::{bail, Result};
 use cac::attack::{AttackConfig, Trainer};
 use cac::config::SceneConfig;
-use cac::environment::{Brightness, Environment, ViewpointSet};
-use cac::eval::{self, Protocol};
+use cac::detect::Detector;
+use cac::environment::{Environment, ViewpointSet};
+use cac::eval::run::{evaluate_texture, level_name, set_name, view_groups, ViewPlan};
+use cac::eval::summary::{figures, sel};
+use cac::eval::{report::example_image, Protocol};
 use cac::render::{RenderSettings, Renderer};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -17,30 +23,23 @@ pub struct Args {
     /// Output folder.
     #[arg(long, default_value = "demo-out")]
     pub out: PathBuf,
+    /// Seed of the training run.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Attack iterations (batch 2).
-    #[arg(long, default_value_t = 240)]
+    #[arg(long, default_value_t = 600)]
     pub iterations: usize,
-    /// Street-level evaluation views per brightness level.
-    #[arg(long, default_value_t = 12)]
+    /// Protocol views per brightness level and viewpoint set (4 groups: FV/RV × bright/dark).
+    #[arg(long, default_value_t = 16)]
     pub views: usize,
+    /// Seed of the protocol views (not the training seed: the texture never saw these views).
+    #[arg(long, default_value_t = 2026)]
+    pub view_seed: u64,
 }
 
-/// The demo's scene: the built-in pickup, street-level training views (the distribution the
-/// evaluation views come from), the paper's photometric transforms.
+/// The demo's scene: the training preset (the protocol's distribution, 320² renders).
 pub fn demo_scene() -> SceneConfig {
-    let mut cfg = SceneConfig::default();
-    cfg.render = RenderSettings {
-        width: 320,
-        height: 320,
-        samples: 1,
-        vfov_deg: 45.0,
-        atlas_res: 256,
-    };
-    cfg.environment.distance_ratio = [1.2, 2.2];
-    cfg.environment.elevation_deg = [0.0, 25.0];
-    cfg
+    SceneConfig::training()
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -49,11 +48,12 @@ pub fn run(a: Args) -> Result<()> {
     let scene = cfg.object.load()?;
     let original = scene.initial_atlas(cfg.render.atlas_res);
     let renderer = Renderer::new(scene, cfg.render.clone())?;
+    // Scored as `cac eval` renders by default: 512², 4 samples per pixel.
     let eval_renderer = Renderer::new(
         renderer.scene.clone(),
         RenderSettings {
-            width: 416,
-            height: 416,
+            width: 512,
+            height: 512,
             samples: 4,
             ..cfg.render.clone()
         },
@@ -61,95 +61,159 @@ pub fn run(a: Args) -> Result<()> {
     let env = Environment::new(cfg.environment.clone())?;
     println!("loading detectors (fetched once into the cache on first use) ...");
     let dets = train::load_detectors(&["nanodet".into(), "centernet".into()])?;
-    let all: Vec<&dyn cac::detect::Detector> = dets.iter().map(|d| d.as_ref()).collect();
+    let all: Vec<&dyn Detector> = dets.iter().map(|d| d.as_ref()).collect();
     let attack = AttackConfig {
         models: vec!["nanodet".into()],
         iterations: a.iterations,
         seed: a.seed,
         batch: 2,
-        top_n: 300,
         checkpoint_every: 50,
         viewpoints: ViewpointSet::Free,
         ..Default::default()
     };
-    let target = attack.goal()?;
-    let proto = Protocol {
-        target: match target {
-            cac::attack::loss::Goal::Targeted(t) => Some(t),
-            _ => None,
-        },
+    let proto = Protocol::from_labels("car,truck", Some(&attack.target))?;
+    let plan = ViewPlan {
+        views_per_level: a.views,
+        seed: a.view_seed,
         ..Default::default()
     };
-    let mut views = eval::street_views(a.views, 1.5, Brightness::Bright);
-    views.extend(eval::street_views(a.views, 1.5, Brightness::Dark));
+    let groups = view_groups(&env, &plan);
     let dev = device::inference();
-
-    let before = eval::evaluate(&eval_renderer, &env, &views, &original, &all, &proto, &dev)?;
+    let score = |name: &str, atlas: &cac::scene::Texture| {
+        evaluate_texture(
+            &eval_renderer,
+            &env,
+            &groups,
+            name,
+            atlas,
+            &all,
+            &proto,
+            2,
+            &dev,
+            &mut || {},
+        )
+    };
     println!(
-        "training {} iterations against nanodet (target \"person\", n = 300, batch 2) ...",
-        a.iterations
+        "scoring the original texture on {} protocol views ...",
+        4 * a.views
     );
+    let before = score("original", &original)?;
+
+    let run_dir = a.out.join("run");
     let mut tr = Trainer::new(
-        attack,
+        attack.clone(),
         &renderer,
         &env,
         vec![all[0]],
         device::training(),
         &original,
     )?;
-    let run_dir = a.out.join("run");
     if run_dir.join("run.json").exists() {
+        let old: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(run_dir.join("run.json"))?)?;
+        let same = serde_json::to_value(&attack)?;
+        let mut was = old["attack"].clone();
+        if let (Some(w), Some(s)) = (was.as_object_mut(), same.as_object()) {
+            w.insert("iterations".into(), s["iterations"].clone());
+        }
+        if was != same || old["scene"] != serde_json::to_value(&cfg)? {
+            bail!(
+                "{} holds a run with other settings; remove it or pass another --out",
+                run_dir.display()
+            );
+        }
         tr = tr.resume(&run_dir)?;
         println!(
             "resuming the demo's run at iteration {}",
             tr.state.iteration
         );
     }
+    println!(
+        "training {} iterations against nanodet (target \"person\", proposals on the object, \
+         batch 2, protocol distances) ...",
+        a.iterations
+    );
     train::train_loop(&mut tr, &run_dir, &cfg, true)?;
     let learned = tr.atlas();
-    let after = eval::evaluate(&eval_renderer, &env, &views, &learned, &all, &proto, &dev)?;
+    println!("scoring the learned texture on the same views ...");
+    let after = score("learned", &learned)?;
 
-    println!("\n{} street-level views (elevation 5-15 deg, distance ratio 1.5, bright and dark); hit = car/truck, IoU >= 0.5, confidence >= 0.3", views.len());
     println!(
-        "{:<22} {:>12} {:>12} {:>9} {:>14} {:>14}",
-        "model", "P@0.5 before", "P@0.5 after", "drop", "person before", "person after"
+        "\n{} protocol views (cac eval's: FV and RV x bright and dark, {} each; distance ratio \
+         {:?}, elevation {:?} deg; view seed {}, training seed {}); 512², 4 spp.\nhit = car/truck \
+         with IoU >= 0.5 and confidence >= 0.3; person = a person box on the vehicle (IoU >= 0.5, \
+         confidence >= 0.3).",
+        4 * a.views,
+        a.views,
+        cfg.environment.distance_ratio,
+        cfg.environment.elevation_deg,
+        a.view_seed,
+        a.seed,
     );
-    for (m, name) in ["nanodet (white-box)", "centernet (transfer)"]
-        .iter()
-        .enumerate()
-    {
-        let (b, f) = (
-            eval::summarise(&before.scores[m]),
-            eval::summarise(&after.scores[m]),
-        );
-        println!(
-            "{:<22} {:>12.3} {:>12.3} {:>9.3} {:>14.3} {:>14.3}",
-            name,
-            b.p_at_05,
-            f.p_at_05,
-            b.p_at_05 - f.p_at_05,
-            b.targeted_success,
-            f.targeted_success
-        );
+    println!(
+        "{:<22} {:>4} {:>12} {:>12} {:>7} {:>14} {:>14}",
+        "model", "set", "P@0.5 before", "P@0.5 after", "drop", "person before", "person after"
+    );
+    let mut rows = vec![];
+    for (m, role) in [("nanodet", "white-box"), ("centernet", "transfer")] {
+        for set in [ViewpointSet::Free, ViewpointSet::Restricted] {
+            let b = figures(&before.records, sel("original", m, Some(set), None));
+            let f = figures(&after.records, sel("learned", m, Some(set), None));
+            println!(
+                "{:<22} {:>4} {:>12.3} {:>12.3} {:>7.3} {:>14.3} {:>14.3}",
+                format!("{m} ({role})"),
+                set_name(set),
+                b.p_at_05,
+                f.p_at_05,
+                b.p_at_05 - f.p_at_05,
+                b.targeted_success,
+                f.targeted_success
+            );
+            rows.push(serde_json::json!({
+                "model": m, "role": role, "set": set_name(set), "views": b.images,
+                "p_at_05_before": b.p_at_05, "p_at_05_after": f.p_at_05,
+                "drop": b.p_at_05 - f.p_at_05,
+                "person_before": b.targeted_success, "person_after": f.targeted_success,
+            }));
+        }
     }
     std::fs::create_dir_all(&a.out)?;
     cac::io::save_png_atomic(&a.out.join("atlas_original.png"), &original.to_rgb8())?;
     cac::io::save_png_atomic(&a.out.join("atlas_learned.png"), &learned.to_rgb8())?;
-    cac::io::save_png_atomic(
-        &a.out.join("views_original.png"),
-        &cac::render::contact_sheet(&before.images),
-    )?;
-    cac::io::save_png_atomic(
-        &a.out.join("views_learned.png"),
-        &cac::render::contact_sheet(&after.images),
-    )?;
+    let mut sheets = vec![];
+    for (m, model) in ["nanodet", "centernet"].iter().enumerate() {
+        for (tex, r) in [("original", &before), ("learned", &after)] {
+            let imgs: Vec<_> = r
+                .examples
+                .iter()
+                .map(|e| example_image(e, m, 320))
+                .collect();
+            let name = format!("views_{tex}_{model}.png");
+            cac::io::save_png_atomic(&a.out.join(&name), &cac::render::contact_sheet(&imgs))?;
+            sheets.push(name);
+        }
+    }
+    let sheet_views: Vec<String> = before
+        .examples
+        .iter()
+        .map(|e| {
+            format!(
+                "{} {} #{}",
+                set_name(e.set),
+                level_name(e.brightness),
+                e.view
+            )
+        })
+        .collect();
     let summary = serde_json::json!({
         "protocol": proto,
-        "views": views.len(),
+        "views": plan,
+        "scene": cfg,
+        "attack": attack,
         "iterations": tr.state.iteration,
-        "models": ["nanodet", "centernet"],
-        "before": before.scores.iter().map(|s| eval::summarise(s)).collect::<Vec<_>>(),
-        "after": after.scores.iter().map(|s| eval::summarise(s)).collect::<Vec<_>>(),
+        "results": rows,
+        "sheets": sheets,
+        "sheet_views": sheet_views,
         "seconds": start.elapsed().as_secs_f64(),
     });
     cac::io::write_atomic(
@@ -157,7 +221,8 @@ pub fn run(a: Args) -> Result<()> {
         serde_json::to_string_pretty(&summary)?.as_bytes(),
     )?;
     println!(
-        "\nwrote {} (atlases, before/after view sheets, summary.json, run/) in {:.0} s",
+        "\nwrote {} (atlases, before/after view sheets with each detector's boxes, summary.json, \
+         run/) in {:.0} s",
         a.out.display(),
         start.elapsed().as_secs_f64()
     );

@@ -18,7 +18,8 @@ pub struct Args {
     /// object; upc, camou: full atlas in 3D). See docs/attack.md.
     #[arg(long, value_enum, default_value_t = Method::Cac)]
     pub method: Method,
-    /// Scene config (TOML); defaults to the built-in pickup and the paper's environment.
+    /// Scene config (TOML); defaults to the training preset: the built-in pickup, the
+    /// evaluation protocol's environment, 320² renders at 1 sample per pixel, a 256² atlas.
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Run folder (created; must be empty unless --resume).
@@ -36,7 +37,14 @@ pub struct Args {
     /// Non-targeted mode: hide the object (suppress every class).
     #[arg(long)]
     pub hide: bool,
-    /// Fixed proposals per image (the paper's n).
+    /// Which candidates the loss fixes: `overlap` (those on the object's box, IoU >=
+    /// --overlap-iou) or `topn` (the top n after NMS over the whole image). See docs/attack.md.
+    #[arg(long, value_enum, default_value_t = cac::attack::loss::ProposalRule::Overlap)]
+    pub proposals: cac::attack::loss::ProposalRule,
+    /// Least IoU with the object's box of an `overlap` proposal.
+    #[arg(long, default_value_t = 0.5)]
+    pub overlap_iou: f64,
+    /// Fixed proposals per image at most (the paper's n).
     #[arg(long, default_value_t = 300)]
     pub top_n: usize,
     #[arg(long, default_value_t = 2)]
@@ -45,6 +53,10 @@ pub struct Args {
     pub iterations: usize,
     #[arg(long, default_value_t = 0.02)]
     pub lr: f32,
+    /// Levels of the atlas's multi-scale parameterisation: 1 optimises texel by texel; K adds
+    /// K-1 coarser levels (each half the side of the last) whose sum is the atlas.
+    #[arg(long, default_value_t = 1)]
+    pub scales: usize,
     /// Atlas side in texels (overrides the config).
     #[arg(long)]
     pub texture_res: Option<usize>,
@@ -90,7 +102,7 @@ pub fn run(a: Args) -> Result<()> {
         }
         let mut cfg = match &a.config {
             Some(p) => SceneConfig::from_file(p)?,
-            None => SceneConfig::default(),
+            None => SceneConfig::training(),
         };
         if let Some(r) = a.texture_res {
             cfg.render.atlas_res = r;
@@ -102,6 +114,9 @@ pub fn run(a: Args) -> Result<()> {
             models: a.models.clone(),
             target: a.target.clone(),
             hide: a.hide,
+            proposals: a.proposals,
+            overlap_iou: a.overlap_iou,
+            scales: a.scales,
             top_n: a.top_n,
             batch: a.batch,
             iterations: a.iterations,

@@ -243,7 +243,7 @@ mod tests {
         let read = |d: isize| {
             shifted(x.clone(), 2, d)
                 .into_data()
-                .to_vec::<f32>()
+                .try_to_vec::<f32>()
                 .unwrap()
         };
         assert_eq!(read(1), [2., 3., 3.]);

@@ -3,7 +3,11 @@
 //! and dispatches on [`Method`]. Formulas (`z` logits, `σ` sigmoid, `V` the true classes car,
 //! truck, bus, `P` the fixed top-n proposals after NMS, `t` the target class):
 //!
-//! * CAC, ShapeShifter: `1/|P| Σ_{i∈P} [Σ_c softplus(z_ic) − z_it]` (targeted BCE over proposals).
+//! * CAC: the targeted BCE `Σ_c softplus(z_ic) − z_it` over its proposals, by default the
+//!   candidates on the object averaged per image ([`crate::attack::loss`]; `--proposals topn`
+//!   gives the paper's literal top-n after NMS).
+//! * ShapeShifter: `1/|P| Σ_{i∈P} [Σ_c softplus(z_ic) − z_it]` over the top-n after NMS (its own
+//!   paper's choice of what it attacks).
 //! * AdvPat: `1/B Σ_b max_i max_{c∈V} σ(z_bic)` (Thys et al.'s max of objectness × class score;
 //!   these detectors have no objectness, their per-class sigmoid plays both parts).
 //! * CAMOU: `1/(B·N) Σ_{b,i} Σ_{c∈V} softplus(z_bic)`, i.e. `−log(1 − σ)` of the vehicle classes in
@@ -17,7 +21,9 @@
 //! Not here: rendering, the optimiser, the 2D patch transforms.
 
 use super::Method;
-use crate::attack::loss::{self, select_proposals, softplus, Goal};
+use crate::attack::loss::{
+    self, select_overlapping, select_proposals, softplus, Goal, ProposalRule,
+};
 use crate::detect::Candidates;
 use anyhow::{bail, Result};
 use burn::tensor::{activation::sigmoid, Int, Tensor, TensorData};
@@ -25,15 +31,34 @@ use burn::tensor::{activation::sigmoid, Int, Tensor, TensorData};
 /// COCO-80 ids of the vehicle ("true") classes the hiding objectives suppress: car, bus, truck.
 pub const VEHICLE_CLASSES: [usize; 3] = [2, 5, 7];
 
+/// How the proposals are chosen, and the objects' ground-truth boxes (one per image, from the
+/// renderer) that [`ProposalRule::Overlap`] needs.
+#[derive(Clone, Copy, Debug)]
+pub struct Selection<'a> {
+    pub rule: ProposalRule,
+    pub top_n: usize,
+    /// IoU of the class-agnostic NMS of [`ProposalRule::TopN`].
+    pub nms_iou: f64,
+    /// Least IoU with the object's box of [`ProposalRule::Overlap`].
+    pub overlap_iou: f64,
+    pub objects: &'a [Option<[f32; 4]>],
+}
+
 /// The method's loss for one detector's candidates, and the number of candidates it scored.
+/// Only CAC follows `sel.rule`; the baselines keep their own papers' choice.
 pub fn objective(
     method: Method,
     c: Candidates,
-    top_n: usize,
-    nms_iou: f64,
+    sel: &Selection,
     goal: Goal,
 ) -> Result<(Tensor<1>, usize)> {
+    let (top_n, nms_iou) = (sel.top_n, sel.nms_iou);
     match method {
+        Method::Cac if sel.rule == ProposalRule::Overlap => {
+            let p = select_overlapping(&c, sel.objects, top_n, sel.overlap_iou)?;
+            let n = p.iter().map(Vec::len).sum();
+            Ok((loss::proposals_loss_per_image(c.logits, &p, goal)?, n))
+        }
         Method::Cac | Method::Shapeshifter => {
             if method == Method::Shapeshifter && goal == Goal::Hide {
                 bail!("shapeshifter is a targeted attack: it needs a target class");

@@ -74,6 +74,7 @@ impl<'a> PatchTrainer<'a> {
             state: Checkpoint {
                 iteration: 0,
                 atlas_res: config.patch_res,
+                scales: 1,
                 adam: Adam::new(n, config.lr),
                 atlas: vec![0.5; n],
                 log: vec![],
@@ -172,7 +173,9 @@ impl<'a> PatchTrainer<'a> {
         let images = patch2d::paste(&bg, dims, patch.clone(), &ts, &self.device)?;
         let ms_render = t0.elapsed().as_secs_f64() * 1e3;
         let t1 = Instant::now();
-        let (loss, proposals) = ensemble_loss(&self.detectors, &images, &self.config, goal)?;
+        let objects: Vec<_> = boxes.iter().map(|b| Some(*b)).collect();
+        let (loss, proposals) =
+            ensemble_loss(&self.detectors, &images, &objects, &self.config, goal)?;
         let mut loss = loss;
         if self.config.method == Method::Advpat {
             loss = loss + total_variation(patch.clone()) * TV_WEIGHT;
