@@ -14,7 +14,6 @@ pub mod adam;
 pub mod baselines;
 pub mod loss;
 pub mod report;
-pub mod textures;
 
 use crate::detect::Detector;
 use crate::environment::{self, Brightness, Condition, Environment, ViewpointSet};
