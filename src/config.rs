@@ -1,5 +1,6 @@
 //! The scene config (TOML): which object, how it is rendered, and the environment distribution.
 //! Every field has a documented default (`cac config` prints them), so an empty file is valid.
+//! Named presets that several commands share live here too ([`eval_render`]).
 
 use crate::environment::EnvConfig;
 use crate::render::RenderSettings;
@@ -94,6 +95,18 @@ impl SceneConfig {
             atlas_res: 256,
         };
         cfg
+    }
+}
+
+/// The evaluation renderer preset ("416², 4 spp"): street-level views scored at 416 × 416 pixels
+/// (NanoDet's input size) with 4 samples per pixel, the field of view and atlas of `base` (the
+/// training renderer it checks). Used by the demo and the attack benchmarks.
+pub fn eval_render(base: &RenderSettings) -> RenderSettings {
+    RenderSettings {
+        width: 416,
+        height: 416,
+        samples: 4,
+        ..base.clone()
     }
 }
 

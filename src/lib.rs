@@ -2,9 +2,14 @@
 //!
 //! A toolkit that learns, fabricates and physically tests full-coverage adversarial textures for
 //! 3D objects. The pipeline is a chain of small stages, each a module with one job; data flows
-//! forward only:
+//! forward only. A module names only modules of an earlier rank (modules joined by `/` share one
+//! and do not name each other; `tests/import_graph.rs` checks it against this line):
 //!
-//! `scene` → `render` → `environment` → `detect` → `attack` / `eval` → `export` / `physical`.
+//! `io` / `report` → `scene` → `render` → `environment` → `config` → `detect` → `attack` / `eval` → `export` / `physical` → `sim` / `video`
+//!
+//! `io` and `report` are the shared floor (files, tables, plots, HTML, drawn labels); `config`
+//! holds the scene config and the named presets; `sim` is the simulated turntable firmware that
+//! `physical`'s driver talks to; `video` scores recordings with the detectors and the protocol.
 //!
 //! Library code never names a concrete compute backend: tensors live on a [`burn::tensor::Device`]
 //! chosen once at the edge (the `cac` binary, the tests, the benchmarks).

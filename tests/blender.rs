@@ -4,14 +4,13 @@
 //! of the object agrees within a stated tolerance under the same lighting levels.
 //! Needs `blender` on the PATH (or `CAC_BLENDER`); CI installs it (.ci/run).
 
+mod support;
+
 use cac::environment::{Brightness, Condition, EnvConfig, Environment};
 use cac::eval::blender::{self, BlenderSettings};
 use cac::render::{self, RenderSettings, Renderer, Viewpoint};
 use cac::scene::generate;
-
-fn device() -> burn::tensor::Device {
-    burn::tensor::Device::from(burn::backend::FlexDevice)
-}
+use support::device;
 
 fn conditions() -> Vec<Condition> {
     let mut a = Condition::plain(

@@ -5,29 +5,29 @@
 //! `max|a-b| / max|b| <= 1e-4` per tensor, and the same final detections (labels, boxes within
 //! 0.5 px, scores within 1e-4). The runner is installed (npm install in a copy under the target
 //! folder, or `$CAC_TFJS_RUNNER`) and its dumps are cached under `target/tfjs-oracle`, keyed by
-//! model, settings and image. Skipped, loudly, only when `../shared` does not exist.
+//! model, settings and image. Without `../shared` it fails under CI (`CI=true`) and is skipped,
+//! loudly, elsewhere.
+
+mod support;
 
 use cac::detect;
 use cac::detect::raw::{relative_error, RawDump};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
+use support::models;
 
 const REL_TOL: f64 = 1e-4;
 const BOX_TOL: f64 = 0.5;
 const SCORE_TOL: f64 = 1e-4;
 
 fn shared_dir() -> Option<PathBuf> {
-    let d = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
-    if d.join("reference/tfjs/detect.mjs").exists() {
-        Some(d)
-    } else {
-        eprintln!(
-            "\n!!!!!!!! SKIPPED: {} does not exist: detector conformance NOT checked !!!!!!!!\n",
-            d.display()
-        );
-        None
-    }
+    let d = support::root().join("../shared");
+    support::require_path(
+        &d.join("reference/tfjs/detect.mjs"),
+        "the TFJS reference runner of ../shared (detector conformance)",
+    )?;
+    Some(d)
 }
 
 /// `target/` (the folder above `release/deps/<this test>`).
@@ -61,11 +61,6 @@ fn runner(shared: &Path) -> &'static PathBuf {
         }
         dir
     })
-}
-
-fn models() -> &'static PathBuf {
-    static M: OnceLock<PathBuf> = OnceLock::new();
-    M.get_or_init(|| detect::fetch::ensure_models().expect("detector models"))
 }
 
 fn images(shared: &Path) -> Vec<PathBuf> {
@@ -137,7 +132,7 @@ struct RefDetection {
 /// Runs one model configuration over all images; panics listing every violation.
 fn conformance(model: &str, norm: &str, decode: &str, detector_name: &str, only: Option<&[&str]>) {
     let Some(shared) = shared_dir() else { return };
-    let device = burn::tensor::Device::from(burn::backend::FlexDevice);
+    let device = support::device();
     let det = detect::load(detector_name, models(), &device).unwrap();
     let mut failures = Vec::new();
     let mut worst: Vec<(String, f64)> = Vec::new();

@@ -1,31 +1,54 @@
 //! Stability of the detectors: extreme inputs give finite outputs and finite, non-zero
 //! gradients with respect to the input image; broken model files and wrong input shapes give
 //! clear errors. Needs the model files (fetched with npm on first use, cached).
+//!
+//! Every random input is drawn from a seeded generator: the seed is `CAC_TEST_SEED` (a fixed
+//! default otherwise) and every assertion names it, so a failure can be replayed.
 
-use burn::tensor::{Device, Distribution, Tensor};
+mod support;
+
+use burn::tensor::{Device, Tensor, TensorData};
 use cac::detect;
-use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution as _, Normal};
+use std::path::Path;
+use support::{device as inference, models};
 
-fn models() -> &'static PathBuf {
-    static M: OnceLock<PathBuf> = OnceLock::new();
-    M.get_or_init(|| detect::fetch::ensure_models().expect("detector models"))
+/// The seed of the random inputs (`CAC_TEST_SEED`, else a fixed default).
+fn seed() -> u64 {
+    std::env::var("CAC_TEST_SEED")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(0x5EED_0DE7)
 }
 
-fn inference() -> Device {
-    Device::from(burn::backend::FlexDevice)
+/// A random `shape` tensor of values drawn by `draw` from a generator seeded with `seed`.
+fn random(
+    shape: [usize; 4],
+    seed: u64,
+    device: &Device,
+    mut draw: impl FnMut(&mut ChaCha8Rng) -> f32,
+) -> Tensor<4> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let v: Vec<f32> = (0..shape.iter().product())
+        .map(|_| draw(&mut rng))
+        .collect();
+    Tensor::from_data(TensorData::new(v, shape), device)
 }
 
 fn all_finite(t: &Tensor<3>) -> bool {
     t.to_data().iter::<f32>().all(f32::is_finite)
 }
 
-fn inputs(device: &Device) -> Vec<(&'static str, Tensor<4>)> {
+fn inputs(device: &Device, seed: u64) -> Vec<(&'static str, Tensor<4>)> {
     let shape = [1, 3, 96, 128];
-    let noise = Tensor::<4>::random(shape, Distribution::Uniform(0.0, 1.0), device);
-    let saturated = Tensor::<4>::random(shape, Distribution::Bernoulli(0.5), device);
-    let clipped =
-        Tensor::<4>::random(shape, Distribution::Normal(0.5, 2.0), device).clamp(0.0, 1.0);
+    let noise = random(shape, seed, device, |r| r.random::<f32>());
+    let saturated = random(shape, seed + 1, device, |r| r.random_bool(0.5) as u8 as f32);
+    let normal = Normal::new(0.5f32, 2.0).expect("valid normal");
+    let clipped = random(shape, seed + 2, device, |r| {
+        normal.sample(r).clamp(0.0, 1.0)
+    });
     vec![
         ("black", Tensor::zeros(shape, device)),
         ("white", Tensor::ones(shape, device)),
@@ -37,8 +60,10 @@ fn inputs(device: &Device) -> Vec<(&'static str, Tensor<4>)> {
 
 fn check_stable(name: &str) {
     let det = detect::load(name, models(), &inference()).unwrap();
-    let ad = Device::autodiff(inference());
-    for (what, x) in inputs(&ad) {
+    let ad = support::training();
+    let seed = seed();
+    for (what, x) in inputs(&ad, seed) {
+        let what = format!("{what} (seed {seed})");
         let x = x.require_grad();
         let c = det.candidates(x.clone()).unwrap();
         assert!(all_finite(&c.boxes), "{name}/{what}: non-finite boxes");
@@ -79,7 +104,9 @@ fn candidates_have_documented_shapes_and_batches() {
         ("nanodet", 52 * 52 + 26 * 26 + 13 * 13),
     ] {
         let det = detect::load(name, models(), &device).unwrap();
-        let x = Tensor::<4>::random([2, 3, 64, 80], Distribution::Uniform(0.0, 1.0), &device);
+        let seed = seed();
+        let name = format!("{name} (seed {seed})");
+        let x = random([2, 3, 64, 80], seed, &device, |r| r.random::<f32>());
         let c = det.candidates(x.clone()).unwrap();
         assert_eq!(c.boxes.dims(), [2, n, 4], "{name}");
         assert_eq!(c.scores.dims(), [2, n, 80], "{name}");
@@ -108,7 +135,10 @@ fn candidates_have_documented_shapes_and_batches() {
             .iter::<f32>()
             .collect();
         let t: Vec<f32> = c.scores.to_data().iter::<f32>().collect();
-        assert!(s.iter().zip(&t).all(|(p, q)| (p - q).abs() < 1e-6));
+        assert!(
+            s.iter().zip(&t).all(|(p, q)| (p - q).abs() < 1e-6),
+            "{name}: sigmoid(logits) != scores"
+        );
     }
 }
 

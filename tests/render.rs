@@ -1,5 +1,7 @@
 //! Renderer and environment: gradients, extremes, determinism, conformance of the tensor path
-//! with the CPU path, and bad input.
+//! with the CPU path, and bad input. The Cesium milk truck of `../shared` is required under CI.
+
+mod support;
 
 use burn::tensor::{DType, Tensor, TensorData};
 use cac::environment::{self, Brightness, Condition, EnvConfig, Environment, ViewpointSet};
@@ -8,10 +10,7 @@ use cac::scene::{generate, LoadOptions, Scene, Texture};
 use glam::{Vec2, Vec3};
 use rand::{Rng, SeedableRng};
 use std::path::{Path, PathBuf};
-
-fn device() -> burn::tensor::Device {
-    burn::tensor::Device::from(burn::backend::FlexDevice)
-}
+use support::device;
 
 fn small(w: usize, s: usize, atlas: usize) -> RenderSettings {
     RenderSettings {
@@ -37,9 +36,12 @@ fn data_f64(t: &Tensor<4>) -> Vec<f64> {
         .unwrap()
 }
 
-fn shared() -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
-    p.is_dir().then_some(p)
+/// The Cesium milk truck (glTF) of `../shared`: a failure under CI when missing, else a skip.
+fn milk_truck() -> Option<PathBuf> {
+    support::require_path(
+        &support::root().join("../shared/meshes/CesiumMilkTruck/CesiumMilkTruck.glb"),
+        "the Cesium milk truck of ../shared",
+    )
 }
 
 /// d(loss)/d(atlas) from autodiff against central finite differences, in float64, through the
@@ -405,8 +407,8 @@ fn malformed_meshes_are_clear_errors_naming_the_file() {
     let p = write(dp, "empty.obj", b"# nothing\n");
     assert!(err(&p).contains("empty.obj"));
     // Truncated glTF taken from a real file.
-    if let Some(sh) = shared() {
-        let bytes = std::fs::read(sh.join("meshes/CesiumMilkTruck/CesiumMilkTruck.glb")).unwrap();
+    if let Some(truck) = milk_truck() {
+        let bytes = std::fs::read(truck).unwrap();
         let p = write(dp, "half.glb", &bytes[..bytes.len() / 2]);
         assert!(err(&p).contains("half.glb"));
     }
@@ -434,15 +436,8 @@ fn generated_obj_round_trips_through_the_loader() {
 
 #[test]
 fn the_milk_truck_loads_normalised_with_only_its_body_paintable() {
-    let Some(sh) = shared() else {
-        eprintln!("SKIPPED: ../shared not present");
-        return;
-    };
-    let s = Scene::load(
-        &sh.join("meshes/CesiumMilkTruck/CesiumMilkTruck.glb"),
-        &LoadOptions::default(),
-    )
-    .unwrap();
+    let Some(truck) = milk_truck() else { return };
+    let s = Scene::load(&truck, &LoadOptions::default()).unwrap();
     let (lo, hi) = s.bounds();
     assert!(lo.y.abs() < 1e-4, "ground contact at y=0, got {}", lo.y);
     assert!((hi.x - lo.x) > (hi.z - lo.z), "length must be along X");

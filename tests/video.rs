@@ -5,6 +5,7 @@
 //! docs/video.md (run with --nocapture to see the measured differences). Plus the turntable-log
 //! ground truth, the annotated output and report, and the errors.
 
+mod support;
 mod video_support;
 
 use cac::detect::{preprocess::image_to_tensor, Detector};
@@ -17,7 +18,6 @@ use cac::video::{
     Segmenting, Tools,
 };
 use std::path::Path;
-use std::process::Command;
 
 use video_support::*;
 
@@ -391,7 +391,7 @@ fn bad_inputs_are_clear_errors() {
 #[test]
 fn cli_honours_cac_ffmpeg() {
     let f = fixture();
-    let out = Command::new(env!("CARGO_BIN_EXE_cac"))
+    let out = support::cac_command()
         .args(["score-video"])
         .arg(f.path("h264.mp4"))
         .args(["--annotations"])
@@ -513,7 +513,7 @@ fn cli_scores_a_video_and_writes_report_and_annotated_video() {
     let f = fixture();
     let out = tempfile::tempdir().unwrap();
     let o = out.path();
-    let run = Command::new(env!("CARGO_BIN_EXE_cac"))
+    let run = support::cac_command()
         .arg("score-video")
         .arg(f.path("rotated.mp4"))
         .arg("--annotations")

@@ -16,7 +16,6 @@ pub mod baselines;
 pub mod loss;
 pub mod pyramid;
 pub mod report;
-pub mod textures;
 
 use crate::detect::Detector;
 use crate::environment::{self, Brightness, Condition, Environment, ViewpointSet};

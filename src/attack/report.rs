@@ -5,8 +5,8 @@
 //! writing files (the CLI does, atomically).
 
 use super::IterationLog;
+use crate::environment::street_views;
 use crate::environment::{self, Brightness, Environment};
-use crate::eval::street_views;
 use crate::render::{self, Renderer};
 use crate::report::plot::{self, Plot, Series};
 use crate::scene::Texture;

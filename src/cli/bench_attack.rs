@@ -64,7 +64,7 @@ pub fn run(a: Args) -> Result<()> {
                 .and_then(|n| n.to_str())
                 .unwrap_or("bench-attack")
         ));
-        return super::bench_methods::run(a.iterations, a.views, &p);
+        return super::bench::methods::run(a.iterations, a.views, &p);
     }
     let dets = train::load_detectors(&["nanodet".into()])?;
     let det = [dets[0].as_ref()];

@@ -5,23 +5,47 @@
 //! state_dict, `.pth` or `.safetensors`).
 
 use anyhow::{bail, Result};
-use cac::detect::{self, Detection};
-use clap::{Args, ValueEnum};
+use cac::detect::{self, Detection, Weights};
+use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
+use clap::error::ErrorKind;
+use clap::Args;
 use std::path::{Path, PathBuf};
 
-#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Model {
-    Centernet,
-    Nanodet,
-    /// torchvision fasterrcnn_mobilenet_v3_large_320_fpn (needs --weights).
-    #[value(name = "frcnn-mobilenet-v3-320")]
-    FrcnnMobilenetV3_320,
-    /// torchvision fasterrcnn_mobilenet_v3_large_fpn (needs --weights).
-    #[value(name = "frcnn-mobilenet-v3")]
-    FrcnnMobilenetV3,
-    /// torchvision fasterrcnn_resnet50_fpn (needs --weights).
-    #[value(name = "frcnn-resnet50")]
-    FrcnnResnet50,
+/// The detector catalogue ([`detect::MODELS`]) as clap's value list.
+fn catalogue() -> impl Iterator<Item = PossibleValue> {
+    detect::MODELS
+        .iter()
+        .map(|m| PossibleValue::new(m.name).help(m.about))
+}
+
+/// A model name of the catalogue (`--model`).
+pub fn model_names() -> PossibleValuesParser {
+    PossibleValuesParser::new(catalogue())
+}
+
+/// A detector spec of the catalogue, `NAME` or `MODEL=FILE` for a checkpoint model (`--models`):
+/// checked by [`detect::check_spec`], the catalogue listed in the help.
+#[derive(Clone, Copy, Debug)]
+pub struct ModelSpec;
+
+impl TypedValueParser for ModelSpec {
+    type Value = String;
+
+    fn parse_ref(
+        &self,
+        _cmd: &clap::Command,
+        _arg: Option<&clap::Arg>,
+        value: &std::ffi::OsStr,
+    ) -> std::result::Result<String, clap::Error> {
+        let s = value.to_string_lossy();
+        detect::check_spec(&s)
+            .map_err(|e| clap::Error::raw(ErrorKind::InvalidValue, format!("{e}\n")))?;
+        Ok(s.into_owned())
+    }
+
+    fn possible_values(&self) -> Option<Box<dyn Iterator<Item = PossibleValue> + '_>> {
+        Some(Box::new(catalogue()))
+    }
 }
 
 #[derive(Args, Debug)]
@@ -29,8 +53,8 @@ pub struct DetectArgs {
     /// Input images (PNG or JPEG).
     #[arg(required = true)]
     pub images: Vec<PathBuf>,
-    #[arg(long, value_enum, default_value = "centernet")]
-    pub model: Model,
+    #[arg(long, default_value = "centernet", value_parser = model_names())]
+    pub model: String,
     /// NanoDet only: @vladmandic/human's pre-/post-processing (RGB/255 input, argmax boxes),
     /// for parity checks; the default is the model's real BGR mean/std input and DFL decoding.
     #[arg(long)]
@@ -68,35 +92,24 @@ fn per_image(path: &Path, image: &Path, many: bool) -> PathBuf {
 }
 
 pub fn run(a: DetectArgs) -> Result<()> {
-    if a.human && a.model != Model::Nanodet {
+    if a.human && a.model != "nanodet" {
         bail!("--human only applies to --model nanodet");
     }
     let device = super::device::inference();
-    let frcnn = match a.model {
-        Model::FrcnnMobilenetV3_320 => Some(detect::frcnn::MODELS[0]),
-        Model::FrcnnMobilenetV3 => Some(detect::frcnn::MODELS[1]),
-        Model::FrcnnResnet50 => Some(detect::frcnn::MODELS[2]),
-        _ => None,
-    };
-    let det: Box<dyn detect::Detector> = match (frcnn, &a.weights) {
-        (Some(name), Some(w)) => Box::new(detect::FasterRcnn::load(name, w, &device)?),
-        (Some(name), None) => {
-            bail!("--model {name} needs --weights FILE (a torchvision state_dict)")
+    let info = detect::check_spec(&a.model)?;
+    let spec = match (info.weights, &a.weights) {
+        (Weights::Checkpoint, Some(w)) => format!("{}={}", a.model, w.display()),
+        (Weights::Checkpoint, None) => {
+            bail!(
+                "--model {} needs --weights FILE (a torchvision state_dict)",
+                a.model
+            )
         }
-        (None, Some(_)) => bail!("--weights only applies to the Faster R-CNN models"),
-        (None, None) => {
-            let dir = match &a.models {
-                Some(d) => d.clone(),
-                None => detect::fetch::ensure_models()?,
-            };
-            let name = match (a.model, a.human) {
-                (Model::Nanodet, true) => "nanodet-human",
-                (Model::Nanodet, false) => "nanodet",
-                _ => "centernet",
-            };
-            detect::load(name, &dir, &device)?
-        }
+        (Weights::Folder, Some(_)) => bail!("--weights only applies to the Faster R-CNN models"),
+        (Weights::Folder, None) if a.human => "nanodet-human".to_string(),
+        (Weights::Folder, None) => a.model.clone(),
     };
+    let det = detect::load_all(&[spec], a.models.as_deref(), &device)?.remove(0);
     let many = a.images.len() > 1;
     for path in &a.images {
         let img = cac::io::load_rgb(path)?;

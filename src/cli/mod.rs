@@ -5,12 +5,6 @@ use clap::{Parser, Subcommand};
 
 pub mod bench;
 pub mod bench_attack;
-pub mod bench_eval;
-pub mod bench_frcnn;
-pub mod bench_methods;
-pub mod bench_realism;
-pub mod bench_render;
-pub mod bench_video;
 pub mod capture;
 pub mod config;
 pub mod demo;
@@ -82,19 +76,19 @@ pub enum Command {
 #[derive(Subcommand, Debug)]
 pub enum BenchCmd {
     /// BVH build, rays/s (1 and 2 threads, against Embree), anti-aliasing error against time.
-    Render(bench_render::Args),
+    Render(bench::render::Args),
     /// The COCO detectors (burn) against the TFJS wasm runtime.
-    Detect(bench::DetectBench),
+    Detect(bench::detect::DetectBench),
     /// Bake error against triangles and seconds for several subdivision limits.
     Export(export::BenchArgs),
     /// The attack: iteration time split, and white-box error against wall time.
     Attack(bench_attack::Args),
     /// Offline video scoring: decode frames/s and scored frames/s per detector and codec.
-    Video(bench_video::Args),
+    Video(bench::video::Args),
     /// Evaluation throughput: images scored per second (render + detect + score) per detector.
-    Eval(bench_eval::Args),
+    Eval(bench::eval::Args),
     /// Is the original vehicle recognised? P@0.5 per mesh, viewpoint set, light and renderer.
-    Realism(bench_realism::Args),
+    Realism(bench::realism::Args),
 }
 
 pub fn run(cli: Cli) -> Result<()> {
@@ -110,16 +104,16 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Models { cmd } => models::run(cmd),
         Command::Meshes(c) => meshes::run(c),
         Command::Config(a) => config::run(a),
-        Command::Bench(BenchCmd::Render(a)) => bench_render::run(a),
-        Command::Bench(BenchCmd::Detect(a)) => bench::run(bench::BenchCmd::Detect(a)),
         Command::Export(a) => export::run(a),
         Command::ScoreVideo(a) => score_video::run(a),
         Command::Capture(a) => capture::run(a),
         Command::Score(a) => score::run(a),
+        Command::Bench(BenchCmd::Render(a)) => bench::render::run(a),
+        Command::Bench(BenchCmd::Detect(a)) => bench::detect::run(a),
         Command::Bench(BenchCmd::Export(a)) => export::bench(a),
         Command::Bench(BenchCmd::Attack(a)) => bench_attack::run(a),
-        Command::Bench(BenchCmd::Video(a)) => bench_video::run(a),
-        Command::Bench(BenchCmd::Eval(a)) => bench_eval::run(a),
-        Command::Bench(BenchCmd::Realism(a)) => bench_realism::run(a),
+        Command::Bench(BenchCmd::Video(a)) => bench::video::run(a),
+        Command::Bench(BenchCmd::Eval(a)) => bench::eval::run(a),
+        Command::Bench(BenchCmd::Realism(a)) => bench::realism::run(a),
     }
 }

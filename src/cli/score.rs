@@ -20,12 +20,8 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<()> {
     let device = super::device::inference();
-    let dir = detect::fetch::ensure_models()?;
-    let models = a
-        .models
-        .split(',')
-        .map(|m| detect::load(m.trim(), &dir, &device))
-        .collect::<Result<Vec<_>>>()?;
+    let names: Vec<&str> = a.models.split(',').map(str::trim).collect();
+    let models = detect::load_all(&names, None, &device)?;
     let refs: Vec<&dyn detect::Detector> = models.iter().map(|m| m.as_ref()).collect();
     let s = cac::physical::score::score(&a.session, &refs, &Protocol::default(), &device, true)?;
     let out = a.out.unwrap_or_else(|| a.session.join("score"));

@@ -29,7 +29,7 @@ pub struct Args {
     #[arg(long)]
     pub out: PathBuf,
     /// Detectors, comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "nanodet,centernet")]
+    #[arg(long, value_delimiter = ',', value_parser = super::detect::ModelSpec, default_value = "nanodet,centernet")]
     pub models: Vec<String>,
     /// Ground truth: annotation CSV or COCO JSON (docs/video.md).
     #[arg(long, conflicts_with = "log")]
@@ -200,16 +200,8 @@ pub fn run(a: Args) -> Result<()> {
         protocol,
         max_frames: a.max_frames,
     };
-    let dir = match &a.models_dir {
-        Some(d) => d.clone(),
-        None => detect::fetch::ensure_models()?,
-    };
     let device = super::device::inference();
-    let dets: Vec<Box<dyn Detector>> = a
-        .models
-        .iter()
-        .map(|m| detect::load(m, &dir, &device))
-        .collect::<Result<_>>()?;
+    let dets = detect::load_all(&a.models, a.models_dir.as_deref(), &device)?;
     let refs: Vec<&dyn Detector> = dets.iter().map(|d| d.as_ref()).collect();
     let names: Vec<String> = a.models.clone();
     println!("scoring {}", stream.describe());

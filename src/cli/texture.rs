@@ -1,7 +1,7 @@
 //! `cac texture`: write one of the simple baseline textures (Natural, Naive, Random) as a PNG.
 
 use anyhow::{bail, Result};
-use cac::attack::textures::{self, Kind};
+use cac::scene::textures::{self, Kind};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]

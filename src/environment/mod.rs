@@ -201,6 +201,18 @@ impl Condition {
     }
 }
 
+/// Street-level views: `n` azimuths evenly around the object, elevations cycling through
+/// 5–15°, at one distance ratio, plain photometrics.
+pub fn street_views(n: usize, distance_ratio: f32, brightness: Brightness) -> Vec<Condition> {
+    (0..n)
+        .map(|k| {
+            let az = 360.0 * k as f32 / n as f32 + 7.5;
+            let el = 5.0 + 10.0 * ((k * 7) % n) as f32 / (n.max(2) - 1) as f32;
+            Condition::plain(Viewpoint::new(az, el, distance_ratio), brightness)
+        })
+        .collect()
+}
+
 /// The environment: its config plus the loaded background and ground images.
 pub struct Environment {
     pub config: EnvConfig,

@@ -16,7 +16,9 @@ pub mod study;
 pub mod summary;
 pub mod textures;
 mod views;
-pub use views::{evaluate, street_views, ViewResults};
+/// Lives in [`crate::environment`]; re-exported for the callers that still name it here.
+pub use crate::environment::street_views;
+pub use views::{evaluate, ViewResults};
 
 use crate::detect::{nms::iou, Detection};
 use serde::{Deserialize, Serialize};

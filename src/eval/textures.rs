@@ -2,7 +2,7 @@
 //! `natural`, `naive`, `random` (the simple baselines, generated from the seed at the atlas
 //! resolution), or `NAME=PATH` where PATH is an atlas PNG/JPEG or a run folder (its `atlas.png`).
 
-use crate::attack::textures::{self, Kind};
+use crate::scene::textures::{self, Kind};
 use crate::scene::{Scene, Texture};
 use anyhow::{bail, Context, Result};
 use std::path::Path;

@@ -3,23 +3,11 @@
 
 use super::{score_image, ImageScore, Protocol};
 use crate::detect::{Detection, Detector};
-use crate::environment::{self, Brightness, Condition, Environment};
-use crate::render::{self, Renderer, Viewpoint};
+use crate::environment::{self, Condition, Environment};
+use crate::render::{self, Renderer};
 use crate::scene::Texture;
 use anyhow::{Context, Result};
 use burn::tensor::Device;
-
-/// Street-level views: `n` azimuths evenly around the object, elevations cycling through
-/// 5–15°, at one distance ratio, plain photometrics.
-pub fn street_views(n: usize, distance_ratio: f32, brightness: Brightness) -> Vec<Condition> {
-    (0..n)
-        .map(|k| {
-            let az = 360.0 * k as f32 / n as f32 + 7.5;
-            let el = 5.0 + 10.0 * ((k * 7) % n) as f32 / (n.max(2) - 1) as f32;
-            Condition::plain(Viewpoint::new(az, el, distance_ratio), brightness)
-        })
-        .collect()
-}
 
 /// The outcome of one texture in a set of views.
 pub struct ViewResults {

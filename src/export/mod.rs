@@ -13,7 +13,6 @@
 
 pub mod bake;
 pub mod benchmark;
-pub(crate) mod font;
 pub mod obj;
 pub mod pdf;
 pub mod printcheck;

@@ -7,9 +7,9 @@
 //! Outputs: `page_NN.png`, `sheets.pdf` (the same page images, one per PDF page at exact paper
 //! size) and `sheets.json` (physical sizes and placements).
 
-use super::font::{draw_text, fill_rect, text_width};
 use super::texture::sample;
 use super::{PrintMesh, Scale};
+use crate::report::font::{draw_text, fill_rect, text_width};
 use anyhow::{bail, ensure, Context, Result};
 use glam::Vec2;
 use image::RgbImage;

@@ -1,6 +1,6 @@
 //! Boxes with labels drawn into images (detections, ground truth), for example views in reports.
 
-use crate::export::font;
+use super::font;
 use image::RgbImage;
 
 /// Draws the outline of `bbox` (`x1, y1, x2, y2` in pixels), `stroke` px wide, and `label` (may

@@ -1,10 +1,12 @@
 //! Report building blocks shared by every stage that shows results to a person: tables written as
 //! Markdown and CSV from the same rows ([`table`]), plots drawn to images with `plotters`
 //! ([`plot`]: xy lines with error bars, polar plots against azimuth), and a self-contained HTML
-//! page with its images embedded ([`html`]). Nothing here writes files; callers do, atomically
+//! page with its images embedded ([`html`]), boxes and labels drawn into images ([`draw`]) with a
+//! small bitmap font (`font`). Nothing here writes files; callers do, atomically
 //! (`cac::io`).
 
 pub mod draw;
+pub(crate) mod font;
 pub mod html;
 pub mod plot;
 pub mod table;

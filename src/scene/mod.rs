@@ -4,7 +4,8 @@
 //! Loaders for OBJ (+MTL, textures) and glTF/GLB turn a file into a [`Scene`]; [`Scene::normalise`]
 //! puts every object into the same frame (see `docs/conventions.md`): metres, **+Y up**, ground
 //! contact at `y = 0`, the object's length along **+X** (its front facing +X), centred on the
-//! origin in X and Z. The [`generate`] module builds the project's default meshes.
+//! origin in X and Z. The [`generate`] module builds the project's default meshes, [`textures`] the
+//! simple baseline textures (Natural, Naive, Random).
 //!
 //! This module does not render and knows nothing about tensors.
 
@@ -12,6 +13,7 @@ pub mod generate;
 mod gltf_load;
 mod obj_load;
 pub mod obj_write;
+pub mod textures;
 
 use anyhow::{bail, Context, Result};
 use glam::{Mat4, Vec2, Vec3};

@@ -4,8 +4,8 @@
 
 use super::score::FrameRecord;
 use super::{missing, Tools};
-use crate::export::font::{draw_text, fill_rect};
 use crate::report::draw::{class_colour, labelled_box};
+use crate::report::font::{draw_text, fill_rect};
 use anyhow::{bail, Context, Result};
 use image::RgbImage;
 use std::io::{Read, Write};

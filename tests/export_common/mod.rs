@@ -1,6 +1,11 @@
 //! Helpers shared by the export integration tests: inputs made at test time, and external tools
-//! that must be present under CI (`CI=true`) and are skipped with a message locally.
+//! that must be present under CI (`CI=true`) and are skipped with a message locally (through
+//! tests/support's `require`).
 #![allow(dead_code)]
+
+#[path = "../support/mod.rs"]
+mod support;
+pub use support::require;
 
 use cac::export::{self, benchmark, ExportOptions, PrintMesh, Scale};
 use std::path::{Path, PathBuf};
@@ -29,24 +34,6 @@ pub fn truck() -> Option<PathBuf> {
         eprintln!("SKIPPED: {} not present", p.display());
     }
     p.exists().then_some(p)
-}
-
-/// Is `program` runnable? Under CI a missing tool fails the test; locally it is skipped.
-pub fn require(program: &str, probe: &[&str], what: &str) -> bool {
-    let ok = Command::new(program)
-        .args(probe)
-        .output()
-        .map(|o| o.status.success())
-        .unwrap_or(false);
-    if !ok {
-        if std::env::var("CI").is_ok_and(|v| v == "true") {
-            panic!("{what} is required under CI but `{program}` is missing (see .ci/run)");
-        }
-        eprintln!(
-            "SKIPPED: {what} not available (`{program}` missing); install it as .ci/run does"
-        );
-    }
-    ok
 }
 
 /// lib3mf (Python) present?

@@ -26,7 +26,12 @@ pub fn image(stem: &str) -> Tensor<4> {
 // ---- the oracle's deterministic weights, without Python ----
 
 #[allow(unused_imports)]
-pub use cac::detect::frcnn::synthetic::{state_dict as oracle_weights, uniform};
+pub use cac::detect::frcnn::synthetic::uniform;
+
+/// The oracle's synthetic state_dict of `arch`.
+pub fn oracle_weights(arch: cac::detect::frcnn::Arch) -> cac::detect::frcnn::weights::StateDict {
+    cac::detect::frcnn::synthetic::state_dict(arch, &dev())
+}
 
 // ---- oracle files ----
 

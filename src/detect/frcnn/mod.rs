@@ -192,25 +192,25 @@ impl FasterRcnn {
     }
 
     /// The state_dict layout the model needs: every `(key, shape)`, in build order
-    /// (`num_batches_tracked` buffers excluded).
-    pub fn layout(arch: Arch) -> Vec<(String, Vec<usize>)> {
-        let dev = Device::from(burn::backend::FlexDevice);
+    /// (`num_batches_tracked` buffers excluded). The layers are built (with placeholder values)
+    /// on `dev` to list their keys.
+    pub fn layout(arch: Arch, dev: &Device) -> Vec<(String, Vec<usize>)> {
         let empty = StateDict::from_map("layout", Default::default());
         let mut l = Loader::new(&empty, "rpn.head.cls_logits.weight");
         let channels = match arch {
             Arch::ResNet50 => {
-                ResNet50::load(&mut l, "backbone.body", &dev);
+                ResNet50::load(&mut l, "backbone.body", dev);
                 ResNet50::CHANNELS.to_vec()
             }
             _ => {
-                MobileNetV3::load(&mut l, "backbone.body", &dev);
+                MobileNetV3::load(&mut l, "backbone.body", dev);
                 MobileNetV3::CHANNELS.to_vec()
             }
         };
-        Fpn::load(&mut l, "backbone.fpn", &channels, &dev);
+        Fpn::load(&mut l, "backbone.fpn", &channels, dev);
         let a = if arch == Arch::ResNet50 { 3 } else { 15 };
-        RpnHead::load(&mut l, "rpn.head", fpn::CHANNELS, a, &dev);
-        BoxHead::load(&mut l, fpn::CHANNELS * 49, CLASSES, &dev);
+        RpnHead::load(&mut l, "rpn.head", fpn::CHANNELS, a, dev);
+        BoxHead::load(&mut l, fpn::CHANNELS * 49, CLASSES, dev);
         l.requested().to_vec()
     }
 

@@ -10,6 +10,7 @@
 
 use super::weights::{HostTensor, StateDict};
 use super::Arch;
+use burn::tensor::Device;
 use std::collections::{BTreeMap, BTreeSet};
 
 fn fnv1a64(s: &str) -> u64 {
@@ -71,9 +72,9 @@ fn value(name: &str, shape: &[usize], keys: &BTreeSet<String>) -> Vec<f32> {
     v.into_iter().map(|x| f(x) as f32).collect()
 }
 
-/// The full synthetic state_dict of `arch`.
-pub fn state_dict(arch: Arch) -> StateDict {
-    let layout = super::FasterRcnn::layout(arch);
+/// The full synthetic state_dict of `arch` (its layout is listed on `dev`).
+pub fn state_dict(arch: Arch, dev: &Device) -> StateDict {
+    let layout = super::FasterRcnn::layout(arch, dev);
     let keys: BTreeSet<String> = layout.iter().map(|(k, _)| k.clone()).collect();
     let map: BTreeMap<String, HostTensor> = layout
         .iter()

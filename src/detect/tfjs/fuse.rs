@@ -8,12 +8,19 @@
 //! function, in three passes. The bypassed nodes stay in the graph, so a caller that asks for one
 //! of them by name still gets it; they just no longer run for the others.
 
-use super::graph::{Graph, Value};
 use super::model::HostData;
+use super::value::{Node, Value};
+use std::collections::HashMap;
+
+/// What the rewrites read: the resolved nodes and the constant nodes' values.
+struct View<'a> {
+    nodes: &'a [Node],
+    consts: &'a HashMap<usize, Value>,
+}
 
 /// The value of a one-element float constant node, if `i` is one.
-fn scalar(g: &Graph, i: usize) -> Option<f32> {
-    match g.const_value(i)? {
+fn scalar(g: &View, i: usize) -> Option<f32> {
+    match g.consts.get(&i)? {
         Value::Host(h) if h.len() == 1 => match &h.data {
             HostData::F32(v) => Some(v[0]),
             HostData::I64(_) => None,
@@ -24,7 +31,7 @@ fn scalar(g: &Graph, i: usize) -> Option<f32> {
 
 /// Of a binary node's two inputs, the other one and the constant's value, where one input is a
 /// scalar constant within `tol` of `c`.
-fn split_scalar(g: &Graph, i: usize, c: f32, tol: f32) -> Option<((usize, usize), f32)> {
+fn split_scalar(g: &View, i: usize, c: f32, tol: f32) -> Option<((usize, usize), f32)> {
     let n = &g.nodes[i];
     if n.inputs.len() != 2 {
         return None;
@@ -39,29 +46,33 @@ fn split_scalar(g: &Graph, i: usize, c: f32, tol: f32) -> Option<((usize, usize)
 
 /// Rewrites every `Mul(Mul(X, c), Relu6(Add(X, 3)))` (either operand order, `c` within float16
 /// precision of 1/6) into `HardSwish(X)` with `scale = 6c`. Returns how many were rewritten.
-pub fn hard_swish(g: &mut Graph) -> usize {
+pub fn hard_swish(nodes: &mut [Node], consts: &HashMap<usize, Value>) -> usize {
+    let g = View {
+        nodes: &*nodes,
+        consts,
+    };
     let mut consumers = vec![0usize; g.nodes.len()];
-    for n in &g.nodes {
+    for n in g.nodes {
         for &(j, _) in &n.inputs {
             consumers[j] += 1;
         }
     }
-    let op = |g: &Graph, i: usize| g.nodes[i].op().to_string();
+    let op = |g: &View, i: usize| g.nodes[i].op().to_string();
     let mut rewrites = Vec::new();
     for (i, n) in g.nodes.iter().enumerate() {
         if n.op() != "Mul" || n.inputs.len() != 2 {
             continue;
         }
         let match_pair = |relu: usize, scaled: usize| -> Option<((usize, usize), f32)> {
-            if op(g, relu) != "Relu6" || op(g, scaled) != "Mul" {
+            if op(&g, relu) != "Relu6" || op(&g, scaled) != "Mul" {
                 return None;
             }
             let (add, _) = *g.nodes[relu].inputs.first()?;
-            if !matches!(op(g, add).as_str(), "Add" | "AddV2") {
+            if !matches!(op(&g, add).as_str(), "Add" | "AddV2") {
                 return None;
             }
-            let (x, three) = split_scalar(g, add, 3.0, 0.0)?;
-            let (x2, c) = split_scalar(g, scaled, 1.0 / 6.0, 1e-3)?;
+            let (x, three) = split_scalar(&g, add, 3.0, 0.0)?;
+            let (x2, c) = split_scalar(&g, scaled, 1.0 / 6.0, 1e-3)?;
             let private = [relu, scaled, add].iter().all(|&k| consumers[k] == 1);
             (x == x2 && three == 3.0 && private).then_some((x, c))
         };
@@ -71,7 +82,7 @@ pub fn hard_swish(g: &mut Graph) -> usize {
         }
     }
     for &(i, x, c) in &rewrites {
-        let node = &mut g.nodes[i];
+        let node = &mut nodes[i];
         node.def.op = "HardSwish".into();
         node.def
             .attr

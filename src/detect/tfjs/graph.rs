@@ -9,143 +9,10 @@
 
 use super::model::{GraphModel, HostData, HostTensor, NodeDef};
 use super::ops;
+use super::value::{pad4, FloatValue, Node, Value};
 use anyhow::{anyhow, bail, Context, Result};
 use burn::tensor::{Device, Tensor, TensorData};
 use std::collections::HashMap;
-
-/// A float tensor of logical rank 0..=4, stored as a rank-4 burn tensor with leading 1s.
-///
-/// A rank-4 NHWC value produced by a convolution may be held physically as NCHW
-/// (`nchw = true`: `t` is the logical tensor permuted by `[0, 3, 1, 2]`), so that chains of
-/// convolutions and elementwise ops never copy between layouts.
-#[derive(Clone, Debug)]
-pub struct FloatValue {
-    pub t: Tensor<4>,
-    pub shape: Vec<usize>,
-    pub nchw: bool,
-}
-
-impl FloatValue {
-    /// Wraps a tensor whose logical shape is `shape` (rank <= 4); reshapes to padded rank 4.
-    pub fn new(t: Tensor<4>, shape: Vec<usize>) -> Self {
-        debug_assert_eq!(
-            t.dims().iter().product::<usize>(),
-            shape.iter().product::<usize>()
-        );
-        let padded = pad4(&shape);
-        let t = if t.dims() == padded {
-            t
-        } else {
-            t.reshape(padded)
-        };
-        FloatValue {
-            t,
-            shape,
-            nchw: false,
-        }
-    }
-    /// A logical NHWC value from its physical NCHW tensor.
-    pub fn from_nchw(t: Tensor<4>) -> Self {
-        let [n, c, h, w] = t.dims();
-        FloatValue {
-            t,
-            shape: vec![n, h, w, c],
-            nchw: true,
-        }
-    }
-    /// The physical NCHW tensor of a rank-4 NHWC value (also aligns a broadcastable
-    /// lower-rank value, padded to rank 4, with NCHW-held values).
-    pub fn to_nchw(&self) -> Tensor<4> {
-        if self.nchw {
-            self.t.clone()
-        } else {
-            self.t.clone().permute([0, 3, 1, 2])
-        }
-    }
-    /// This value with `t` in plain logical layout.
-    pub fn logical(self) -> Self {
-        if self.nchw {
-            FloatValue {
-                t: self.t.permute([0, 2, 3, 1]),
-                shape: self.shape,
-                nchw: false,
-            }
-        } else {
-            self
-        }
-    }
-    /// A rank-4 value as it is.
-    pub fn from4(t: Tensor<4>) -> Self {
-        let shape = t.dims().to_vec();
-        FloatValue {
-            t,
-            shape,
-            nchw: false,
-        }
-    }
-    pub fn rank(&self) -> usize {
-        self.shape.len()
-    }
-    /// Offset of logical axis 0 in the physical rank-4 tensor.
-    pub fn offset(&self) -> usize {
-        4 - self.rank()
-    }
-    /// Host copy of the values (row-major, logical shape).
-    pub fn to_host(&self) -> Result<HostTensor> {
-        let v: Vec<f32> = self
-            .clone()
-            .logical()
-            .t
-            .to_data()
-            .convert::<f32>()
-            .try_into_vec::<f32>()
-            .map_err(|e| anyhow!("cannot read tensor values: {e:?}"))?;
-        Ok(HostTensor {
-            shape: self.shape.clone(),
-            data: HostData::F32(v),
-        })
-    }
-}
-
-/// Pads a shape of rank <= 4 with leading 1s to rank 4.
-pub fn pad4(shape: &[usize]) -> [usize; 4] {
-    let mut out = [1usize; 4];
-    let off = 4 - shape.len();
-    out[off..].copy_from_slice(shape);
-    out
-}
-
-/// A value flowing along a graph edge.
-#[derive(Clone, Debug)]
-pub enum Value {
-    Float(FloatValue),
-    Host(HostTensor),
-}
-
-impl Value {
-    pub fn shape(&self) -> &[usize] {
-        match self {
-            Value::Float(f) => &f.shape,
-            Value::Host(h) => &h.shape,
-        }
-    }
-}
-
-/// A resolved node: its op, its inputs as (node index, output index), its attributes.
-#[derive(Debug)]
-pub struct Node {
-    pub def: NodeDef,
-    pub inputs: Vec<(usize, usize)>,
-}
-
-impl Node {
-    pub fn name(&self) -> &str {
-        &self.def.name
-    }
-    pub fn op(&self) -> &str {
-        &self.def.op
-    }
-}
 
 /// A graph ready to run on one device: nodes in file order, constants already on the device.
 pub struct Graph {
@@ -154,7 +21,7 @@ pub struct Graph {
     index: HashMap<String, usize>,
     consts: HashMap<usize, Value>,
     /// Convolution weights pre-arranged to burn's OIHW layout, keyed by the conv node.
-    pub(crate) conv_weights: HashMap<usize, Tensor<4>>,
+    conv_weights: HashMap<usize, Tensor<4>>,
     pub device: Device,
 }
 
@@ -163,7 +30,7 @@ impl Graph {
     /// and fuses elementwise chains (see [`super::fuse`]).
     pub fn new(model: GraphModel, device: &Device) -> Result<Self> {
         let mut g = Self::unfused(model, device)?;
-        super::fuse::hard_swish(&mut g);
+        super::fuse::hard_swish(&mut g.nodes, &g.consts);
         Ok(g)
     }
 
@@ -214,16 +81,15 @@ impl Graph {
             };
             consts.insert(i, v);
         }
-        let mut g = Graph {
+        let conv_weights = ops::prepare_conv_weights(&source, &nodes, &consts, device)?;
+        Ok(Graph {
             source,
             nodes,
             index,
             consts,
-            conv_weights: HashMap::new(),
+            conv_weights,
             device: device.clone(),
-        };
-        ops::prepare_conv_weights(&mut g)?;
-        Ok(g)
+        })
     }
 
     /// The index of a node by name (a `name:k` output reference is accepted).
@@ -261,11 +127,6 @@ impl Graph {
                 self.nodes[i].name()
             )
         })
-    }
-
-    /// A constant node's value.
-    pub(crate) fn const_value(&self, node: usize) -> Option<&Value> {
-        self.consts.get(&node)
     }
 
     /// The names of the graph inputs (Placeholder nodes).
@@ -402,9 +263,9 @@ impl Graph {
                         })
                     })
                     .collect::<Result<_>>()?;
-                ops::eval(self, i, &args).with_context(|| {
-                    format!("{}: node {:?} (op {})", self.source, node.name(), node.op())
-                })?
+                ops::eval(node, self.conv_weights.get(&i), &self.device, &args).with_context(
+                    || format!("{}: node {:?} (op {})", self.source, node.name(), node.op()),
+                )?
             };
             if profile {
                 if let Some(Value::Float(f)) = out.first() {

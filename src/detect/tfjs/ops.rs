@@ -6,52 +6,58 @@
 //! reaches the graph input); integer/shape ops run on the host. An op outside this list is an
 //! error naming the op.
 
-use super::graph::{FloatValue, Graph, Value};
 use super::model::{HostData, HostTensor};
+use super::value::{pad4, FloatValue, Node, Value};
 use crate::detect::preprocess::resize_bilinear;
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use burn::tensor::activation;
 use burn::tensor::module::{conv2d, max_pool2d};
 use burn::tensor::ops::{ConvOptions, MaxPoolOptions, PadMode};
-use burn::tensor::{Slice, Tensor, TensorData};
+use burn::tensor::{Device, Slice, Tensor, TensorData};
+use std::collections::HashMap;
 
-/// Evaluates node `i` of `g` on its input values.
-pub fn eval(g: &Graph, i: usize, args: &[&Value]) -> Result<Vec<Value>> {
-    let node = &g.nodes[i];
+/// Evaluates `node` on its input values on `dev`; `conv_weight` is the node's filter as
+/// [`prepare_conv_weights`] arranged it (convolutions only).
+pub fn eval(
+    node: &Node,
+    conv_weight: Option<&Tensor<4>>,
+    dev: &Device,
+    args: &[&Value],
+) -> Result<Vec<Value>> {
     let one = |v: FloatValue| Ok(vec![Value::Float(v)]);
     match node.op() {
         "Identity" | "StopGradient" | "Snapshot" => Ok(vec![arg(args, 0)?.clone()]),
         "Conv2D" | "_FusedConv2D" | "DepthwiseConv2dNative" | "FusedDepthwiseConv2dNative" => {
-            one(conv(g, i, args)?)
+            one(conv(node, conv_weight, dev, args)?)
         }
-        "Relu" => unary(g, args, activation::relu),
-        "Relu6" => unary(g, args, |t| t.clamp(0.0, 6.0)),
+        "Relu" => unary(dev, args, activation::relu),
+        "Relu6" => unary(dev, args, |t| t.clamp(0.0, 6.0)),
         // Made by `fuse::hard_swish` from Mul(Mul(x, c), Relu6(Add(x, 3))); scale = 6c.
         "HardSwish" => {
             let scale = attr_f(node, "scale").context("HardSwish without scale")?;
-            unary(g, args, |t| {
+            unary(dev, args, |t| {
                 t.clone().mul_scalar(scale) * activation::hard_sigmoid(t, 1.0 / 6.0, 0.5)
             })
         }
-        "Sigmoid" => unary(g, args, activation::sigmoid),
-        "Tanh" => unary(g, args, activation::tanh),
-        "Exp" => unary(g, args, |t| t.exp()),
-        "Neg" => unary(g, args, |t| t.neg()),
+        "Sigmoid" => unary(dev, args, activation::sigmoid),
+        "Tanh" => unary(dev, args, activation::tanh),
+        "Exp" => unary(dev, args, |t| t.exp()),
+        "Neg" => unary(dev, args, |t| t.neg()),
         "LeakyRelu" => {
             let alpha = attr_f(node, "alpha").unwrap_or(0.2);
-            unary(g, args, |t| activation::leaky_relu(t, alpha))
+            unary(dev, args, |t| activation::leaky_relu(t, alpha))
         }
         "Add" | "AddV2" | "Sub" | "Mul" | "RealDiv" | "Div" | "Maximum" | "Minimum" => {
-            Ok(vec![binary(g, node.op(), arg(args, 0)?, arg(args, 1)?)?])
+            Ok(vec![binary(dev, node.op(), arg(args, 0)?, arg(args, 1)?)?])
         }
-        "Mean" => one(mean(g, node, args)?),
-        "ConcatV2" => Ok(vec![concat(g, args)?]),
+        "Mean" => one(mean(dev, node, args)?),
+        "ConcatV2" => Ok(vec![concat(dev, args)?]),
         "Reshape" => Ok(vec![reshape(arg(args, 0)?, &host(args, 1)?.as_i64())?]),
-        "Transpose" => one(transpose(g, args)?),
-        "Pad" | "PadV2" => one(pad(g, node.op(), args)?),
-        "MaxPool" => one(max_pool(g, node, args)?),
-        "ResizeBilinear" => one(resize(g, node, args)?),
-        "SplitV" => split_v(g, args),
+        "Transpose" => one(transpose(dev, args)?),
+        "Pad" | "PadV2" => one(pad(dev, node.op(), args)?),
+        "MaxPool" => one(max_pool(dev, node, args)?),
+        "ResizeBilinear" => one(resize(dev, node, args)?),
+        "SplitV" => split_v(dev, args),
         "ExpandDims" => Ok(vec![expand_dims(
             arg(args, 0)?,
             host(args, 1)?.as_i64()[0],
@@ -76,7 +82,7 @@ fn host<'a>(args: &[&'a Value], k: usize) -> Result<&'a HostTensor> {
 }
 
 /// A float tensor for any value (host constants are uploaded to the graph's device).
-fn float(g: &Graph, v: &Value) -> Result<FloatValue> {
+fn float(dev: &Device, v: &Value) -> Result<FloatValue> {
     match v {
         Value::Float(f) => Ok(f.clone()),
         Value::Host(h) => {
@@ -86,26 +92,23 @@ fn float(g: &Graph, v: &Value) -> Result<FloatValue> {
                 h.shape.len()
             );
             let data = h.as_f32();
-            let t = Tensor::<1>::from_data(TensorData::new(data, [h.len()]), &g.device);
-            Ok(FloatValue::new(
-                t.reshape(super::graph::pad4(&h.shape)),
-                h.shape.clone(),
-            ))
+            let t = Tensor::<1>::from_data(TensorData::new(data, [h.len()]), dev);
+            Ok(FloatValue::new(t.reshape(pad4(&h.shape)), h.shape.clone()))
         }
     }
 }
 
-fn float_arg(g: &Graph, args: &[&Value], k: usize) -> Result<FloatValue> {
-    float(g, arg(args, k)?)
+fn float_arg(dev: &Device, args: &[&Value], k: usize) -> Result<FloatValue> {
+    float(dev, arg(args, k)?)
 }
 
 /// A float input in plain logical layout.
-fn logical_arg(g: &Graph, args: &[&Value], k: usize) -> Result<FloatValue> {
-    Ok(float_arg(g, args, k)?.logical())
+fn logical_arg(dev: &Device, args: &[&Value], k: usize) -> Result<FloatValue> {
+    Ok(float_arg(dev, args, k)?.logical())
 }
 
-fn unary(g: &Graph, args: &[&Value], f: impl Fn(Tensor<4>) -> Tensor<4>) -> Result<Vec<Value>> {
-    let x = float_arg(g, args, 0)?;
+fn unary(dev: &Device, args: &[&Value], f: impl Fn(Tensor<4>) -> Tensor<4>) -> Result<Vec<Value>> {
+    let x = float_arg(dev, args, 0)?;
     Ok(vec![Value::Float(FloatValue {
         t: f(x.t),
         shape: x.shape,
@@ -115,34 +118,34 @@ fn unary(g: &Graph, args: &[&Value], f: impl Fn(Tensor<4>) -> Tensor<4>) -> Resu
 
 // ---------------------------------------------------------------- attributes
 
-fn attr<'a>(node: &'a super::graph::Node, key: &str) -> Option<&'a serde_json::Value> {
+fn attr<'a>(node: &'a Node, key: &str) -> Option<&'a serde_json::Value> {
     node.def.attr.get(key)
 }
 
-fn attr_f(node: &super::graph::Node, key: &str) -> Option<f64> {
+fn attr_f(node: &Node, key: &str) -> Option<f64> {
     attr(node, key)?.get("f")?.as_f64()
 }
 
-fn attr_b(node: &super::graph::Node, key: &str) -> bool {
+fn attr_b(node: &Node, key: &str) -> bool {
     attr(node, key)
         .and_then(|v| v.get("b"))
         .and_then(|b| b.as_bool())
         .unwrap_or(false)
 }
 
-fn attr_ints(node: &super::graph::Node, key: &str) -> Option<Vec<i64>> {
+fn attr_ints(node: &Node, key: &str) -> Option<Vec<i64>> {
     let l = attr(node, key)?.get("list")?.get("i")?.as_array()?;
     l.iter()
         .map(|x| x.as_str().and_then(|s| s.parse().ok()).or(x.as_i64()))
         .collect()
 }
 
-fn attr_s(node: &super::graph::Node, key: &str) -> Option<String> {
+fn attr_s(node: &Node, key: &str) -> Option<String> {
     let s = attr(node, key)?.get("s")?.as_str()?;
     Some(String::from_utf8_lossy(&base64_decode(s)).into_owned())
 }
 
-fn attr_strings(node: &super::graph::Node, key: &str) -> Vec<String> {
+fn attr_strings(node: &Node, key: &str) -> Vec<String> {
     attr(node, key)
         .and_then(|v| v.get("list"))
         .and_then(|l| l.get("s"))
@@ -182,7 +185,7 @@ fn base64_decode(s: &str) -> Vec<u8> {
     out
 }
 
-fn nhwc_only(node: &super::graph::Node) -> Result<()> {
+fn nhwc_only(node: &Node) -> Result<()> {
     match attr_s(node, "data_format").as_deref() {
         None | Some("NHWC") => Ok(()),
         Some(f) => bail!("data_format {f} is not supported (NHWC only)"),
@@ -226,31 +229,37 @@ fn is_conv(op: &str) -> bool {
     )
 }
 
-/// Rearranges every constant convolution filter to burn's `[out, in/groups, kh, kw]` once.
-pub(crate) fn prepare_conv_weights(g: &mut Graph) -> Result<()> {
-    let mut prepared = Vec::new();
-    for (i, node) in g.nodes.iter().enumerate() {
+/// Rearranges every constant convolution filter of `nodes` to burn's `[out, in/groups, kh, kw]`
+/// once, keyed by the convolution node; `source` names the model in errors.
+pub(crate) fn prepare_conv_weights(
+    source: &str,
+    nodes: &[Node],
+    consts: &HashMap<usize, Value>,
+    dev: &Device,
+) -> Result<HashMap<usize, Tensor<4>>> {
+    let mut prepared = HashMap::new();
+    for (i, node) in nodes.iter().enumerate() {
         if !is_conv(node.op()) {
             continue;
         }
         let &(wi, _) = node
             .inputs
             .get(1)
-            .ok_or_else(|| anyhow!("{}: node {:?} has no filter input", g.source, node.name()))?;
-        let w = match g.const_value(wi) {
+            .ok_or_else(|| anyhow!("{}: node {:?} has no filter input", source, node.name()))?;
+        let w = match consts.get(&wi) {
             Some(Value::Float(f)) => f.to_host()?,
             Some(Value::Host(h)) => h.clone(),
             None => bail!(
                 "{}: node {:?}: filter {:?} is not a constant",
-                g.source,
+                source,
                 node.name(),
-                g.nodes[wi].name()
+                nodes[wi].name()
             ),
         };
         ensure!(
             w.shape.len() == 4,
             "{}: node {:?}: filter shape {:?} is not 4-D",
-            g.source,
+            source,
             node.name(),
             w.shape
         );
@@ -272,27 +281,26 @@ pub(crate) fn prepare_conv_weights(g: &mut Graph) -> Result<()> {
                 }
             }
         }
-        let t = Tensor::<4>::from_data(TensorData::new(dst, [out_c, in_c, kh, kw]), &g.device);
-        prepared.push((i, t));
+        let t = Tensor::<4>::from_data(TensorData::new(dst, [out_c, in_c, kh, kw]), dev);
+        prepared.insert(i, t);
     }
-    g.conv_weights.extend(prepared);
-    Ok(())
+    Ok(prepared)
 }
 
-fn conv(g: &Graph, i: usize, args: &[&Value]) -> Result<FloatValue> {
-    let node = &g.nodes[i];
+fn conv(
+    node: &Node,
+    weight: Option<&Tensor<4>>,
+    dev: &Device,
+    args: &[&Value],
+) -> Result<FloatValue> {
     nhwc_only(node)?;
-    let x = float_arg(g, args, 0)?;
+    let x = float_arg(dev, args, 0)?;
     ensure!(
         x.rank() == 4,
         "input has shape {:?}, a 4-D NHWC tensor is needed",
         x.shape
     );
-    let w = g
-        .conv_weights
-        .get(&i)
-        .context("filter was not prepared")?
-        .clone();
+    let w = weight.context("filter was not prepared")?.clone();
     let [out_c, in_per_group, kh, kw] = w.dims();
     let depthwise = node.op().contains("Depthwise");
     let channels = x.shape[3];
@@ -313,7 +321,7 @@ fn conv(g: &Graph, i: usize, args: &[&Value]) -> Result<FloatValue> {
     for f in &fused {
         match f.as_str() {
             "BiasAdd" => {
-                let b = float_arg(g, args, 2)?;
+                let b = float_arg(dev, args, 2)?;
                 ensure!(b.shape == [out_c], "bias shape {:?} != [{out_c}]", b.shape);
                 bias = Some(b.logical().t.reshape([out_c]));
             }
@@ -458,7 +466,7 @@ fn broadcast_shape(a: &[usize], b: &[usize]) -> Result<Vec<usize>> {
     Ok(out)
 }
 
-fn binary(g: &Graph, op: &str, a: &Value, b: &Value) -> Result<Value> {
+fn binary(dev: &Device, op: &str, a: &Value, b: &Value) -> Result<Value> {
     if let (Value::Host(x), Value::Host(y)) = (a, b) {
         return host_binary(op, x, y).map(Value::Host);
     }
@@ -478,7 +486,7 @@ fn binary(g: &Graph, op: &str, a: &Value, b: &Value) -> Result<Value> {
         .iter()
         .any(|v| matches!(v, Value::Float(f) if f.nchw));
     let phys = |v: &Value| -> Result<Tensor<4>> {
-        let f = float(g, v)?;
+        let f = float(dev, v)?;
         Ok(if nchw { f.to_nchw() } else { f.t })
     };
     let t = match (scalar(a), scalar(b)) {
@@ -592,8 +600,8 @@ fn norm_axis(axis: i64, rank: usize) -> Result<usize> {
     Ok(a as usize)
 }
 
-fn mean(g: &Graph, node: &super::graph::Node, args: &[&Value]) -> Result<FloatValue> {
-    let mut x = float_arg(g, args, 0)?;
+fn mean(dev: &Device, node: &Node, args: &[&Value]) -> Result<FloatValue> {
+    let mut x = float_arg(dev, args, 0)?;
     if x.nchw && !attr_b(node, "keep_dims") {
         x = x.logical();
     }
@@ -637,7 +645,7 @@ fn mean(g: &Graph, node: &super::graph::Node, args: &[&Value]) -> Result<FloatVa
     Ok(FloatValue::new(t, shape))
 }
 
-fn concat(g: &Graph, args: &[&Value]) -> Result<Value> {
+fn concat(dev: &Device, args: &[&Value]) -> Result<Value> {
     ensure!(
         args.len() >= 2,
         "ConcatV2 needs at least one tensor and an axis"
@@ -663,7 +671,7 @@ fn concat(g: &Graph, args: &[&Value]) -> Result<Value> {
     if all_nchw {
         let ts: Vec<Tensor<4>> = parts
             .iter()
-            .map(|p| float(g, p).map(|f| f.t))
+            .map(|p| float(dev, p).map(|f| f.t))
             .collect::<Result<_>>()?;
         let t = Tensor::cat(ts, [0, 2, 3, 1][axis]);
         return Ok(Value::Float(FloatValue {
@@ -674,7 +682,7 @@ fn concat(g: &Graph, args: &[&Value]) -> Result<Value> {
     }
     let ts: Vec<Tensor<4>> = parts
         .iter()
-        .map(|p| float(g, p).map(|f| f.logical().t))
+        .map(|p| float(dev, p).map(|f| f.logical().t))
         .collect::<Result<_>>()?;
     let t = Tensor::cat(ts, axis + 4 - rank);
     Ok(Value::Float(FloatValue::new(t, shape)))
@@ -738,8 +746,8 @@ fn expand_dims(x: &Value, axis: i64) -> Result<Value> {
     reshape(x, &target)
 }
 
-fn transpose(g: &Graph, args: &[&Value]) -> Result<FloatValue> {
-    let x = logical_arg(g, args, 0)?;
+fn transpose(dev: &Device, args: &[&Value]) -> Result<FloatValue> {
+    let x = logical_arg(dev, args, 0)?;
     let perm = host(args, 1)?.as_i64();
     let r = x.rank();
     ensure!(perm.len() == r, "perm {perm:?} does not match rank {r}");
@@ -760,8 +768,8 @@ fn transpose(g: &Graph, args: &[&Value]) -> Result<FloatValue> {
     })
 }
 
-fn pad(g: &Graph, op: &str, args: &[&Value]) -> Result<FloatValue> {
-    let x = logical_arg(g, args, 0)?;
+fn pad(dev: &Device, op: &str, args: &[&Value]) -> Result<FloatValue> {
+    let x = logical_arg(dev, args, 0)?;
     let p = host(args, 1)?;
     ensure!(
         p.shape == [x.rank(), 2],
@@ -791,9 +799,9 @@ fn pad(g: &Graph, op: &str, args: &[&Value]) -> Result<FloatValue> {
 
 /// (A max-pool as the maximum of the window's strided views, like `taps`, was tried: slower than
 /// Flex's `max_pool2d`, 9.6 against 6.1 ms on NanoDet's pool.)
-fn max_pool(g: &Graph, node: &super::graph::Node, args: &[&Value]) -> Result<FloatValue> {
+fn max_pool(dev: &Device, node: &Node, args: &[&Value]) -> Result<FloatValue> {
     nhwc_only(node)?;
-    let x = float_arg(g, args, 0)?;
+    let x = float_arg(dev, args, 0)?;
     ensure!(
         x.rank() == 4,
         "input has shape {:?}, NHWC expected",
@@ -810,8 +818,8 @@ fn max_pool(g: &Graph, node: &super::graph::Node, args: &[&Value]) -> Result<Flo
     Ok(FloatValue::from_nchw(max_pool2d(x.to_nchw(), opts)))
 }
 
-fn resize(g: &Graph, node: &super::graph::Node, args: &[&Value]) -> Result<FloatValue> {
-    let x = float_arg(g, args, 0)?;
+fn resize(dev: &Device, node: &Node, args: &[&Value]) -> Result<FloatValue> {
+    let x = float_arg(dev, args, 0)?;
     ensure!(
         x.rank() == 4,
         "input has shape {:?}, NHWC expected",
@@ -829,8 +837,8 @@ fn resize(g: &Graph, node: &super::graph::Node, args: &[&Value]) -> Result<Float
     Ok(FloatValue::from_nchw(t))
 }
 
-fn split_v(g: &Graph, args: &[&Value]) -> Result<Vec<Value>> {
-    let x = logical_arg(g, args, 0)?;
+fn split_v(dev: &Device, args: &[&Value]) -> Result<Vec<Value>> {
+    let x = logical_arg(dev, args, 0)?;
     let axis = norm_axis(host(args, 2)?.as_i64()[0], x.rank())?;
     let mut sizes = host(args, 1)?.as_i64();
     let total = x.shape[axis] as i64;
@@ -860,7 +868,7 @@ fn split_v(g: &Graph, args: &[&Value]) -> Result<Vec<Value>> {
         .collect())
 }
 
-fn cast(node: &super::graph::Node, x: &Value) -> Result<Vec<Value>> {
+fn cast(node: &Node, x: &Value) -> Result<Vec<Value>> {
     let dst = attr(node, "DstT")
         .and_then(|v| v.get("type"))
         .and_then(|t| t.as_str())

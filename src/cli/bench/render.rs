@@ -4,13 +4,13 @@
 //! the anti-aliasing error-against-time table (PSNR of 1/4/16 samples against 64). Prints tables
 //! and writes CSV.
 
+use super::timer::fastest_ms;
 use anyhow::{Context, Result};
 use cac::environment::{Brightness, Condition, EnvConfig, Environment};
 use cac::render::{accel::Accel, gbuffer::GBuffer, RenderSettings, Renderer, Viewpoint};
+use cac::report::Table;
 use cac::scene::{LoadOptions, Scene};
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -42,16 +42,10 @@ fn scenes() -> Vec<(String, Scene)> {
     v
 }
 
+/// Seconds of the fastest of `n` (at least one) runs of `f`, no warm-up, and its last output.
 fn best_of<T>(n: usize, mut f: impl FnMut() -> T) -> (f64, T) {
-    let mut best = f64::MAX;
-    let mut out = None;
-    for _ in 0..n.max(1) {
-        let t = Instant::now();
-        let r = f();
-        best = best.min(t.elapsed().as_secs_f64());
-        out = Some(r);
-    }
-    (best, out.unwrap())
+    let (ms, out) = fastest_ms(0, n.max(1), || Ok(f())).expect("infallible");
+    (ms / 1e3, out)
 }
 
 fn embree(python: &str, scene: &Scene, g: &GBuffer, repeats: usize) -> Option<(f64, f64, usize)> {
@@ -124,7 +118,20 @@ fn embree(python: &str, scene: &Scene, g: &GBuffer, repeats: usize) -> Option<(f
 pub fn run(a: Args) -> Result<()> {
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
-    let mut csv = String::from("scene,triangles,bvh_build_ms,threads,rays,seconds,mrays_per_s,gbuffer_ms,hits,embree_build_ms,embree_mrays_per_s,embree_hits\n");
+    let mut csv = Table::new([
+        "scene",
+        "triangles",
+        "bvh_build_ms",
+        "threads",
+        "rays",
+        "seconds",
+        "mrays_per_s",
+        "gbuffer_ms",
+        "hits",
+        "embree_build_ms",
+        "embree_mrays_per_s",
+        "embree_hits",
+    ]);
     println!(
         "{:<11} {:>9} {:>9} {:>7} {:>10} {:>11} {:>13} {:>12}",
         "scene",
@@ -200,13 +207,20 @@ pub fn run(a: Args) -> Result<()> {
                 ratio,
                 gsecs * 1e3
             );
-            writeln!(
-                csv,
-                "{name},{},{:.3},{threads},{rays},{secs:.5},{mrays:.3},{:.2},{hits},{eb},{er},{eh}",
-                scene.triangles.len(),
-                build_s * 1e3,
-                gsecs * 1e3
-            )?;
+            csv.row([
+                name.clone(),
+                scene.triangles.len().to_string(),
+                format!("{:.3}", build_s * 1e3),
+                threads.to_string(),
+                rays.to_string(),
+                format!("{secs:.5}"),
+                format!("{mrays:.3}"),
+                format!("{:.2}", gsecs * 1e3),
+                hits.to_string(),
+                eb,
+                er,
+                eh,
+            ]);
         }
         if emb.is_none() {
             println!(
@@ -218,7 +232,7 @@ pub fn run(a: Args) -> Result<()> {
             }
         }
     }
-    cac::io::write_atomic(&a.out.join("render_rays.csv"), csv.as_bytes())?;
+    cac::io::write_atomic(&a.out.join("render_rays.csv"), csv.csv().as_bytes())?;
 
     // Anti-aliasing: error against time.
     let mut jeep = cac::scene::generate::jeep();
@@ -245,7 +259,7 @@ pub fn run(a: Args) -> Result<()> {
         Ok((secs, img))
     };
     let (_, reference) = render_at(64)?;
-    let mut aa = String::from("samples,ms_per_frame,psnr_db_vs_64\n");
+    let mut aa = Table::new(["samples", "ms_per_frame", "psnr_db_vs_64"]);
     println!(
         "\nanti-aliasing, 256x256 jeep, against 64 samples per pixel:\n{:>8} {:>12} {:>10}",
         "samples", "ms/frame", "PSNR dB"
@@ -264,9 +278,13 @@ pub fn run(a: Args) -> Result<()> {
             f64::INFINITY
         };
         println!("{:>8} {:>12.1} {:>10.2}", spp, secs * 1e3, psnr);
-        writeln!(aa, "{spp},{:.2},{psnr:.3}", secs * 1e3)?;
+        aa.row([
+            spp.to_string(),
+            format!("{:.2}", secs * 1e3),
+            format!("{psnr:.3}"),
+        ]);
     }
-    cac::io::write_atomic(&a.out.join("render_aa.csv"), aa.as_bytes())?;
+    cac::io::write_atomic(&a.out.join("render_aa.csv"), aa.csv().as_bytes())?;
     println!(
         "\nwrote {} and {}",
         a.out.join("render_rays.csv").display(),

@@ -5,14 +5,15 @@
 //! Fastest of `--runs` runs after a warm-up, on both sides. Synthetic weights: timings do not
 //! depend on the values beyond the proposal and detection counts.
 
+use super::timer::time;
+use crate::cli::device;
 use anyhow::{Context, Result};
 use burn::tensor::{Distribution, Tensor};
 use cac::detect::frcnn::{synthetic, Arch, FasterRcnn, MODELS};
 use cac::detect::Detector;
+use cac::report::Table;
 use std::path::Path;
 use std::process::Command;
-
-use super::bench::time;
 
 /// PyTorch's (forward, forward+backward) ms on `device` (cpu or cuda), or None when torch cannot
 /// run there.
@@ -37,19 +38,25 @@ fn torch_ms(
     Some((v["forward_ms"].as_f64()?, v["backward_ms"].as_f64()?))
 }
 
-/// Prints the table and returns the CSV text.
-pub fn bench(runs: usize, python: &str) -> Result<String> {
-    let inference = super::device::inference();
-    let training = super::device::training();
+/// Prints the table and returns it (for the CSV).
+pub fn bench(runs: usize, python: &str) -> Result<Table> {
+    let inference = device::inference();
+    let training = device::training();
     let threads = rayon::current_num_threads();
     // Like against like: on the GPU, PyTorch runs on CUDA on the same card.
-    let torch_device = if super::device::is_gpu() {
-        "cuda"
-    } else {
-        "cpu"
-    };
+    let torch_device = if device::is_gpu() { "cuda" } else { "cpu" };
     println!("PyTorch columns: {torch_device}, {threads} threads");
-    let mut rows = Vec::new();
+    let mut rows = Table::new([
+        "model",
+        "input",
+        "threads",
+        "forward_ms",
+        "forward_backward_ms",
+        "torch_forward_ms",
+        "torch_forward_backward_ms",
+        "forward_over_torch",
+        "backward_over_torch",
+    ]);
     println!(
         "{:24} {:>9} {:>11} {:>12} {:>12} {:>14} {:>8} {:>8}",
         "model",
@@ -65,7 +72,7 @@ pub fn bench(runs: usize, python: &str) -> Result<String> {
         let arch = Arch::from_name(name)?;
         let m = FasterRcnn::from_state_dict(
             arch,
-            &synthetic::state_dict(arch),
+            &synthetic::state_dict(arch, &inference),
             arch.config(),
             &inference,
         )?;
@@ -75,7 +82,7 @@ pub fn bench(runs: usize, python: &str) -> Result<String> {
         let xa = Tensor::<4>::random([1, 3, h, w], Distribution::Uniform(0.0, 1.0), &training);
         let ma = FasterRcnn::from_state_dict(
             arch,
-            &synthetic::state_dict(arch),
+            &synthetic::state_dict(arch, &training),
             arch.config(),
             &training,
         )?;
@@ -104,21 +111,22 @@ pub fn bench(runs: usize, python: &str) -> Result<String> {
             f(rf, 2),
             f(rb, 2)
         );
-        rows.push(format!(
-            "{name},{w}x{h},{threads},{fwd:.2},{bwd:.2},{},{},{},{}",
+        rows.row([
+            name.to_string(),
+            format!("{w}x{h}"),
+            threads.to_string(),
+            format!("{fwd:.2}"),
+            format!("{bwd:.2}"),
             f(tf, 2),
             f(tb, 2),
             f(rf, 4),
-            f(rb, 4)
-        ));
+            f(rb, 4),
+        ]);
     }
-    if rows.iter().any(|r| r.contains("n/a")) {
+    if rows.rows.iter().flatten().any(|c| c == "n/a") {
         eprintln!(
             "note: PyTorch columns are n/a where `{python} -c 'import torch, torchvision'` fails"
         );
     }
-    Ok(format!(
-        "model,input,threads,forward_ms,forward_backward_ms,torch_forward_ms,torch_forward_backward_ms,forward_over_torch,backward_over_torch\n{}\n",
-        rows.join("\n")
-    ))
+    Ok(rows)
 }

@@ -2,7 +2,8 @@
 //! detector alone and for all of them sharing one render, on the protocol's FV views of the
 //! default pickup. Prints a table and writes CSV. A benchmark, not a test: it asserts nothing.
 
-use super::{device, train};
+use super::timer::Stopwatch;
+use crate::cli::{device, train};
 use anyhow::{bail, Result};
 use cac::config::SceneConfig;
 use cac::environment::{self, Brightness, Environment, ViewpointSet};
@@ -10,7 +11,6 @@ use cac::eval::{score_image, Protocol};
 use cac::render::{self, Renderer};
 use cac::report::Table;
 use std::path::PathBuf;
-use std::time::Instant;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -18,7 +18,7 @@ pub struct Args {
     #[arg(long, default_value_t = 8)]
     pub images: usize,
     /// Detectors, comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "centernet,nanodet")]
+    #[arg(long, value_delimiter = ',', value_parser = crate::cli::detect::ModelSpec, default_value = "centernet,nanodet")]
     pub models: Vec<String>,
     /// Image side in pixels.
     #[arg(long, default_value_t = 512)]
@@ -67,7 +67,7 @@ pub fn run(a: Args) -> Result<()> {
     for which in rows {
         let (mut tr, mut td, mut ts, mut n) = (0.0, 0.0, 0.0, 0);
         for (i, c) in conds.iter().enumerate() {
-            let t0 = Instant::now();
+            let t0 = Stopwatch::start();
             let plan = r.plan(&c.viewpoint, &env.lighting(c), &env.backdrop(c))?;
             let gt = plan.object_box.unwrap_or([0.0; 4]);
             let one = std::slice::from_ref(c);
@@ -76,21 +76,23 @@ pub fn run(a: Args) -> Result<()> {
                 one,
             );
             let _ = img.clone().slice([0..1, 0..1, 0..1, 0..1]).into_data();
-            let t1 = Instant::now();
+            let render_s = t0.secs();
+            let t1 = Stopwatch::start();
             let mut found = vec![];
             for &k in &which {
                 found.push(dets[k].detect(img.clone())?.remove(0));
             }
-            let t2 = Instant::now();
+            let detect_s = t1.secs();
+            let t2 = Stopwatch::start();
             let hits = found.iter().filter(|f| score_image(f, &gt, &p).hit).count();
             std::hint::black_box(hits);
-            let t3 = Instant::now();
+            let score_s = t2.secs();
             if i == 0 {
                 continue; // warm-up
             }
-            tr += (t1 - t0).as_secs_f64();
-            td += (t2 - t1).as_secs_f64();
-            ts += (t3 - t2).as_secs_f64();
+            tr += render_s;
+            td += detect_s;
+            ts += score_s;
             n += 1;
         }
         let names: Vec<&str> = which.iter().map(|&k| dets[k].name()).collect();

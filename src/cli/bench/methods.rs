@@ -3,16 +3,18 @@
 //! every texture scored on the same street-level views by NanoDet (white-box) and CenterNet
 //! (transfer). Prints a table and writes a CSV. A benchmark, not a test.
 
-use super::{demo, device, train};
+use super::timer::Stopwatch;
+use crate::cli::{demo, device, train};
 use anyhow::Result;
 use cac::attack::baselines::PatchTrainer;
-use cac::attack::textures::{self, Kind};
 use cac::attack::{AttackConfig, Method, Run, Trainer};
-use cac::environment::{Brightness, Environment};
+use cac::config;
+use cac::environment::{street_views, Brightness, Environment};
 use cac::eval::{self, Protocol};
-use cac::render::{RenderSettings, Renderer};
+use cac::render::Renderer;
+use cac::report::Table;
+use cac::scene::textures::{self, Kind};
 use std::path::Path;
-use std::time::Instant;
 
 pub fn run(iterations: usize, views_per_level: usize, csv: &Path) -> Result<()> {
     let cfg = demo::demo_scene();
@@ -20,28 +22,25 @@ pub fn run(iterations: usize, views_per_level: usize, csv: &Path) -> Result<()> 
     let res = cfg.render.atlas_res;
     let original = scene.initial_atlas(res);
     let r = Renderer::new(scene, cfg.render.clone())?;
-    let eval_r = Renderer::new(
-        r.scene.clone(),
-        RenderSettings {
-            width: 416,
-            height: 416,
-            samples: 4,
-            ..cfg.render.clone()
-        },
-    )?;
+    let eval_r = Renderer::new(r.scene.clone(), config::eval_render(&cfg.render))?;
     let env = Environment::new(cfg.environment.clone())?;
     let dets = train::load_detectors(&["nanodet".into(), "centernet".into()])?;
     let all: Vec<&dyn cac::detect::Detector> = dets.iter().map(|d| d.as_ref()).collect();
-    let mut views = eval::street_views(views_per_level, 1.5, Brightness::Bright);
-    views.extend(eval::street_views(views_per_level, 1.5, Brightness::Dark));
+    let mut views = street_views(views_per_level, 1.5, Brightness::Bright);
+    views.extend(street_views(views_per_level, 1.5, Brightness::Dark));
     let proto = Protocol {
         target: Some(0),
         ..Default::default()
     };
     let mask = cac::attack::baselines::atlas::paintable_texels(&r.scene, res);
-    let mut rows = vec![
-        "texture,train_s,nanodet_p05,nanodet_person,centernet_p05,centernet_person".to_string(),
-    ];
+    let mut rows = Table::new([
+        "texture",
+        "train_s",
+        "nanodet_p05",
+        "nanodet_person",
+        "centernet_p05",
+        "centernet_person",
+    ]);
     println!("{} views (416², 4 spp); P@0.5 = car/truck at IoU >= 0.5, conf >= 0.3; {iterations} iterations, batch 2, n = 300, target person", views.len());
     println!(
         "{:<13} {:>8} {:>12} {:>15} {:>14} {:>17}",
@@ -70,10 +69,14 @@ pub fn run(iterations: usize, views_per_level: usize, csv: &Path) -> Result<()> 
             "{name:<13} {secs:>8.0} {:>12.3} {:>15.3} {:>14.3} {:>17.3}",
             n.p_at_05, n.targeted_success, c.p_at_05, c.targeted_success
         );
-        rows.push(format!(
-            "{name},{secs:.1},{:.4},{:.4},{:.4},{:.4}",
-            n.p_at_05, n.targeted_success, c.p_at_05, c.targeted_success
-        ));
+        rows.row([
+            name.to_string(),
+            format!("{secs:.1}"),
+            format!("{:.4}", n.p_at_05),
+            format!("{:.4}", n.targeted_success),
+            format!("{:.4}", c.p_at_05),
+            format!("{:.4}", c.targeted_success),
+        ]);
         Ok(())
     };
     report("original", 0.0, &original)?;
@@ -109,13 +112,13 @@ pub fn run(iterations: usize, views_per_level: usize, csv: &Path) -> Result<()> 
         } else {
             Box::new(Trainer::new(ac, &r, &env, vec![all[0]], dev, &original)?)
         };
-        let t = Instant::now();
+        let t = Stopwatch::start();
         while tr.state().iteration < iterations {
             tr.step()?;
         }
-        report(method.name(), t.elapsed().as_secs_f64(), &tr.atlas())?;
+        report(method.name(), t.secs(), &tr.atlas())?;
     }
-    cac::io::write_atomic(csv, (rows.join("\n") + "\n").as_bytes())?;
+    cac::io::write_atomic(csv, rows.csv().as_bytes())?;
     println!("wrote {}", csv.display());
     Ok(())
 }

@@ -7,8 +7,8 @@
 //! never optimised, and this module does not know about scenes or detectors (to put one on an
 //! object use it as the initial atlas, `cac train --init`, or the evaluation's texture list).
 
-use crate::scene::generate::value_noise;
-use crate::scene::Texture;
+use super::generate::value_noise;
+use super::Texture;
 use anyhow::{bail, Result};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -1,5 +1,6 @@
-//! A 5x7 bitmap font (upper-case letters, digits, a little punctuation) for the labels and
-//! scale bars drawn into the paste-on sheet images; lower case is drawn as upper case.
+//! A 5x7 bitmap font (upper-case letters, digits, a little punctuation) for the labels drawn into
+//! images: boxes in reports and videos, labels and scale bars on the export's paste-on sheets;
+//! lower case is drawn as upper case.
 
 use image::{Rgb, RgbImage};
 

@@ -3,15 +3,16 @@
 //! (frames/s) and scoring with each detector (frames scored per second, decode included).
 //! Prints a table and writes a CSV. A benchmark, not a test: it asserts nothing.
 
+use super::timer::Stopwatch;
+use crate::cli::device;
 use anyhow::Result;
-use cac::detect::{self, Detector};
+use cac::detect;
 use cac::report::Table;
 use cac::video::encode::{encode_sequence, H264, HEVC, MJPEG};
 use cac::video::twin::{render_turntable, TwinCalibration};
 use cac::video::{self, Annotations, OpenOptions, ScoreOptions, Tools};
 use clap::Args as ClapArgs;
 use std::path::PathBuf;
-use std::time::Instant;
 
 #[derive(ClapArgs, Debug)]
 pub struct Args {
@@ -24,7 +25,7 @@ pub struct Args {
     #[arg(long, default_value_t = 24)]
     pub frames: usize,
     /// Detectors, comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "nanodet,centernet")]
+    #[arg(long, value_delimiter = ',', value_parser = crate::cli::detect::ModelSpec, default_value = "nanodet,centernet")]
     pub models: Vec<String>,
     /// Codecs, comma-separated (h264, hevc, mjpeg).
     #[arg(long, value_delimiter = ',', default_value = "h264,hevc,mjpeg")]
@@ -49,11 +50,11 @@ pub fn run(a: Args) -> Result<()> {
     let r = cac::render::Renderer::new(scene, settings)?;
     let env = cac::environment::Environment::new(Default::default())?;
     let atlas = r.scene.initial_atlas(r.settings.atlas_res);
-    let device = super::device::inference();
+    let device = device::inference();
     let poses: Vec<(f64, f64)> = (0..a.frames)
         .map(|i| (360.0 * i as f64 / a.frames as f64, 1.6))
         .collect();
-    let t0 = Instant::now();
+    let t0 = Stopwatch::start();
     let frames = render_turntable(
         &r,
         &env,
@@ -62,29 +63,24 @@ pub fn run(a: Args) -> Result<()> {
         &poses,
         &device,
     )?;
-    let mut csv = String::from("frame,x1,y1,x2,y2\n");
+    let mut csv = Table::new(["frame", "x1", "y1", "x2", "y2"]);
     for (i, (img, b)) in frames.iter().enumerate() {
         cac::io::save_png_atomic(&dir.path().join(format!("f{i:04}.png")), img)?;
         if let Some(b) = b {
-            csv += &format!("{i},{},{},{},{}\n", b[0], b[1], b[2], b[3]);
+            csv.row([i.to_string()].into_iter().chain(b.map(|v| v.to_string())));
         }
     }
     let gt_path = dir.path().join("gt.csv");
-    cac::io::write_atomic(&gt_path, csv.as_bytes())?;
+    cac::io::write_atomic(&gt_path, csv.csv().as_bytes())?;
     let gt = Annotations::load(&gt_path)?;
     eprintln!(
         "rendered {} frames at {}x{} in {:.1} s",
         a.frames,
         a.width,
         a.height,
-        t0.elapsed().as_secs_f64()
+        t0.secs()
     );
-    let models = detect::fetch::ensure_models()?;
-    let dets: Vec<Box<dyn Detector>> = a
-        .models
-        .iter()
-        .map(|m| detect::load(m, &models, &device))
-        .collect::<Result<_>>()?;
+    let dets = detect::load_all(&a.models, None, &device)?;
     let mut t = Table::new([
         "codec",
         "size",
@@ -112,13 +108,13 @@ pub fn run(a: Args) -> Result<()> {
             &path,
         )?;
         // Decoding alone.
-        let t0 = Instant::now();
+        let t0 = Stopwatch::start();
         let mut s = video::open(&tools, &path, &OpenOptions::default())?;
         let mut n = 0;
         while s.next_frame()?.is_some() {
             n += 1;
         }
-        let decode_fps = n as f64 / t0.elapsed().as_secs_f64();
+        let decode_fps = n as f64 / t0.secs();
         t.row([
             codec.clone(),
             size.clone(),
@@ -130,7 +126,7 @@ pub fn run(a: Args) -> Result<()> {
         ]);
         for (m, d) in a.models.iter().zip(&dets) {
             let mut s = video::open(&tools, &path, &OpenOptions::default())?;
-            let t0 = Instant::now();
+            let t0 = Stopwatch::start();
             let r = video::score_stream(
                 s.as_mut(),
                 &gt,
@@ -139,7 +135,7 @@ pub fn run(a: Args) -> Result<()> {
                 &device,
                 &mut |_, _| Ok(()),
             )?;
-            let wall = t0.elapsed().as_secs_f64();
+            let wall = t0.secs();
             t.row([
                 codec.clone(),
                 size.clone(),

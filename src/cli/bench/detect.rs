@@ -1,21 +1,17 @@
 //! `cac bench detect`: forward and forward+backward time of both detectors at native
 //! resolution, batch 1 and 4, and the TFJS reference runner's wasm backend timed in the same
-//! run; then the Faster R-CNN models against PyTorch ([`super::bench_frcnn`]). Prints tables
-//! and writes CSVs. A benchmark, not a test: it asserts nothing.
+//! run; then the Faster R-CNN models against PyTorch ([`super::frcnn`]). Prints tables and writes
+//! CSVs. A benchmark, not a test: it asserts nothing.
 
+use super::timer::time;
+use crate::cli::device;
 use anyhow::{Context, Result};
 use burn::tensor::{Distribution, Tensor};
 use cac::detect;
-use clap::{Args, Subcommand};
+use cac::report::Table;
+use clap::Args;
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::time::Instant;
-
-#[derive(Subcommand, Debug)]
-pub enum BenchCmd {
-    /// Time the COCO detectors (burn) against the TFJS wasm runtime.
-    Detect(DetectBench),
-}
 
 #[derive(Args, Debug)]
 pub struct DetectBench {
@@ -45,30 +41,6 @@ pub struct DetectBench {
     pub frcnn_csv: PathBuf,
 }
 
-pub fn run(cmd: BenchCmd) -> Result<()> {
-    match cmd {
-        BenchCmd::Detect(a) => bench_detect(a),
-    }
-}
-
-/// The fastest run: on a shared machine the least disturbed figure. Both sides report it (the
-/// TFJS runner's `min_ms`), so the ratio compares like with like.
-fn fastest(v: Vec<f64>) -> f64 {
-    v.into_iter().fold(f64::INFINITY, f64::min)
-}
-
-/// Fastest ms of `runs` timed calls of `f`, after one warm-up call.
-pub(super) fn time(runs: usize, mut f: impl FnMut() -> Result<()>) -> Result<f64> {
-    f()?; // warm-up
-    let mut t = Vec::with_capacity(runs);
-    for _ in 0..runs {
-        let s = Instant::now();
-        f()?;
-        t.push(s.elapsed().as_secs_f64() * 1e3);
-    }
-    Ok(fastest(t))
-}
-
 /// Fastest ms of the TFJS wasm runner, from its `--time` report; None when it cannot run.
 fn tfjs_wasm(runner: &Path, model: &str, image: &Path, models: &Path, runs: usize) -> Option<f64> {
     let out = Command::new("node")
@@ -85,13 +57,13 @@ fn tfjs_wasm(runner: &Path, model: &str, image: &Path, models: &Path, runs: usiz
     v["min_ms"].as_f64()
 }
 
-fn bench_detect(a: DetectBench) -> Result<()> {
+pub fn run(a: DetectBench) -> Result<()> {
     if !a.frcnn_only {
         bench_tfjs(&a)?;
     }
     if !a.no_frcnn {
-        let csv = super::bench_frcnn::bench(a.runs, &a.python)?;
-        cac::io::write_atomic(&a.frcnn_csv, csv.as_bytes())?;
+        let t = super::frcnn::bench(a.runs, &a.python)?;
+        cac::io::write_atomic(&a.frcnn_csv, t.csv().as_bytes())?;
         println!("wrote {}", a.frcnn_csv.display());
     }
     Ok(())
@@ -99,8 +71,8 @@ fn bench_detect(a: DetectBench) -> Result<()> {
 
 fn bench_tfjs(a: &DetectBench) -> Result<()> {
     let models = detect::fetch::ensure_models()?;
-    let inference = super::device::inference();
-    let training = super::device::training();
+    let inference = device::inference();
+    let training = device::training();
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let runner = a
         .runner
@@ -131,12 +103,23 @@ fn bench_tfjs(a: &DetectBench) -> Result<()> {
             runner.display()
         );
     }
-    let mut rows = Vec::new();
+    let mut rows = Table::new([
+        "model",
+        "batch",
+        "forward_ms",
+        "forward_backward_ms",
+        "tfjs_wasm_ms",
+        "forward_over_tfjs",
+    ]);
     println!(
         "{:10} {:>5} {:>12} {:>16} {:>16} {:>14}",
         "model", "batch", "forward_ms", "fwd+bwd_ms", "tfjs_wasm_ms", "fwd/tfjs"
     );
-    for name in detect::MODELS {
+    // The TFJS detectors (their own files, not the parity variants).
+    let tfjs = detect::MODELS
+        .iter()
+        .filter(|m| m.weights == detect::Weights::Folder && m.variant_of.is_none());
+    for name in tfjs.map(|m| m.name) {
         let det = detect::load(name, &models, &inference)?;
         let (w, h) = det.input_size();
         let tfjs = if have_runner {
@@ -179,18 +162,17 @@ fn bench_tfjs(a: &DetectBench) -> Result<()> {
                 f(t, 1),
                 f(ratio, 3)
             );
-            rows.push(format!(
-                "{name},{batch},{fwd:.2},{bwd:.2},{},{}",
+            rows.row([
+                name.to_string(),
+                batch.to_string(),
+                format!("{fwd:.2}"),
+                format!("{bwd:.2}"),
                 f(t, 2),
-                f(ratio, 4)
-            ));
+                f(ratio, 4),
+            ]);
         }
     }
-    let csv = format!(
-        "model,batch,forward_ms,forward_backward_ms,tfjs_wasm_ms,forward_over_tfjs\n{}\n",
-        rows.join("\n")
-    );
-    cac::io::write_atomic(&a.csv, csv.as_bytes())?;
+    cac::io::write_atomic(&a.csv, rows.csv().as_bytes())?;
     println!("wrote {}", a.csv.display());
     Ok(())
 }

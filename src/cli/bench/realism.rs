@@ -6,18 +6,19 @@
 //! With `--renderers cac,blender` every view is also re-rendered by Blender (Cycles, CPU) at the
 //! same camera and lighting (see docs/blender.md). A benchmark, not a test: it asserts nothing.
 
-use super::device;
+use super::timer::Stopwatch;
+use crate::cli::device;
 use anyhow::{Context, Result};
-use cac::attack::textures::{self, Kind};
 use cac::config::SceneConfig;
 use cac::detect::{self, Detector};
-use cac::environment::{Brightness, Condition, Environment, ViewpointSet};
+use cac::environment::{street_views, Brightness, Condition, Environment, ViewpointSet};
 use cac::eval::{self, blender, Protocol};
 use cac::render::{RenderSettings, Renderer};
+use cac::report::Table;
+use cac::scene::textures::{self, Kind};
 use cac::scene::Texture;
 use clap::ValueEnum;
 use std::path::PathBuf;
-use std::time::Instant;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum ViewSet {
@@ -94,7 +95,7 @@ fn views(
 ) -> Result<Vec<Condition>> {
     let mut env_cfg = cfg.environment.clone();
     let conds = match set {
-        ViewSet::Street => return Ok(eval::street_views(n, 1.5, b)),
+        ViewSet::Street => return Ok(street_views(n, 1.5, b)),
         ViewSet::Free => Environment::new(env_cfg)?.sample_n(n, ViewpointSet::Free, b, seed),
         ViewSet::Hemisphere => {
             env_cfg.elevation_deg = [0.0, 90.0];
@@ -153,12 +154,8 @@ pub fn run(a: Args) -> Result<()> {
         samples: a.samples,
         ..cfg.render
     };
-    let dir = detect::fetch::ensure_models()?;
     let dev = device::inference();
-    let dets: Vec<Box<dyn Detector>> = ["nanodet", "centernet"]
-        .iter()
-        .map(|n| detect::load(n, &dir, &dev))
-        .collect::<Result<_>>()?;
+    let dets = detect::load_all(&["nanodet", "centernet"], None, &dev)?;
     let all: Vec<&dyn Detector> = dets.iter().map(|d| d.as_ref()).collect();
     let proto = Protocol::default();
     let bs = blender::BlenderSettings {
@@ -176,12 +173,34 @@ pub fn run(a: Args) -> Result<()> {
         "{:<16} {:<8} {:<9} {:<10} {:<6} {:>8} {:>10} {:>8} {:>10} {:>6}",
         "mesh", "renderer", "texture", "set", "light", "nanodet", "conf", "centernet", "conf", "s"
     );
-    let mut rows = vec![
-        "mesh,renderer,texture,set,brightness,views,nanodet_p05,nanodet_mean_conf,centernet_p05,centernet_mean_conf,seconds".to_string(),
-    ];
-    let mut per_view = vec![
-        "mesh,renderer,texture,set,brightness,view,azimuth,elevation,distance_ratio,nanodet_hit,nanodet_conf,centernet_hit,centernet_conf".to_string(),
-    ];
+    let mut rows = Table::new([
+        "mesh",
+        "renderer",
+        "texture",
+        "set",
+        "brightness",
+        "views",
+        "nanodet_p05",
+        "nanodet_mean_conf",
+        "centernet_p05",
+        "centernet_mean_conf",
+        "seconds",
+    ]);
+    let mut per_view = Table::new([
+        "mesh",
+        "renderer",
+        "texture",
+        "set",
+        "brightness",
+        "view",
+        "azimuth",
+        "elevation",
+        "distance_ratio",
+        "nanodet_hit",
+        "nanodet_conf",
+        "centernet_hit",
+        "centernet_conf",
+    ]);
     for mesh in &a.meshes {
         let mut oc = cfg.object.clone();
         oc.mesh = mesh.clone();
@@ -204,7 +223,7 @@ pub fn run(a: Args) -> Result<()> {
                 for b in [Brightness::Bright, Brightness::Dark] {
                     let conds = views(set, &cfg, a.views, b, a.seed, a.photometric)?;
                     for &which in &a.renderers {
-                        let t0 = Instant::now();
+                        let t0 = Stopwatch::start();
                         let (scores, images) = match which {
                             Which::Cac => {
                                 let o =
@@ -218,7 +237,7 @@ pub fn run(a: Args) -> Result<()> {
                                 (s, views.into_iter().map(|v| v.image).collect())
                             }
                         };
-                        let secs = t0.elapsed().as_secs_f64();
+                        let secs = t0.secs();
                         let wname = format!("{which:?}").to_lowercase();
                         let sname = format!("{set:?}").to_lowercase();
                         let bname = format!("{b:?}").to_lowercase();
@@ -231,30 +250,49 @@ pub fn run(a: Args) -> Result<()> {
                         }
                         for (i, cd) in conds.iter().enumerate() {
                             let v = &cd.viewpoint;
-                            per_view.push(format!(
-                                "{short},{wname},{tname},{sname},{bname},{i},{:.1},{:.1},{:.2},{},{:.3},{},{:.3}",
-                                v.azimuth_deg.rem_euclid(360.0), v.elevation_deg, v.distance_ratio,
-                                scores[0][i].hit as u8, scores[0][i].best_true_conf,
-                                scores[1][i].hit as u8, scores[1][i].best_true_conf
-                            ));
+                            let (n, c) = (&scores[0][i], &scores[1][i]);
+                            per_view.row([
+                                short.clone(),
+                                wname.clone(),
+                                tname.clone(),
+                                sname.clone(),
+                                bname.clone(),
+                                i.to_string(),
+                                format!("{:.1}", v.azimuth_deg.rem_euclid(360.0)),
+                                format!("{:.1}", v.elevation_deg),
+                                format!("{:.2}", v.distance_ratio),
+                                (n.hit as u8).to_string(),
+                                format!("{:.3}", n.best_true_conf),
+                                (c.hit as u8).to_string(),
+                                format!("{:.3}", c.best_true_conf),
+                            ]);
                         }
                         let (n, c) = (eval::summarise(&scores[0]), eval::summarise(&scores[1]));
                         println!(
                             "{short:<16} {wname:<8} {tname:<9} {sname:<10} {bname:<6} {:>8.3} {:>10.3} {:>8.3} {:>10.3} {secs:>6.0}",
                             n.p_at_05, n.mean_best_true_conf, c.p_at_05, c.mean_best_true_conf
                         );
-                        rows.push(format!(
-                            "{short},{wname},{tname},{sname},{bname},{},{:.4},{:.4},{:.4},{:.4},{secs:.1}",
-                            conds.len(), n.p_at_05, n.mean_best_true_conf, c.p_at_05, c.mean_best_true_conf
-                        ));
+                        rows.row([
+                            short.clone(),
+                            wname,
+                            tname.clone(),
+                            sname,
+                            bname,
+                            conds.len().to_string(),
+                            format!("{:.4}", n.p_at_05),
+                            format!("{:.4}", n.mean_best_true_conf),
+                            format!("{:.4}", c.p_at_05),
+                            format!("{:.4}", c.mean_best_true_conf),
+                            format!("{secs:.1}"),
+                        ]);
                     }
                 }
             }
         }
     }
-    cac::io::write_atomic(&a.csv, (rows.join("\n") + "\n").as_bytes())?;
+    cac::io::write_atomic(&a.csv, rows.csv().as_bytes())?;
     if let Some(p) = &a.per_view {
-        cac::io::write_atomic(p, (per_view.join("\n") + "\n").as_bytes())?;
+        cac::io::write_atomic(p, per_view.csv().as_bytes())?;
         println!("wrote {}", p.display());
     }
     println!("wrote {}", a.csv.display());
