@@ -253,6 +253,16 @@ pub fn table_steps(mdeg: i64) -> i64 {
     }
 }
 
+/// Rail steps for a position in µm (the firmware's rounding: half away from zero).
+pub fn rail_steps(um: i64) -> i64 {
+    let n = um * RAIL_STEPS_PER_MM;
+    if n >= 0 {
+        (n + 500) / 1000
+    } else {
+        -((-n + 500) / 1000)
+    }
+}
+
 // ---- raw protocol client -------------------------------------------------------------------
 
 /// Lines in and out over any transport, without the driver's retries (for STOP/ESTOP/RESET in
