@@ -339,7 +339,7 @@ impl<T: Transport> Raw<T> {
     pub fn cmd(&mut self, seq: u16, body: &str) -> String {
         self.send(seq, body);
         let l = self.expect(&format!("{seq} "), Duration::from_secs(10));
-        let body = l.splitn(2, ' ').nth(1).unwrap();
+        let body = l.split_once(' ').unwrap().1;
         body[..body.len() - 6].to_string()
     }
 }
