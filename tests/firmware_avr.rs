@@ -348,16 +348,35 @@ fn link_faults_each_move_once_on_the_step_pin() {
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     let moves = 16;
     let mut exact = 0;
+    // Move 8 is a long one, and the chip is reset (RESET on the harness) 0.4 s into it.
+    let reset_move = 8;
+    let mut reset_recoveries = 0;
     for i in 0..moves {
-        let target = rng.random_range(-12..=12) * 15_000;
+        let mut target = rng.random_range(-12..=12) * 15_000;
         let from = tt.position(Axis::Turntable);
         let (c0, redone0) = (
             avr.lock().unwrap().counts(),
             tt.stats().redone_moves + tt.stats().homings,
         );
+        let resetter = (i == reset_move).then(|| {
+            target = if from.unwrap_or(0) >= 0 {
+                -180_000
+            } else {
+                180_000
+            };
+            let a2 = avr.clone();
+            std::thread::spawn(move || {
+                std::thread::sleep(Duration::from_millis(400));
+                assert_eq!(a2.lock().unwrap().ctl("RESET"), "OK");
+            })
+        });
         let rep = tt
             .move_to(Axis::Turntable, target)
             .unwrap_or_else(|e| panic!("move {i}: {e}"));
+        if let Some(t) = resetter {
+            t.join().unwrap();
+            reset_recoveries = rep.recoveries;
+        }
         assert_eq!(rep.position, target);
         let c1 = avr.lock().unwrap().counts();
         let phys = avr.lock().unwrap().table_start + c1.get("tpos");
@@ -386,12 +405,21 @@ fn link_faults_each_move_once_on_the_step_pin() {
     assert_eq!(c.get("wdt"), 0, "no watchdog reset");
     let f = link.counts();
     println!(
-        "link faults: {moves} moves ({exact} with exact pulse counts), injected {f}; chip resets {}; driver {:?}; {:.1} s",
+        "link faults: {moves} moves ({exact} with exact pulse counts), injected {f}; chip resets {} (1 mid-move, {reset_recoveries} recoveries); driver {:?}; {:.1} s",
         c.get("resets"),
         tt.stats(),
         t0.elapsed().as_secs_f64()
     );
     assert!(f.dropped + f.garbled > 3 && f.delayed > 0, "{f}");
+    assert_eq!(
+        c.get("resets") as u64,
+        *link.resets_requested.lock().unwrap() + 1,
+        "the reset mid-move and the link's reboots on reconnect, nothing else"
+    );
+    assert!(
+        reset_recoveries >= 1,
+        "move {reset_move}: the driver recovered from the reset mid-move"
+    );
     assert!(exact >= moves / 2, "too few moves checked exactly: {exact}");
 }
 
@@ -537,4 +565,384 @@ fn fuzz_random_and_mutated_lines() {
     assert_eq!(r.bad, 0, "the device sent malformed lines");
     assert_eq!((c.get("wdt"), c.get("resets")), (0, 0));
     assert!(expected_total > 0 && sent > 100);
+}
+
+/// A rig file for the emulated board: 96×72 frames of the repository's lens, the firmware's
+/// 400 mm rail starting 0.25 m from the axis.
+fn avr_rig_file(dir: &std::path::Path) -> std::path::PathBuf {
+    let p = dir.join("rig.toml");
+    let calib = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("calib/camera_opencv.yaml");
+    let text = format!(
+        r#"ratios = [1.5, 2.0]
+[camera]
+intrinsics = "{}"
+resolution = [96, 72]
+height_m = 0.10
+elevation_deg = 5.0
+[turntable]
+axis_m = [0.0, 0.0]
+settle_ms = 20
+speed_deg_s = 180.0
+[rail]
+present = true
+near_m = 0.25
+length_m = 0.4
+[object]
+mesh = "pickup"
+length_m = 0.22
+"#,
+        calib.display()
+    );
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+fn cac_cmd(args: &[&str]) -> std::process::Output {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_cac"))
+        .args(args)
+        .output()
+        .expect("run cac");
+    assert!(
+        o.status.success(),
+        "cac {}: {}\n{}",
+        args.join(" "),
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    o
+}
+
+/// `cac capture --port PTY --twin-camera` against the firmware in simavr (2 distance ratios on
+/// the rail × 3 table angles × 1 repeat), then `cac score`: the manifest holds exactly the
+/// commanded frames, the twin was posed where the driver says the rig is, and the pulses on the
+/// STEP pins are exactly the homings plus the commanded moves.
+#[test]
+fn capture_session_with_twin_camera_on_the_firmware_then_scored() {
+    use cac::physical::rig::Rig;
+    use cac::physical::score::SessionScore;
+    use cac::physical::session::{SessionInfo, SessionPlan};
+    let Some(b) = built() else { return };
+    let _g = lock();
+    let t0 = Instant::now();
+    let (table_start, rail_start) = (10_000, 4_000);
+    let mut avr = Avr::spawn(&b, table_start, rail_start);
+    let dir = tempfile::tempdir().unwrap();
+    let rig_path = avr_rig_file(dir.path());
+    let out = dir.path().join("session");
+    let (rig_s, out_s) = (rig_path.to_str().unwrap(), out.to_str().unwrap());
+    let angles = "0,120,240";
+    let o = cac_cmd(&[
+        "capture",
+        "--rig",
+        rig_s,
+        "--ratios",
+        "1.5,2",
+        "--angles",
+        angles,
+        "--repeats",
+        "1",
+        "--out",
+        out_s,
+        "--port",
+        avr.path(),
+        "--twin-camera",
+        "--seed",
+        "3",
+    ]);
+    let t_capture = t0.elapsed().as_secs_f64();
+    println!("{}", String::from_utf8_lossy(&o.stdout).trim());
+    let rig = Rig::load(&rig_path).unwrap();
+    let info = SessionInfo::load(&out).unwrap();
+    let plan = SessionPlan::new(
+        vec![1.5, 2.0],
+        SessionPlan::parse_angles(angles).unwrap(),
+        1,
+    )
+    .unwrap();
+    assert_eq!(info.plan, plan);
+    assert!(
+        info.simulated && info.camera.starts_with("digital twin 96x72"),
+        "{info:?}"
+    );
+    // The manifest: the planned frames in order, each where the driver says the rig was.
+    let entries = cac::physical::manifest::read(&out.join("manifest.jsonl")).unwrap();
+    let planned = plan.frames();
+    assert_eq!(entries.len(), planned.len());
+    let mut seqs = Vec::new();
+    for (e, f) in entries.iter().zip(&planned) {
+        assert_eq!(
+            (&e.frame, e.angle, e.ratio, e.repeat),
+            (&f.file, f.angle, f.ratio, f.repeat)
+        );
+        let img = image::open(out.join(&e.frame)).unwrap();
+        assert_eq!((img.width(), img.height()), (96, 72), "{}", e.frame);
+        let mdeg = (f.angle * 1000.0).round() as i64;
+        assert_eq!(e.device["turntable_mdeg"].as_i64(), Some(mdeg), "{e:?}");
+        let rail_um = i64::from(rig.rail_target(f.ratio).unwrap());
+        assert_eq!(e.device["rail_um"].as_i64(), Some(rail_um), "{e:?}");
+        let want = format!(
+            "twin angle={:.3} distance={:.4}",
+            f.angle,
+            0.25 + rail_um as f64 * 1e-6
+        );
+        assert_eq!(e.camera, want, "{}", e.frame);
+        seqs.push(e.device["move_seq"].as_u64().expect("move_seq"));
+    }
+    seqs.sort_unstable();
+    seqs.dedup();
+    assert_eq!(seqs.len(), entries.len(), "one move per frame");
+    // The pins: homing forward to the index mark, then exactly the commanded moves.
+    let c = avr.counts();
+    let mut table_want = TABLE_STEPS_PER_REV - table_start;
+    let mut rail_want = rail_start;
+    let (mut tprev, mut rprev) = (0, 0);
+    for (i, f) in planned.iter().enumerate() {
+        if i == 0 || planned[i - 1].ratio != f.ratio {
+            let r = rail_steps(rig.rail_target(f.ratio).unwrap().into());
+            rail_want += (r - rprev).abs();
+            rprev = r;
+        }
+        let t = table_steps((f.angle * 1000.0).round() as i64);
+        table_want += (t - tprev).abs();
+        tprev = t;
+    }
+    assert_eq!(c.get("tpulses"), table_want, "table pulses: homing + moves");
+    assert_eq!(
+        table_start + c.get("tpos"),
+        TABLE_STEPS_PER_REV + tprev,
+        "table at the last angle"
+    );
+    assert_eq!(c.get("rpulses"), rail_want, "rail pulses: homing + moves");
+    assert_eq!(rail_start + c.get("rpos"), rprev, "rail at the last ratio");
+    assert_eq!((c.get("bad"), c.get("resets"), c.get("wdt")), (0, 0, 0));
+    // Scored by `cac score`: the projected ground truth at the planned pose for every frame.
+    let o = cac_cmd(&["score", out_s, "--models", "nanodet"]);
+    println!("{}", String::from_utf8_lossy(&o.stdout).trim());
+    let s: SessionScore =
+        serde_json::from_str(&std::fs::read_to_string(out.join("score/scores.json")).unwrap())
+            .unwrap();
+    assert_eq!(s.models, ["nanodet"]);
+    assert_eq!(s.frames.len(), planned.len());
+    for f in &s.frames {
+        let gt = cac::physical::truth::ground_truth_box(
+            &rig,
+            f.angle,
+            rig.horizontal_distance(f.ratio).unwrap(),
+        )
+        .unwrap();
+        assert!(gt.is_some(), "{}: the object is in view", f.frame);
+        assert_eq!(f.gt, gt, "{}", f.frame);
+        assert_eq!(f.hit.len(), 1);
+    }
+    assert_eq!(s.by_ratio.len(), 2);
+    for r in &s.by_ratio {
+        let hits = s
+            .frames
+            .iter()
+            .filter(|f| f.ratio == r.ratio && f.hit[0])
+            .count();
+        assert_eq!(r.per_repeat.len(), 1);
+        assert!((r.mean - hits as f64 / 3.0).abs() < 1e-12, "{r:?}");
+    }
+    assert_eq!(s.by_angle.len(), 3);
+    assert!(out.join("score/report.html").metadata().unwrap().len() > 0);
+    println!(
+        "twin-camera session: 6 frames, {} table pulses, {} rail pulses, {:.1} s emulated; capture {t_capture:.1} s, with scoring {:.1} s wall",
+        c.get("tpulses"),
+        c.get("rpulses"),
+        c.get("us") as f64 * 1e-6,
+        t0.elapsed().as_secs_f64()
+    );
+}
+
+/// Moves the rail with the driver; the pins must show exactly the commanded distance.
+fn checked_rail_move(tt: &mut Turntable<SerialTransport>, avr: &Mutex<Avr>, target: i32) {
+    let from = tt.position(Axis::Rail).expect("rail homed");
+    let before = avr.lock().unwrap().counts();
+    let r = tt
+        .move_to(Axis::Rail, target)
+        .unwrap_or_else(|e| panic!("rail to {target} µm: {e}"));
+    assert_eq!(r.position, target);
+    let after = avr.lock().unwrap().counts();
+    let want = rail_steps(target.into()) - rail_steps(from.into());
+    assert_eq!(
+        after.get("rpos") - before.get("rpos"),
+        want,
+        "rail {from} -> {target} µm: net steps on the pins"
+    );
+    assert_eq!(
+        after.get("rpulses") - before.get("rpulses"),
+        want.abs(),
+        "rail {from} -> {target} µm: every pulse in the commanded direction"
+    );
+    let phys = avr.lock().unwrap().rail_start + after.get("rpos");
+    assert_eq!(
+        phys,
+        rail_steps(target.into()),
+        "rail at {target} µm by the pins"
+    );
+}
+
+/// Rail homing and moves counted on the rail's STEP pin (80 steps/mm, rounding), then the
+/// near-end switch found pressed mid-move far from the near end (lost steps): the firmware halts
+/// the pins, latches `FAULT CODE=LIMIT AXIS=2`, refuses motion until CLEAR, then homes again.
+#[test]
+fn rail_moves_counted_on_the_pins_and_limit_fault() {
+    let Some(b) = built() else { return };
+    let _g = lock();
+    let t0 = Instant::now();
+    let rail_start = 6_000;
+    let avr = Arc::new(Mutex::new(Avr::spawn(&b, 0, rail_start)));
+    let path = avr.lock().unwrap().path().to_string();
+    let port = SerialTransport::open(&path, 115_200).unwrap();
+    let mut tt = Turntable::open(port, driver_config()).expect("open the emulated board");
+    assert_eq!(tt.home(Axis::Rail).unwrap(), 0);
+    let c = avr.lock().unwrap().counts();
+    assert_eq!(
+        (c.get("rpos"), c.get("rpulses")),
+        (-rail_start, rail_start),
+        "homed straight back onto the near-end switch"
+    );
+    assert_eq!(c.get("tpulses"), 0, "the table did not move");
+    tt.set_speed(Axis::Rail, 200_000).unwrap();
+    tt.set_accel(Axis::Rail, 1_000_000).unwrap();
+    // 37 512 µm = 3000.96 steps, 399 994 µm = 31 999.52, 12 346 µm = 987.68: rounded.
+    for target in [100_000, 37_512, 399_994, 12_346, 0, 250_000] {
+        checked_rail_move(&mut tt, &avr, target);
+    }
+    let p = avr.lock().unwrap().counts().get("rpos");
+    let r = tt.move_by(Axis::Rail, -12_345).unwrap();
+    assert_eq!(r.position, 237_655);
+    assert_eq!(
+        avr.lock().unwrap().counts().get("rpos") - p,
+        rail_steps(237_655) - rail_steps(250_000)
+    );
+    // Lost steps: the near-end switch closes 0.5 s into a 190 mm move at 50 mm/s.
+    tt.set_speed(Axis::Rail, 50_000).unwrap();
+    let a2 = avr.clone();
+    let presser = std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_millis(500));
+        assert_eq!(a2.lock().unwrap().ctl("NEAR 1"), "OK");
+    });
+    let r = tt.move_to(Axis::Rail, 47_655);
+    presser.join().unwrap();
+    let pos = match r {
+        Err(TurntableError::Interrupted {
+            axis: Axis::Rail,
+            pos,
+            end: firmware_protocol::DoneEnd::Aborted,
+        }) => pos,
+        other => panic!("expected the move aborted by the LIMIT fault, got {other:?}"),
+    };
+    let c1 = avr.lock().unwrap().counts();
+    let phys = rail_start + c1.get("rpos");
+    assert!(
+        (rail_steps(pos.into()) - phys).abs() <= 1,
+        "DONE POS={pos} µm but the pins say {phys} steps"
+    );
+    assert!(
+        phys < rail_steps(237_655) && phys > rail_steps(47_655),
+        "halted on the way: {phys}"
+    );
+    assert_eq!(c1.get("en"), 0, "drivers disabled by the fault");
+    std::thread::sleep(Duration::from_millis(300));
+    assert_eq!(
+        avr.lock().unwrap().counts().get("rpulses"),
+        c1.get("rpulses"),
+        "no rail step after the LIMIT fault"
+    );
+    let st = tt.status(Axis::Rail).unwrap();
+    assert!(
+        st.fault == FaultCode::Limit && !st.homed && !st.moving,
+        "{st:?}"
+    );
+    assert!(
+        matches!(
+            tt.move_to(Axis::Rail, 0),
+            Err(TurntableError::Fault(FaultCode::Limit))
+        ),
+        "motion refused while LIMIT is latched"
+    );
+    assert_eq!(
+        avr.lock().unwrap().counts().get("rpulses"),
+        c1.get("rpulses")
+    );
+    // The switch released (the carriage is free again), CLEAR, and the rail homes and moves.
+    assert_eq!(avr.lock().unwrap().ctl("NEAR auto"), "OK");
+    tt.clear_fault().unwrap();
+    tt.set_speed(Axis::Rail, 200_000).unwrap();
+    tt.move_to(Axis::Rail, 100_000).unwrap();
+    let c = avr.lock().unwrap().counts();
+    assert_eq!(
+        rail_start + c.get("rpos"),
+        rail_steps(100_000),
+        "re-homed, at 100 mm"
+    );
+    assert_eq!(
+        c.get("rpulses") - c1.get("rpulses"),
+        phys + rail_steps(100_000),
+        "homing back to the switch, then 100 mm"
+    );
+    assert_eq!((c.get("bad"), c.get("resets"), c.get("wdt")), (0, 0, 0));
+    println!(
+        "rail: {} pulses, LIMIT fault at {pos} µm; {:.1} s",
+        c.get("rpulses"),
+        t0.elapsed().as_secs_f64()
+    );
+}
+
+/// The hardware e-stop held while the chip boots: `BOOT` then `FAULT CODE=ESTOP`; the drivers
+/// stay off, motion and CLEAR are refused while it is held, and released it clears and homes.
+#[test]
+fn estop_held_at_boot_latches_fault_estop() {
+    let Some(b) = built() else { return };
+    let _g = lock();
+    let table_start = 500;
+    let mut avr = Avr::spawn(&b, table_start, 0);
+    let mut r = Raw::new(SerialTransport::open(avr.path(), 115_200).unwrap());
+    r.t.write_all(b"\n").unwrap();
+    r.pump(Duration::from_millis(300));
+    r.lines.clear();
+    assert_eq!(avr.ctl("ESTOP 1"), "OK");
+    // The event of the press itself first (a reset in the middle of a line would garble it and
+    // the banner after it into one bad line), then the chip boots with the button held.
+    r.expect("! FAULT CODE=ESTOP", S);
+    assert_eq!(avr.ctl("RESET"), "OK");
+    r.expect("! BOOT PROTO=1 FW=cac-avr-1.0 REASON=RESET", S);
+    r.expect("! FAULT CODE=ESTOP", S);
+    assert!(r.cmd(1, "HELLO").starts_with("OK PROTO=1"));
+    assert_eq!(
+        r.cmd(2, "STATUS 1"),
+        "OK POS=0 TGT=0 MOV=0 HOMED=0 FAULT=ESTOP SEQ=0"
+    );
+    assert_eq!(r.cmd(3, "HOME 1"), "ERR ESTOP");
+    assert_eq!(r.cmd(4, "HOME 2"), "ERR ESTOP");
+    assert_eq!(
+        r.cmd(5, "CLEAR"),
+        "ERR ESTOP",
+        "refused while the button is held"
+    );
+    std::thread::sleep(Duration::from_millis(200));
+    let c = avr.counts();
+    assert_eq!(
+        (c.get("en"), c.get("tpulses"), c.get("rpulses")),
+        (0, 0, 0),
+        "drivers off, nothing moved"
+    );
+    assert_eq!(avr.ctl("ESTOP 0"), "OK");
+    assert_eq!(r.cmd(6, "CLEAR"), "OK");
+    assert_eq!(
+        r.cmd(7, "STATUS 1"),
+        "OK POS=0 TGT=0 MOV=0 HOMED=0 FAULT=NONE SEQ=0"
+    );
+    assert!(r.cmd(8, "HOME 1").starts_with("OK ETA="));
+    r.expect("! DONE SEQ=8 AXIS=1 POS=0 END=REACHED", S);
+    let c = avr.counts();
+    assert_eq!(c.get("tpulses"), TABLE_STEPS_PER_REV - table_start);
+    assert_eq!(
+        avr.table_phys(),
+        TABLE_STEPS_PER_REV,
+        "homed on the index mark"
+    );
+    assert_eq!((c.get("bad"), c.get("resets"), c.get("wdt")), (0, 1, 0));
 }

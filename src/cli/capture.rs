@@ -1,6 +1,8 @@
 //! `cac capture`: a physical capture session — turn, settle, capture, write each frame and its
 //! manifest line; `--resume` continues a killed session; `--simulate` runs the simulated
-//! firmware on a pseudo-terminal and the digital twin camera.
+//! firmware on a pseudo-terminal and the digital twin camera; `--twin-camera` keeps the real
+//! `--port` (a board, or the firmware in an emulator) and renders the frames with the digital
+//! twin posed from what the driver reports.
 
 use anyhow::{bail, Context, Result};
 use cac::physical::camera::FrameSource;
@@ -42,8 +44,12 @@ pub struct Args {
     #[arg(long)]
     pub port: Option<String>,
     /// V4L2 camera device (real rig; needs the v4l2 feature).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "twin_camera")]
     pub camera: Option<PathBuf>,
+    /// With --port: render the frames with the digital twin, posed from the table angle and
+    /// rail position the driver reports, instead of a camera.
+    #[arg(long, conflicts_with = "simulate")]
+    pub twin_camera: bool,
     /// Simulated faults: none, drops, garbles, delays, resets, disconnects, mix.
     #[arg(long, default_value = "none")]
     pub faults: String,
@@ -97,10 +103,14 @@ pub fn run(a: Args) -> Result<()> {
     let Some(port) = &a.port else {
         bail!("--port is required with a real rig (or pass --simulate)");
     };
-    let Some(dev) = &a.camera else {
-        bail!("--camera is required with a real rig (or pass --simulate)");
+    // A real camera is opened before the port, so a wrong --camera fails before anything moves.
+    let real_cam = match (&a.camera, a.twin_camera) {
+        (_, true) => None,
+        (Some(dev), false) => Some(open_camera(dev, rig.lens.width, rig.lens.height)?),
+        (None, false) => {
+            bail!("--camera (or --twin-camera) is required with a real rig (or pass --simulate)")
+        }
     };
-    let mut cam = open_camera(dev, rig.lens.width, rig.lens.height)?;
     let t = SerialTransport::open(port, 115_200)
         .with_context(|| format!("cannot open --port {port}"))?;
     let mut tt = Turntable::open(t, TurntableConfig::default())
@@ -109,7 +119,16 @@ pub fn run(a: Args) -> Result<()> {
         tt.set_speed(cac::physical::Axis::Turntable, (v * 1000.0).round() as u32)?;
     }
     let mut stage = TurntableStage::new(tt, terminal_operator());
-    let info = new_info(&a, plan, &rig, cam.describe(), false)?;
+    let mut cam: Box<dyn FrameSource> = match real_cam {
+        Some(c) => c,
+        None => Box::new(cac::physical::twin::DigitalTwin::new(
+            rig.clone(),
+            &atlas,
+            stage.reported_pose(),
+            a.seed,
+        )),
+    };
+    let info = new_info(&a, plan, &rig, cam.describe(), a.twin_camera)?;
     let opts = CaptureOptions {
         settle: Box::new(move || std::thread::sleep(settle)),
         progress: true,

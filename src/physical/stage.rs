@@ -1,13 +1,17 @@
 //! What a capture session moves: the table angle and the camera distance. [`TurntableStage`]
 //! drives the turntable (any [`Transport`]) and sets the distance with the rail when the rig has
-//! one, or asks an operator (a prompt on the terminal, or a simulated operator).
+//! one, or asks an operator (a prompt on the terminal, or a simulated operator). It also keeps
+//! the pose the driver reports ([`TurntableStage::reported_pose`]), for the digital-twin camera
+//! on a real serial port (`cac capture --port ... --twin-camera`).
 
 use super::rig::Rig;
 use super::transport::Transport;
 use super::turntable::{MoveReport, Turntable};
+use super::twin::{Pose, PoseSource};
 use anyhow::{Context, Result};
 use firmware_protocol::Axis;
 use std::io::BufRead;
+use std::sync::{Arc, Mutex};
 
 /// The positioning side of a capture session.
 pub trait Stage {
@@ -46,6 +50,16 @@ pub struct TurntableStage<T: Transport> {
     operator: Operator,
     last_turn: Option<MoveReport>,
     last_rail: Option<MoveReport>,
+    reported: Arc<Mutex<Reported>>,
+}
+
+/// What the driver reported last: the table position (m°) of the last completed turn and the
+/// camera-to-axis distance (m) of the last rail move (near end + reported rail position) or of
+/// the operator's confirmed placement.
+#[derive(Debug, Clone, Copy, Default)]
+struct Reported {
+    table_mdeg: Option<i32>,
+    horizontal_m: Option<f64>,
 }
 
 impl<T: Transport> TurntableStage<T> {
@@ -56,7 +70,32 @@ impl<T: Transport> TurntableStage<T> {
             operator,
             last_turn: None,
             last_rail: None,
+            reported: Arc::default(),
         }
+    }
+
+    /// A [`PoseSource`] for the digital twin: the pose as the driver reports it after each
+    /// completed move (table position from the move's report, rail position plus the rig's
+    /// `near_m`, or the distance the operator was asked to set). Fails before the first turn
+    /// and camera placement.
+    pub fn reported_pose(&self) -> PoseSource {
+        let r = self.reported.clone();
+        Box::new(move || {
+            let r = *r.lock().unwrap_or_else(|e| e.into_inner());
+            match (r.table_mdeg, r.horizontal_m) {
+                (Some(mdeg), Some(h)) => Ok(Pose {
+                    angle_deg: (f64::from(mdeg) / 1000.0).rem_euclid(360.0),
+                    horizontal_m: h,
+                }),
+                _ => {
+                    Err("the driver has not reported a table angle and camera distance yet".into())
+                }
+            }
+        })
+    }
+
+    fn report(&self, f: impl FnOnce(&mut Reported)) {
+        f(&mut self.reported.lock().unwrap_or_else(|e| e.into_inner()));
     }
 
     /// The driver.
@@ -73,6 +112,7 @@ impl<T: Transport> Stage for TurntableStage<T> {
             .move_to(Axis::Turntable, target)
             .with_context(|| format!("turning the table to {angle_deg}°"))?;
         self.last_turn = Some(r);
+        self.report(|p| p.table_mdeg = Some(r.position));
         Ok(r)
     }
 
@@ -84,12 +124,17 @@ impl<T: Transport> Stage for TurntableStage<T> {
                 .move_to(Axis::Rail, target)
                 .with_context(|| format!("moving the rail to {target} µm (ratio {ratio})"))?;
             self.last_rail = Some(r);
+            let near = rig.config.rail.near_m;
+            self.report(|p| p.horizontal_m = Some(near + f64::from(r.position) * 1e-6));
             Ok(())
         } else {
             if rig.config.rail.present {
                 anyhow::bail!("the rig file says there is a rail, but the turntable reports none");
             }
-            (self.operator)(ratio, rig.horizontal_distance(ratio)?)
+            let d = rig.horizontal_distance(ratio)?;
+            (self.operator)(ratio, d)?;
+            self.report(|p| p.horizontal_m = Some(d));
+            Ok(())
         }
     }
 

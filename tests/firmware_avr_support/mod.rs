@@ -253,6 +253,16 @@ pub fn table_steps(mdeg: i64) -> i64 {
     }
 }
 
+/// Rail steps for a position in µm (the firmware's rounding: half away from zero).
+pub fn rail_steps(um: i64) -> i64 {
+    let n = um * RAIL_STEPS_PER_MM;
+    if n >= 0 {
+        (n + 500) / 1000
+    } else {
+        -((-n + 500) / 1000)
+    }
+}
+
 // ---- raw protocol client -------------------------------------------------------------------
 
 /// Lines in and out over any transport, without the driver's retries (for STOP/ESTOP/RESET in
@@ -329,7 +339,7 @@ impl<T: Transport> Raw<T> {
     pub fn cmd(&mut self, seq: u16, body: &str) -> String {
         self.send(seq, body);
         let l = self.expect(&format!("{seq} "), Duration::from_secs(10));
-        let body = l.splitn(2, ' ').nth(1).unwrap();
+        let body = l.split_once(' ').unwrap().1;
         body[..body.len() - 6].to_string()
     }
 }

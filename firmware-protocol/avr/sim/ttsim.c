@@ -94,15 +94,31 @@ static void drive(avr_irq_t *irq, int *last, int level, int force)
     }
 }
 
+/* simavr re-raises every input pin whose PORT bit (pull-up) is set to 1 whenever the firmware
+ * writes that PORT register (e.g. PORTB for the ENABLE pin, or enabling the pull-up at boot),
+ * unless the pin is declared externally driven: declare the sensors' levels, or a pressed
+ * switch would read released after such a write. */
+static void set_external(char port, uint8_t mask, uint8_t value)
+{
+    avr_ioport_external_t e = {.name = (unsigned)port, .mask = mask, .value = value};
+    avr_ioctl(avr, AVR_IOCTL_IOPORT_SET_EXTERNAL(port), &e);
+}
+
 static void drive_sensors(int force)
 {
     int64_t m = table_phys() % table_rev;
     if (m < 0)
         m += table_rev;
-    drive(index_irq, &in_index, m < index_width ? 0 : 1, force);
-    int near = near_mode < 0 ? rail_phys() <= 0 : near_mode;
-    drive(near_irq, &in_near, near ? 0 : 1, force);
-    drive(estop_irq, &in_estop, estop_pressed ? 0 : 1, force);
+    int index = m < index_width ? 0 : 1;
+    int near = (near_mode < 0 ? rail_phys() <= 0 : near_mode) ? 0 : 1;
+    int estop = estop_pressed ? 0 : 1;
+    if (force || index != in_index || near != in_near)
+        set_external('B', 0x06, (uint8_t)(index << 1 | near << 2)); /* PB1 index, PB2 near */
+    if (force || estop != in_estop)
+        set_external('C', 0x01, (uint8_t)estop); /* PC0 e-stop */
+    drive(index_irq, &in_index, index, force);
+    drive(near_irq, &in_near, near, force);
+    drive(estop_irq, &in_estop, estop, force);
 }
 
 static void on_step(int axis, uint32_t value)
