@@ -437,7 +437,11 @@ pub fn export(
         .iter()
         .any(|f| matches!(f, Format::ThreeMfColor | Format::ObjVc));
     let baked = if needs_bake {
-        Some(bake::bake(&mesh, &opts.bake)?)
+        let mut b = bake::bake(&mesh, &opts.bake)?;
+        if let Some((orig, _)) = &original {
+            solidify::recolour_from(orig, &mut b);
+        }
+        Some(b)
     } else {
         None
     };
@@ -588,6 +592,7 @@ fn make_printable(
             kinds: vec![printability::TriKind::Boundary; cur.tris.len()],
             thickness: vec![f32::INFINITY; cur.tris.len()],
             thin: vec![false; cur.tris.len()],
+            relief: 0,
         }
     } else {
         a
@@ -637,6 +642,7 @@ fn a_out_for(m: &PrintMesh) -> printability::Analysis {
         kinds: vec![printability::TriKind::Boundary; m.tris.len()],
         thickness: vec![f32::INFINITY; m.tris.len()],
         thin: vec![false; m.tris.len()],
+        relief: 0,
     }
 }
 

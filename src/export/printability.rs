@@ -274,6 +274,8 @@ pub struct Printability {
     pub floating: Vec<Part>,
     /// Parts smaller than the minimum feature.
     pub tiny: Vec<Part>,
+    /// Thin strips discounted as surface relief (see [`analyse`]).
+    pub relief_regions: usize,
     pub size_mm: [f32; 3],
     /// `Some(false)` when the object does not fit the build volume (even turned 90° about Z).
     pub fits_build_volume: Option<bool>,
@@ -284,13 +286,15 @@ impl Printability {
     /// The check in words (one line per finding).
     pub fn lines(&self) -> Vec<String> {
         let mut v = vec![format!(
-            "printability: {} parts, size {:.1} x {:.1} x {:.1} mm, {} regions thinner than {:.2} mm",
+            "printability: {} parts, size {:.1} x {:.1} x {:.1} mm, {} regions thinner than {:.2} mm ({} thin strips of surface relief printed as they are), {} floating",
             self.parts,
             self.size_mm[0],
             self.size_mm[1],
             self.size_mm[2],
             self.thin_regions.len(),
-            self.min_wall_mm
+            self.min_wall_mm,
+            self.relief_regions,
+            self.floating.len()
         )];
         for r in self.thin_regions.iter().take(8) {
             v.push(format!("  thin: {}", r.describe()));
@@ -358,6 +362,8 @@ pub struct Analysis {
     pub kinds: Vec<TriKind>,
     pub thickness: Vec<f32>,
     pub thin: Vec<bool>,
+    /// Thin regions discounted as surface relief.
+    pub relief: usize,
 }
 
 /// Classifies and measures every triangle of `mesh` against `min_wall` (mm).
@@ -370,12 +376,46 @@ pub fn analyse(mesh: &PrintMesh, min_wall: f32) -> Analysis {
     let (vt, _) = corners(mesh, |i| kinds[i] != TriKind::Sheet);
     let vol = SurfaceIndex::new(vt);
     let thickness = thickness(mesh, &kinds, &vol, min_wall);
-    let thin = thickness.iter().map(|&t| t < min_wall).collect();
+    let mut thin: Vec<bool> = thickness.iter().map(|&t| t < min_wall).collect();
+    let relief = drop_relief(mesh, &mut thin, min_wall);
     Analysis {
         kinds,
         thickness,
         thin,
+        relief,
     }
+}
+
+/// Unflags thin regions that are narrow strips (area over box diagonal below the minimum wall):
+/// the flanks of surface relief such as a trim line standing 0.2 mm proud of a body, which a
+/// printer renders as well as it can and which are no wall that could break. Returns how many.
+fn drop_relief(mesh: &PrintMesh, thin: &mut [bool], min_wall: f32) -> usize {
+    let idx: Vec<usize> = (0..mesh.tris.len()).filter(|&i| thin[i]).collect();
+    let comp = components(&idx.iter().map(|&i| mesh.tris[i].v).collect::<Vec<_>>());
+    let n = comp.iter().max().map_or(0, |&m| m as usize + 1);
+    let mut area = vec![0.0f32; n];
+    let mut bb = vec![(Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)); n];
+    for (j, &i) in idx.iter().enumerate() {
+        let p = mesh.tris[i].v.map(|k| mesh.positions[k as usize]);
+        let c = comp[j] as usize;
+        area[c] += normal(&p).2;
+        for q in p {
+            bb[c].0 = bb[c].0.min(q);
+            bb[c].1 = bb[c].1.max(q);
+        }
+    }
+    let relief: Vec<bool> = (0..n)
+        .map(|c| {
+            let diag = (bb[c].1 - bb[c].0).length().max(1e-9);
+            area[c] / diag < min_wall
+        })
+        .collect();
+    for (j, &i) in idx.iter().enumerate() {
+        if relief[comp[j] as usize] {
+            thin[i] = false;
+        }
+    }
+    relief.iter().filter(|&&r| r).count()
 }
 
 /// The full printability check of the mesh to be written.
@@ -383,9 +423,35 @@ pub fn check(mesh: &PrintMesh, a: &Analysis, limits: &PrintLimits) -> Printabili
     let ps = parts(mesh);
     let ground = ps.iter().map(|p| p.min_mm[2]).fold(f32::MAX, f32::min);
     let tol = (limits.min_wall_mm * 0.5).max(0.05);
+    // Grounded: on the plate, or (transitively) overlapping a grounded part's box.
+    let mut grounded: Vec<bool> = ps.iter().map(|p| p.min_mm[2] <= ground + tol).collect();
+    loop {
+        let mut changed = false;
+        for i in 0..ps.len() {
+            if grounded[i] {
+                continue;
+            }
+            let touches = (0..ps.len()).any(|j| {
+                grounded[j]
+                    && (0..3).all(|k| {
+                        ps[i].min_mm[k] <= ps[j].max_mm[k] + tol
+                            && ps[j].min_mm[k] <= ps[i].max_mm[k] + tol
+                    })
+            });
+            if touches {
+                grounded[i] = true;
+                changed = true;
+            }
+        }
+        if !changed {
+            break;
+        }
+    }
     let floating = ps
         .iter()
-        .filter(|p| p.min_mm[2] > ground + tol)
+        .zip(&grounded)
+        .filter(|(_, &g)| !g)
+        .map(|(p, _)| p)
         .cloned()
         .map(|mut p| {
             // Heights relative to the plate.
@@ -408,6 +474,7 @@ pub fn check(mesh: &PrintMesh, a: &Analysis, limits: &PrintLimits) -> Printabili
         parts: ps.len(),
         floating,
         tiny,
+        relief_regions: a.relief,
         size_mm: size,
         fits_build_volume: limits.build_volume_mm.map(|v| fits(size, v)),
         build_volume_mm: limits.build_volume_mm,

@@ -46,7 +46,10 @@ pub struct SolidifyReport {
     pub grid: [usize; 3],
     pub blocks: usize,
     pub blocks_evaluated: usize,
+    /// Grid points where the winding number was computed.
     pub points_evaluated: usize,
+    /// The volume triangles were closed (winding numbers only near the surface).
+    pub closed_input: bool,
     pub sheet_triangles: usize,
     pub thickened_triangles: usize,
     pub dropped_triangles: usize,
@@ -115,6 +118,9 @@ impl Sample {
 }
 
 struct Field<'a> {
+    /// The volume triangles are closed (every edge used an even number of times): the winding
+    /// number is then constant away from them, and known from a neighbour's.
+    closed: bool,
     vol: &'a SurfaceIndex,
     thin: &'a SurfaceIndex,
     r: f32,
@@ -132,12 +138,16 @@ impl Field<'_> {
         } else {
             self.vol.winding(p)
         };
+        Sample {
+            w,
+            g: self.thin_g(p),
+        }
+    }
+    fn thin_g(&self, p: Vec3) -> f32 {
         let cap = self.r + 2.0 * self.h;
-        let g = self
-            .thin
+        self.thin
             .closest_within(p, cap)
-            .map_or(2.0 * self.h, |c| c.dist - self.r);
-        Sample { w, g }
+            .map_or(2.0 * self.h, |c| c.dist - self.r)
     }
     /// The surface point on the grid edge from inside point `a` to outside point `b`, as a
     /// fraction of the way from `a`.
@@ -215,9 +225,22 @@ pub fn solidify(
     }
     rep.grid = (cells + IVec3::ONE).to_array().map(|x| x as usize);
     rep.blocks = (blocks.x * blocks.y * blocks.z) as usize;
+    let closed = {
+        let mut e: HashMap<(u32, u32), u32> = HashMap::new();
+        for (i, t) in mesh.tris.iter().enumerate() {
+            if keep_vol(i) {
+                for k in 0..3 {
+                    let (a, b) = (t.v[k], t.v[(k + 1) % 3]);
+                    *e.entry((a.min(b), a.max(b))).or_insert(0) += 1;
+                }
+            }
+        }
+        e.values().all(|&c| c % 2 == 0)
+    };
     let vol = SurfaceIndex::new(vt);
     let thin = SurfaceIndex::new(tt);
     let field = Field {
+        closed,
         vol: &vol,
         thin: &thin,
         r,
@@ -260,6 +283,7 @@ pub fn solidify(
         })
         .collect();
     rep.blocks_evaluated = per_block.len();
+    rep.closed_input = closed;
     rep.points_evaluated = per_block.iter().map(|b| b.2).sum();
     // Merge: one vertex per grid edge.
     let mut index: HashMap<u64, u32> = HashMap::new();
@@ -328,12 +352,83 @@ fn march_block(f: &Field, bi: IVec3, cells: IVec3) -> (Vec<(u64, Vec3)>, Vec<[u6
     let base = bi * B;
     let at = |x: i32, y: i32, z: i32| ((x as usize * n) + y as usize) * n + z as usize;
     let mut s = vec![Sample { w: 0.0, g: 0.0 }; n * n * n];
-    for x in 0..=B {
-        for y in 0..=B {
-            for z in 0..=B {
-                s[at(x, y, z)] = f.sample(f.pos(base + IVec3::new(x, y, z)));
+    let mut evaluated = 0;
+    if f.closed {
+        // Winding numbers only within a voxel of a surface; elsewhere the side of a neighbour
+        // (no surface can pass between a point and a neighbour more than a voxel from it).
+        let mut known = vec![false; n * n * n];
+        let mut queue = std::collections::VecDeque::new();
+        for x in 0..=B {
+            for y in 0..=B {
+                for z in 0..=B {
+                    let p = f.pos(base + IVec3::new(x, y, z));
+                    let i = at(x, y, z);
+                    s[i].g = f.thin_g(p);
+                    if f.vol.closest_within(p, f.h).is_some() {
+                        s[i].w = f.vol.winding(p);
+                        known[i] = true;
+                        evaluated += 1;
+                        queue.push_back(IVec3::new(x, y, z));
+                    }
+                }
             }
         }
+        let mut next_seed = 0;
+        loop {
+            while let Some(q) = queue.pop_front() {
+                let wq = if s[at(q.x, q.y, q.z)].w > 0.5 {
+                    1.0
+                } else {
+                    0.0
+                };
+                for d in [
+                    IVec3::X,
+                    IVec3::Y,
+                    IVec3::Z,
+                    -IVec3::X,
+                    -IVec3::Y,
+                    -IVec3::Z,
+                ] {
+                    let r = q + d;
+                    if r.min_element() < 0 || r.max_element() > B {
+                        continue;
+                    }
+                    let i = at(r.x, r.y, r.z);
+                    if !known[i] {
+                        known[i] = true;
+                        s[i].w = wq;
+                        queue.push_back(r);
+                    }
+                }
+            }
+            // A region with no surface near: one winding number for all of it.
+            while next_seed < known.len() && known[next_seed] {
+                next_seed += 1;
+            }
+            if next_seed == known.len() {
+                break;
+            }
+            let (x, y, z) = (next_seed / (n * n), (next_seed / n) % n, next_seed % n);
+            let q = IVec3::new(x as i32, y as i32, z as i32);
+            let w = if f.vol.is_empty() {
+                0.0
+            } else {
+                f.vol.winding(f.pos(base + q))
+            };
+            s[next_seed].w = if w > 0.5 { 1.0 } else { 0.0 };
+            known[next_seed] = true;
+            evaluated += 1;
+            queue.push_back(q);
+        }
+    } else {
+        for x in 0..=B {
+            for y in 0..=B {
+                for z in 0..=B {
+                    s[at(x, y, z)] = f.sample(f.pos(base + IVec3::new(x, y, z)));
+                }
+            }
+        }
+        evaluated = n * n * n;
     }
     let gp = cells + IVec3::ONE;
     let key = |p: IVec3, axis: u64| {
@@ -397,7 +492,26 @@ fn march_block(f: &Field, bi: IVec3, cells: IVec3) -> (Vec<(u64, Vec3)>, Vec<[u6
             }
         }
     }
-    (verts, tris, n * n * n)
+    (verts, tris, evaluated)
+}
+
+/// Recolours a bake of a rebuilt solid from the original surface: every baked vertex takes the
+/// colour of the closest original point (texture or solid colour), so colours follow the
+/// original across part borders instead of the per-triangle source of the textured transfer.
+pub fn recolour_from(original: &PrintMesh, baked: &mut super::Baked) {
+    let (ot, _) = corners(original, |_| true);
+    let orig = SurfaceIndex::new(ot);
+    let cols: Vec<[f32; 3]> = baked
+        .positions
+        .par_iter()
+        .map(|&p| {
+            let c = orig.closest(p).expect("non-empty");
+            super::bake::reference_colour(original, c.tri as usize, c.bary)
+        })
+        .collect();
+    for t in &mut baked.tris {
+        t.colour = t.v.map(|v| cols[v as usize]);
+    }
 }
 
 /// How faithful a rebuilt solid is to the original surface, at print scale.
