@@ -491,6 +491,10 @@ pub fn export(
     })
 }
 
+/// Above this share of the surface thinner than the minimum wall, thickening would change the
+/// object too much: the scale is refused instead (the jeep at 1:1000 has 18 %).
+pub const MAX_THIN_SHARE: f64 = 0.15;
+
 /// Light repair, solidification and the printability check at scale (`--repair` other than
 /// off): the mesh to write, the solidify report when rebuilt, the printability report, and the
 /// original's triangle classification (for the fidelity measure).
@@ -549,13 +553,19 @@ fn make_printable(
                 ""
             }
         );
-        let thin_area: f64 = before.thin_regions.iter().map(|r| r.area_mm2).sum();
+        // Walls made thin by the scale (single-sided surfaces have no thickness at any scale).
+        let thin_area: f64 = before
+            .thin_regions
+            .iter()
+            .filter(|r| r.min_thickness_mm > 0.0)
+            .map(|r| r.area_mm2)
+            .sum();
         let share = thin_area / cur.report.area_mm2.max(1e-12);
         match limits.thin {
             ThinPolicy::Refuse => bail!(
                 "{head}; refusing to write geometry (--thin thicken thickens them, --thin drop leaves them out, or print at a larger scale)"
             ),
-            _ if share > 0.5 => bail!(
+            _ if share > MAX_THIN_SHARE => bail!(
                 "{head}; that is {:.0} % of the surface: the object is too small to print at this scale (choose a larger scale)",
                 share * 100.0
             ),
