@@ -110,7 +110,8 @@ fn open_mesh_is_refused_unless_allowed() {
     // With repair (the default), a missing face up to --max-hole-mm is filled and the mesh closed.
     let opts = ExportOptions {
         formats: vec![Format::ThreeMfTexture],
-        max_hole_mm: 5000.0,
+        scale: "1:10".parse().unwrap(),
+        max_hole_mm: 500.0,
         ..Default::default()
     };
     let s = export::export(&mesh, &tex, &out, &opts).unwrap();
