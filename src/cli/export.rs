@@ -171,6 +171,15 @@ pub struct BenchArgs {
     /// CSV output.
     #[arg(long, default_value = "bench_export.csv")]
     pub csv: PathBuf,
+    /// Also solidify at these grid spacings (mm), e.g. 1.6,0.8,0.4,0.2: error against time.
+    #[arg(long, value_delimiter = ',')]
+    pub solid_voxels: Vec<f32>,
+    /// Subdivide the mesh to at least this many triangles before solidifying (0: as loaded).
+    #[arg(long, default_value_t = 0)]
+    pub solid_input_triangles: usize,
+    /// CSV output of the solidify table.
+    #[arg(long, default_value = "bench_solid.csv")]
+    pub solid_csv: PathBuf,
 }
 
 pub fn bench(a: BenchArgs) -> Result<()> {
@@ -195,6 +204,29 @@ pub fn bench(a: BenchArgs) -> Result<()> {
             ..Default::default()
         }))
         .collect();
+    if !a.solid_voxels.is_empty() {
+        let input = if a.solid_input_triangles > mesh.tris.len() {
+            benchmark::refine(&mesh, a.solid_input_triangles)?
+        } else {
+            mesh.clone()
+        };
+        let rows = benchmark::run_solid(&input, &a.solid_voxels, 0.8, a.samples.min(50_000))?;
+        println!(
+            "solidify {} at 1:{} ({} triangles, {:.1} x {:.1} x {:.1} mm)",
+            mesh.name,
+            a.scale.denominator,
+            input.tris.len(),
+            input.report.size_mm[0],
+            input.report.size_mm[1],
+            input.report.size_mm[2]
+        );
+        print!("{}", benchmark::solid_markdown(&rows));
+        cac::io::write_atomic(&a.solid_csv, benchmark::solid_csv(&rows).as_bytes())?;
+        println!("wrote {}", a.solid_csv.display());
+        if a.texels.is_empty() && a.mm.is_empty() {
+            return Ok(());
+        }
+    }
     let rows = benchmark::run(&mesh, &limits, a.samples, 3)?;
     println!(
         "object {} at {} ({} triangles), texture {}x{}, {} samples",

@@ -3,7 +3,11 @@
 //! [`prepare`] turns a [`Scene`] plus the camouflage atlas into a [`PrintMesh`]: welded positions
 //! in millimetres at the chosen scale (3MF frame: **+Z up**, X = the object's length, ground at
 //! `z = 0`), per-corner paint (texture + UVs, or a solid colour) and a print-readiness report
-//! ([`printcheck`]). Writers then produce:
+//! ([`printcheck`]). When the check fails, [`export`] repairs it ([`repair`]: weld, dedupe, zip
+//! T-junctions, fill small holes) or rebuilds it as one closed solid keeping its colours
+//! ([`solidify`], on the BVH queries of [`surface`]), and checks printability at the chosen scale
+//! ([`printability`]: wall thickness, sheets, floating and tiny parts, build volume). Writers then
+//! produce:
 //! - [`threemf`]: textured 3MF (`m:texture2d` + `m:texture2dgroup`) and baked-colour 3MF
 //!   (`m:colorgroup` per corner after [`bake`]'s adaptive subdivision);
 //! - [`obj`]: OBJ + MTL + PNG (optionally zipped) and a vertex-colour OBJ from the same bake;
