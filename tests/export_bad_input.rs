@@ -3,7 +3,7 @@
 
 mod export_common;
 
-use cac::export::{self, ExportOptions, Format, Scale};
+use cac::export::{self, ExportOptions, Format, RepairMode, Scale};
 use std::path::Path;
 
 /// A closed tetrahedron as OBJ lines (object `body_paint`, with UVs), plus `extra` face lines.
@@ -74,7 +74,11 @@ fn non_manifold_mesh_is_refused_naming_file_and_edges() {
     let mesh = tetra_obj(d.path(), "fin.obj", true, "f 1/1 2/2 5/3\n");
     let tex = export_common::camo_png(d.path(), 16);
     let out = d.path().join("out");
-    let e = err(&mesh, &tex, &out, &ExportOptions::default());
+    let no_repair = ExportOptions {
+        repair: RepairMode::Off,
+        ..Default::default()
+    };
+    let e = err(&mesh, &tex, &out, &no_repair);
     assert!(e.contains("fin.obj") && e.contains("non-manifold"), "{e}");
     assert!(e.contains("refusing"), "{e}");
     assert_empty(&out);
@@ -88,7 +92,11 @@ fn open_mesh_is_refused_unless_allowed() {
     std::fs::write(&mesh, s).unwrap();
     let tex = export_common::camo_png(d.path(), 16);
     let out = d.path().join("out");
-    let e = err(&mesh, &tex, &out, &ExportOptions::default());
+    let no_repair = ExportOptions {
+        repair: RepairMode::Off,
+        ..Default::default()
+    };
+    let e = err(&mesh, &tex, &out, &no_repair);
     assert!(e.contains("open.obj") && e.contains("3 open edges"), "{e}");
     assert_empty(&out);
     let opts = ExportOptions {
@@ -99,6 +107,20 @@ fn open_mesh_is_refused_unless_allowed() {
     let s = export::export(&mesh, &tex, &out, &opts).unwrap();
     assert!(s.notes.iter().any(|n| n.contains("written anyway")));
     assert!(out.join("open_texture.3mf").exists());
+    // With repair (the default), a missing face up to --max-hole-mm is filled and the mesh closed.
+    let opts = ExportOptions {
+        formats: vec![Format::ThreeMfTexture],
+        scale: "1:10".parse().unwrap(),
+        max_hole_mm: 500.0,
+        ..Default::default()
+    };
+    let s = export::export(&mesh, &tex, &out, &opts).unwrap();
+    assert!(s.report.is_closed() && s.solid.is_none(), "{:?}", s.notes);
+    assert!(
+        s.notes.iter().any(|n| n.contains("small holes filled: 1")),
+        "{:?}",
+        s.notes
+    );
 }
 
 #[test]

@@ -2,7 +2,9 @@
 //! (the bake's colour error against triangles and seconds). Parses, calls `cac::export`, prints.
 
 use anyhow::{Context, Result};
-use cac::export::{self, benchmark, BakeLimits, ExportOptions, Format, Scale};
+use cac::export::{
+    self, benchmark, BakeLimits, ExportOptions, Format, RepairMode, Scale, ThinPolicy,
+};
 use clap::Args as ClapArgs;
 use std::path::PathBuf;
 
@@ -44,9 +46,51 @@ pub struct Args {
     /// Also bundle the OBJ, MTL and PNGs into one zip.
     #[arg(long)]
     pub zip: bool,
-    /// Write geometry even if the mesh is open or non-manifold.
+    /// Write geometry even if the mesh is open or non-manifold (no repair).
     #[arg(long)]
     pub allow_open: bool,
+    /// When the print check fails: auto (light repair, then rebuild as a solid), light (light
+    /// repair only), solid (always rebuild, uniting overlapping parts), off (refuse).
+    #[arg(long, default_value = "auto")]
+    pub repair: RepairMode,
+    /// Regions thinner than the minimum wall: thicken, drop (with a warning) or refuse.
+    #[arg(long, default_value = "thicken")]
+    pub thin: ThinPolicy,
+    /// Thinnest wall the printer makes, mm.
+    #[arg(long, default_value_t = 0.8)]
+    pub min_wall_mm: f32,
+    /// Smallest part worth printing (largest extent), mm.
+    #[arg(long, default_value_t = 1.0)]
+    pub min_feature_mm: f32,
+    /// Printer build volume XxYxZ in mm, or "none".
+    #[arg(long, default_value = "256x256x256")]
+    pub build_volume: String,
+    /// Solidify grid spacing, mm at print scale (default: half the minimum wall, at most 600
+    /// cells along the longest side).
+    #[arg(long)]
+    pub voxel_mm: Option<f32>,
+    /// Light repair fills holes up to this perimeter, mm.
+    #[arg(long, default_value_t = 20.0)]
+    pub max_hole_mm: f32,
+}
+
+/// Parses `XxYxZ` (mm) or `none`.
+pub fn parse_build_volume(s: &str) -> Result<Option<[f32; 3]>> {
+    if s == "none" {
+        return Ok(None);
+    }
+    let v: Vec<f32> = s
+        .split(['x', 'X'])
+        .map(|x| x.trim().parse::<f32>())
+        .collect::<std::result::Result<_, _>>()
+        .with_context(|| {
+            format!("--build-volume '{s}': expected XxYxZ in mm, e.g. 256x256x256, or none")
+        })?;
+    anyhow::ensure!(
+        v.len() == 3 && v.iter().all(|x| *x > 0.0 && x.is_finite()),
+        "--build-volume '{s}': expected three positive sizes XxYxZ in mm"
+    );
+    Ok(Some([v[0], v[1], v[2]]))
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -55,8 +99,15 @@ pub fn run(a: Args) -> Result<()> {
         scale: a.scale,
         zip_obj: a.zip,
         allow_open: a.allow_open,
+        repair: a.repair,
+        voxel_mm: a.voxel_mm,
+        max_hole_mm: a.max_hole_mm,
         ..Default::default()
     };
+    opts.limits.thin = a.thin;
+    opts.limits.min_wall_mm = a.min_wall_mm;
+    opts.limits.min_feature_mm = a.min_feature_mm;
+    opts.limits.build_volume_mm = parse_build_volume(&a.build_volume)?;
     opts.bake.max_edge_texels = a.max_edge_texels;
     if let Some(mm) = a.max_edge_mm {
         opts.bake.max_edge_mm = mm;
@@ -65,6 +116,18 @@ pub fn run(a: Args) -> Result<()> {
     opts.sheets.dpi = a.dpi;
     let s = export::export(&a.mesh, &a.texture, &a.out, &opts)?;
     let r = &s.report;
+    let i = &s.input_report;
+    println!(
+        "input: {} triangles, {} vertices after welding, {} shells, {}",
+        i.triangles,
+        i.welded_vertices,
+        i.shells,
+        if i.is_closed() {
+            "closed".to_string()
+        } else {
+            i.problems()
+        }
+    );
     println!(
         "mesh: {} triangles, {} vertices after welding ({} before), {} shells, size {:.1} x {:.1} x {:.1} mm, volume {:.1} mm3, {} open edges",
         r.triangles, r.welded_vertices, r.input_vertices, r.shells, r.size_mm[0], r.size_mm[1], r.size_mm[2], r.volume_mm3, r.open_edges
@@ -108,6 +171,15 @@ pub struct BenchArgs {
     /// CSV output.
     #[arg(long, default_value = "bench_export.csv")]
     pub csv: PathBuf,
+    /// Also solidify at these grid spacings (mm), e.g. 1.6,0.8,0.4,0.2: error against time.
+    #[arg(long, value_delimiter = ',')]
+    pub solid_voxels: Vec<f32>,
+    /// Subdivide the mesh to at least this many triangles before solidifying (0: as loaded).
+    #[arg(long, default_value_t = 0)]
+    pub solid_input_triangles: usize,
+    /// CSV output of the solidify table.
+    #[arg(long, default_value = "bench_solid.csv")]
+    pub solid_csv: PathBuf,
 }
 
 pub fn bench(a: BenchArgs) -> Result<()> {
@@ -132,6 +204,29 @@ pub fn bench(a: BenchArgs) -> Result<()> {
             ..Default::default()
         }))
         .collect();
+    if !a.solid_voxels.is_empty() {
+        let input = if a.solid_input_triangles > mesh.tris.len() {
+            benchmark::refine(&mesh, a.solid_input_triangles)?
+        } else {
+            mesh.clone()
+        };
+        let rows = benchmark::run_solid(&input, &a.solid_voxels, 0.8, a.samples.min(50_000))?;
+        println!(
+            "solidify {} at 1:{} ({} triangles, {:.1} x {:.1} x {:.1} mm)",
+            mesh.name,
+            a.scale.denominator,
+            input.tris.len(),
+            input.report.size_mm[0],
+            input.report.size_mm[1],
+            input.report.size_mm[2]
+        );
+        print!("{}", benchmark::solid_markdown(&rows));
+        cac::io::write_atomic(&a.solid_csv, benchmark::solid_csv(&rows).as_bytes())?;
+        println!("wrote {}", a.solid_csv.display());
+        if a.texels.is_empty() && a.mm.is_empty() {
+            return Ok(());
+        }
+    }
     let rows = benchmark::run(&mesh, &limits, a.samples, 3)?;
     println!(
         "object {} at {} ({} triangles), texture {}x{}, {} samples",

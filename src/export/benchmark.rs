@@ -127,3 +127,150 @@ pub fn csv(rows: &[BenchRow]) -> String {
     }
     s
 }
+
+/// One row of the solidify table: grid spacing against triangles, seconds, peak memory and the
+/// solid's geometric and colour error against the original surface.
+#[derive(Clone, Debug, Serialize)]
+pub struct SolidRow {
+    pub input_triangles: usize,
+    pub voxel_mm: f32,
+    pub triangles: usize,
+    pub seconds: f64,
+    /// Peak resident memory of the process so far (MB; Linux, else 0).
+    pub peak_mb: f64,
+    pub fidelity: super::Fidelity,
+}
+
+/// Peak resident set size of this process in MB (`VmHWM`), 0 where unknown.
+pub fn peak_rss_mb() -> f64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1)?.parse::<f64>().ok())
+        })
+        .map_or(0.0, |kb| kb / 1024.0)
+}
+
+/// Subdivides `mesh` (midpoint splits, as the bake does) until it has at least `n` triangles,
+/// keeping each piece's paint: a larger input of the same shape for the solidify benchmark.
+pub fn refine(mesh: &PrintMesh, n: usize) -> Result<PrintMesh> {
+    let mut mm = mesh.report.size_mm.iter().copied().fold(0.0f32, f32::max);
+    loop {
+        let b = bake(
+            mesh,
+            &BakeLimits {
+                max_edge_texels: f32::INFINITY,
+                max_edge_mm: mm,
+                ..Default::default()
+            },
+        )?;
+        if b.tris.len() >= n {
+            let mut tris: Vec<super::PrintTri> = b
+                .tris
+                .iter()
+                .map(|t| {
+                    let src = &mesh.tris[t.parent as usize];
+                    let paint = match src.paint {
+                        super::Paint::Texture { tex, uv } => super::Paint::Texture {
+                            tex,
+                            uv: t.bary.map(|w| uv[0] * w.x + uv[1] * w.y + uv[2] * w.z),
+                        },
+                        p => p,
+                    };
+                    super::PrintTri {
+                        v: t.v,
+                        paint,
+                        part: src.part,
+                    }
+                })
+                .collect();
+            let (positions, report) = super::printcheck::weld_and_check(&b.positions, &mut tris)?;
+            return Ok(PrintMesh {
+                positions,
+                tris,
+                report,
+                ..mesh.clone()
+            });
+        }
+        mm *= 0.7;
+    }
+}
+
+/// Solidifies `mesh` at each grid spacing and measures the result against it.
+pub fn run_solid(
+    mesh: &PrintMesh,
+    voxels: &[f32],
+    min_wall: f32,
+    samples: usize,
+) -> Result<Vec<SolidRow>> {
+    let a = super::printability::analyse(mesh, min_wall);
+    let mut rows = vec![];
+    for &h in voxels {
+        let t = Instant::now();
+        let (s, _) = super::solidify::solidify(
+            mesh,
+            &a,
+            &super::solidify::SolidifyOptions {
+                voxel_mm: h,
+                min_wall_mm: min_wall,
+                thin: super::ThinPolicy::Thicken,
+            },
+        )?;
+        let seconds = t.elapsed().as_secs_f64();
+        let fidelity = super::solidify::fidelity(mesh, &a.kinds, &s, None, samples, 5);
+        rows.push(SolidRow {
+            input_triangles: mesh.tris.len(),
+            voxel_mm: h,
+            triangles: s.tris.len(),
+            seconds,
+            peak_mb: peak_rss_mb(),
+            fidelity,
+        });
+    }
+    Ok(rows)
+}
+
+/// The solidify table as Markdown.
+pub fn solid_markdown(rows: &[SolidRow]) -> String {
+    let mut s = String::from(
+        "| input triangles | voxel (mm) | triangles | solidify (s) | peak MB | mean dist (mm) | p99 dist (mm) | max dist (mm) | original to solid mean / max (mm) | RMSE (8-bit) | mean ΔE76 | p95 ΔE76 |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for r in rows {
+        let f = &r.fidelity;
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {:.2} | {:.0} | {:.3} | {:.3} | {:.3} | {:.3} / {:.3} | {:.2} | {:.2} | {:.2} |",
+            r.input_triangles, r.voxel_mm, r.triangles, r.seconds, r.peak_mb, f.out_mean_mm, f.out_p99_mm,
+            f.out_max_mm, f.in_mean_mm, f.in_max_mm, f.rmse_8bit, f.mean_delta_e, f.p95_delta_e
+        );
+    }
+    s
+}
+
+/// The solidify table as CSV.
+pub fn solid_csv(rows: &[SolidRow]) -> String {
+    let mut s = String::from("input_triangles,voxel_mm,triangles,seconds,peak_mb,out_mean_mm,out_p99_mm,out_max_mm,in_mean_mm,in_max_mm,rmse_8bit,mean_delta_e,p95_delta_e\n");
+    for r in rows {
+        let f = &r.fidelity;
+        let _ = writeln!(
+            s,
+            "{},{},{},{:.4},{:.1},{:.5},{:.5},{:.5},{:.5},{:.5},{:.4},{:.4},{:.4}",
+            r.input_triangles,
+            r.voxel_mm,
+            r.triangles,
+            r.seconds,
+            r.peak_mb,
+            f.out_mean_mm,
+            f.out_p99_mm,
+            f.out_max_mm,
+            f.in_mean_mm,
+            f.in_max_mm,
+            f.rmse_8bit,
+            f.mean_delta_e,
+            f.p95_delta_e
+        );
+    }
+    s
+}

@@ -3,7 +3,11 @@
 //! [`prepare`] turns a [`Scene`] plus the camouflage atlas into a [`PrintMesh`]: welded positions
 //! in millimetres at the chosen scale (3MF frame: **+Z up**, X = the object's length, ground at
 //! `z = 0`), per-corner paint (texture + UVs, or a solid colour) and a print-readiness report
-//! ([`printcheck`]). Writers then produce:
+//! ([`printcheck`]). When the check fails, [`export`] repairs it ([`repair`]: weld, dedupe, zip
+//! T-junctions, fill small holes) or rebuilds it as one closed solid keeping its colours
+//! ([`solidify`], on the BVH queries of [`surface`]), and checks printability at the chosen scale
+//! ([`printability`]: wall thickness, sheets, floating and tiny parts, build volume). Writers then
+//! produce:
 //! - [`threemf`]: textured 3MF (`m:texture2d` + `m:texture2dgroup`) and baked-colour 3MF
 //!   (`m:colorgroup` per corner after [`bake`]'s adaptive subdivision);
 //! - [`obj`]: OBJ + MTL + PNG (optionally zipped) and a vertex-colour OBJ from the same bake;
@@ -15,8 +19,12 @@ pub mod bake;
 pub mod benchmark;
 pub mod obj;
 pub mod pdf;
+pub mod printability;
 pub mod printcheck;
+pub mod repair;
 pub mod sheets;
+pub mod solidify;
+pub mod surface;
 pub mod texture;
 pub mod threemf;
 
@@ -28,7 +36,9 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 pub use bake::{BakeLimits, Baked};
+pub use printability::{PrintLimits, Printability, ThinPolicy};
 pub use printcheck::PrintReport;
+pub use solidify::{Fidelity, SolidifyReport};
 
 /// Largest accepted texture side, in texels (larger ones are refused before decoding).
 pub const MAX_TEXTURE_SIDE: u32 = 16384;
@@ -114,6 +124,32 @@ impl Format {
     }
 }
 
+/// How `cac export` repairs a mesh that fails the print check (`--repair`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum RepairMode {
+    /// Light repair when the check fails, then solidify what it cannot fix (the default).
+    Auto,
+    /// Light repair only; refuse what it cannot fix.
+    Light,
+    /// Always rebuild the solid (unites overlapping parts even when the check passes).
+    Solid,
+    /// No repair: refuse a failing mesh (or write it with `--allow-open`).
+    Off,
+}
+
+impl FromStr for RepairMode {
+    type Err = anyhow::Error;
+    fn from_str(s: &str) -> Result<Self> {
+        Ok(match s {
+            "auto" => RepairMode::Auto,
+            "light" => RepairMode::Light,
+            "solid" | "solidify" => RepairMode::Solid,
+            "off" | "none" => RepairMode::Off,
+            o => bail!("unknown --repair '{o}' (expected auto, light, solid or off)"),
+        })
+    }
+}
+
 /// Everything `cac export` needs besides the input files.
 #[derive(Clone, Debug)]
 pub struct ExportOptions {
@@ -126,6 +162,13 @@ pub struct ExportOptions {
     /// Write geometry even when the mesh is open or non-manifold (a warning instead of an error).
     pub allow_open: bool,
     pub load: LoadOptions,
+    pub repair: RepairMode,
+    /// Minimum wall and feature, build volume, and what to do with thin regions.
+    pub limits: PrintLimits,
+    /// Solidify grid spacing in mm at print scale (`None`: [`auto_voxel`]).
+    pub voxel_mm: Option<f32>,
+    /// Light repair fills holes up to this perimeter, mm at print scale.
+    pub max_hole_mm: f32,
 }
 
 impl Default for ExportOptions {
@@ -138,6 +181,10 @@ impl Default for ExportOptions {
             zip_obj: false,
             allow_open: false,
             load: LoadOptions::default(),
+            repair: RepairMode::Auto,
+            limits: PrintLimits::default(),
+            voxel_mm: None,
+            max_hole_mm: 20.0,
         }
     }
 }
@@ -322,6 +369,21 @@ pub struct ExportSummary {
     pub bake_mean_delta_e: Option<f64>,
     /// What was repaired, and warnings.
     pub notes: Vec<String>,
+    /// The print check of the mesh as loaded (before any repair).
+    pub input_report: PrintReport,
+    /// Set when the mesh was rebuilt as a solid.
+    pub solid: Option<SolidifyReport>,
+    /// The solid against the original surface (geometry and colour), when rebuilt.
+    pub fidelity: Option<Fidelity>,
+    /// Printability at scale of what was written (geometry formats only).
+    pub printability: Option<Printability>,
+}
+
+/// The solidify grid spacing for a print of `size_mm`: half the minimum wall (so walls are
+/// resolved), but no finer than 1/600 of the longest side (bounded time and memory).
+pub fn auto_voxel(size_mm: [f32; 3], limits: &PrintLimits) -> f32 {
+    let longest = size_mm.iter().copied().fold(0.0f32, f32::max);
+    (limits.min_wall_mm * 0.5).max(longest / 600.0).max(1e-3)
 }
 
 /// Runs `cac export`: loads, checks, bakes and writes every requested format into `out`.
@@ -337,18 +399,39 @@ pub fn export(
     check_output_dir(out)?;
     let mesh = prepare(&scene, &camo, opts.scale)
         .with_context(|| format!("mesh {}", mesh_path.display()))?;
-    let mut notes = mesh.report.repairs();
-    let needs_closed = opts.formats.iter().any(Format::is_geometry);
-    if needs_closed && !mesh.report.is_closed() {
-        let msg = format!(
-            "mesh {} is not printable: {}",
-            mesh_path.display(),
+    let input_report = mesh.report.clone();
+    let mut notes = vec![format!(
+        "check: {}",
+        if mesh.report.is_closed() {
+            "closed, manifold and oriented".to_string()
+        } else {
             mesh.report.problems()
-        );
-        if !opts.allow_open {
-            bail!("{msg}; refusing to write geometry (pass --allow-open to write it anyway, or repair the mesh)");
         }
-        notes.push(format!("warning: {msg}; written anyway (--allow-open)"));
+    )];
+    notes.extend(mesh.report.repairs());
+    let needs_closed = opts.formats.iter().any(Format::is_geometry);
+    let mut mesh = mesh;
+    let (mut solid, mut fidelity, mut printability, mut original) = (None, None, None, None);
+    if needs_closed && (opts.allow_open || opts.repair == RepairMode::Off) {
+        if !mesh.report.is_closed() {
+            let msg = format!(
+                "mesh {} is not printable: {}",
+                mesh_path.display(),
+                mesh.report.problems()
+            );
+            if !opts.allow_open {
+                bail!("{msg}; refusing to write geometry (pass --allow-open to write it anyway, or --repair auto)");
+            }
+            notes.push(format!("warning: {msg}; written anyway (--allow-open)"));
+        }
+    } else if needs_closed {
+        let r = make_printable(&mesh, opts, mesh_path, &mut notes)?;
+        if r.1.is_some() {
+            original = Some((mesh, r.3));
+        }
+        mesh = r.0;
+        solid = r.1;
+        printability = Some(r.2);
     }
     let stem = sanitize(&mesh.name);
     let mut files = vec![];
@@ -357,13 +440,22 @@ pub fn export(
         .iter()
         .any(|f| matches!(f, Format::ThreeMfColor | Format::ObjVc));
     let baked = if needs_bake {
-        Some(bake::bake(&mesh, &opts.bake)?)
+        let mut b = bake::bake(&mesh, &opts.bake)?;
+        if let Some((orig, _)) = &original {
+            solidify::recolour_from(orig, &mut b);
+        }
+        Some(b)
     } else {
         None
     };
     let err = baked
         .as_ref()
         .map(|b| bake::colour_error(&mesh, b, 100_000, 1));
+    if let Some((orig, kinds)) = &original {
+        let f = solidify::fidelity(orig, kinds, &mesh, baked.as_ref(), 20_000, 3);
+        notes.push(f.note());
+        fidelity = Some(f);
+    }
     for f in &opts.formats {
         match f {
             Format::ThreeMfTexture => {
@@ -395,6 +487,199 @@ pub fn export(
         bake_rmse_8bit: err.as_ref().map(|e| e.rmse_8bit),
         bake_mean_delta_e: err.as_ref().map(|e| e.mean_delta_e),
         notes,
+        input_report,
+        solid,
+        fidelity,
+        printability,
+    })
+}
+
+/// Above this share of the surface thinner than the minimum wall, thickening would change the
+/// object too much: the scale is refused instead (the jeep at 1:1000 has 18 %).
+pub const MAX_THIN_SHARE: f64 = 0.15;
+
+/// Light repair, solidification and the printability check at scale (`--repair` other than
+/// off): the mesh to write, the solidify report when rebuilt, the printability report, and the
+/// original's triangle classification (for the fidelity measure).
+fn make_printable(
+    mesh: &PrintMesh,
+    opts: &ExportOptions,
+    path: &Path,
+    notes: &mut Vec<String>,
+) -> Result<(
+    PrintMesh,
+    Option<SolidifyReport>,
+    Printability,
+    Vec<printability::TriKind>,
+)> {
+    let limits = &opts.limits;
+    let at = format!("mesh {} at 1:{}", path.display(), opts.scale.denominator);
+    let mut cur = mesh.clone();
+    let mut rebuild = opts.repair == RepairMode::Solid;
+    if !cur.report.is_closed() {
+        let (m, log) = repair::light_repair(&cur, opts.max_hole_mm)?;
+        notes.extend(log.notes());
+        if !m.report.is_closed() {
+            if opts.repair == RepairMode::Light {
+                bail!(
+                    "{at} is not printable after light repair: {}; refusing to write geometry (--repair auto rebuilds it as a solid)",
+                    m.report.problems()
+                );
+            }
+            notes.push(format!(
+                "light repair left {}: rebuilding as a solid",
+                m.report.problems()
+            ));
+            rebuild = true;
+        } else {
+            notes.push("light repair closed the mesh".into());
+        }
+        cur = m;
+    }
+    let a = printability::analyse(&cur, limits.min_wall_mm);
+    let before = printability::check(&cur, &a, limits);
+    if !before.thin_regions.is_empty() {
+        let list: Vec<String> = before
+            .thin_regions
+            .iter()
+            .take(10)
+            .map(|r| r.describe())
+            .collect();
+        let head = format!(
+            "{at}: {} regions are thinner than the {:.2} mm minimum wall: {}{}",
+            before.thin_regions.len(),
+            limits.min_wall_mm,
+            list.join("; "),
+            if before.thin_regions.len() > 10 {
+                "; ..."
+            } else {
+                ""
+            }
+        );
+        // Walls made thin by the scale (single-sided surfaces have no thickness at any scale).
+        let thin_area: f64 = before
+            .thin_regions
+            .iter()
+            .filter(|r| r.min_thickness_mm > 0.0)
+            .map(|r| r.area_mm2)
+            .sum();
+        let share = thin_area / cur.report.area_mm2.max(1e-12);
+        match limits.thin {
+            ThinPolicy::Refuse => bail!(
+                "{head}; refusing to write geometry (--thin thicken thickens them, --thin drop leaves them out, or print at a larger scale)"
+            ),
+            _ if share > MAX_THIN_SHARE => bail!(
+                "{head}; that is {:.0} % of the surface: the object is too small to print at this scale (choose a larger scale)",
+                share * 100.0
+            ),
+            ThinPolicy::Thicken => notes.push(format!("{head}; thickened to the minimum wall")),
+            ThinPolicy::Drop => notes.push(format!("warning: {head}; left out (--thin drop)")),
+        }
+        rebuild = true;
+    }
+    let kinds = a.kinds.clone();
+    let mut solid = None;
+    if rebuild {
+        let voxel = opts
+            .voxel_mm
+            .unwrap_or_else(|| auto_voxel(cur.report.size_mm, limits));
+        let so = solidify::SolidifyOptions {
+            voxel_mm: voxel,
+            min_wall_mm: limits.min_wall_mm,
+            thin: limits.thin,
+        };
+        let (m, rep) = solidify::solidify(&cur, &a, &so).with_context(|| at.clone())?;
+        notes.push(rep.note());
+        if !m.report.is_closed() {
+            bail!(
+                "{at}: the rebuilt solid is still not printable ({}); try another --voxel-mm",
+                m.report.problems()
+            );
+        }
+        cur = m;
+        solid = Some(rep);
+    }
+    // The check of what is written (the solid's thin regions were thickened or dropped above).
+    let a_out = if solid.is_some() {
+        printability::Analysis {
+            kinds: vec![printability::TriKind::Boundary; cur.tris.len()],
+            thickness: vec![f32::INFINITY; cur.tris.len()],
+            thin: vec![false; cur.tris.len()],
+            relief: 0,
+        }
+    } else {
+        a
+    };
+    let mut p = printability::check(&cur, &a_out, limits);
+    if !p.tiny.is_empty() {
+        let list: Vec<String> = p.tiny.iter().take(5).map(|q| q.describe()).collect();
+        let msg = format!(
+            "{at}: {} parts are smaller than the {:.2} mm minimum feature: {}",
+            p.tiny.len(),
+            limits.min_feature_mm,
+            list.join("; ")
+        );
+        match limits.thin {
+            ThinPolicy::Refuse => bail!("{msg}; refusing to write geometry"),
+            ThinPolicy::Drop => {
+                cur = drop_parts(&cur, limits.min_feature_mm)?;
+                notes.push(format!("warning: {msg}; left out (--thin drop)"));
+                p = printability::check(&cur, &a_out_for(&cur), limits);
+            }
+            ThinPolicy::Thicken => notes.push(format!("warning: {msg}")),
+        }
+    }
+    if p.fits_build_volume == Some(false) {
+        let v = limits.build_volume_mm.unwrap_or_default();
+        let need = (0..3)
+            .map(|k| p.size_mm[k] / v[k])
+            .fold(0.0f32, f32::max)
+            .max(p.size_mm[0].max(p.size_mm[1]) / v[0].max(v[1]));
+        bail!(
+            "{at} is {:.1} x {:.1} x {:.1} mm, larger than the build volume {} x {} x {} mm; print at 1:{:.0} or smaller, or pass another --build-volume",
+            p.size_mm[0],
+            p.size_mm[1],
+            p.size_mm[2],
+            v[0],
+            v[1],
+            v[2],
+            (opts.scale.denominator as f32 * need).ceil()
+        );
+    }
+    notes.extend(p.lines());
+    Ok((cur, solid, p, kinds))
+}
+
+fn a_out_for(m: &PrintMesh) -> printability::Analysis {
+    printability::Analysis {
+        kinds: vec![printability::TriKind::Boundary; m.tris.len()],
+        thickness: vec![f32::INFINITY; m.tris.len()],
+        thin: vec![false; m.tris.len()],
+        relief: 0,
+    }
+}
+
+/// Removes the parts (connected through edges) whose largest extent is below `min_mm`.
+fn drop_parts(m: &PrintMesh, min_mm: f32) -> Result<PrintMesh> {
+    let comp = repair::components(&m.tris.iter().map(|t| t.v).collect::<Vec<_>>());
+    let parts = printability::parts(m);
+    let mut tris: Vec<PrintTri> = m
+        .tris
+        .iter()
+        .zip(&comp)
+        .filter(|(_, &c)| parts[c as usize].extent() >= min_mm)
+        .map(|(t, _)| *t)
+        .collect();
+    ensure!(
+        !tris.is_empty(),
+        "every part is smaller than the minimum feature"
+    );
+    let (positions, report) = printcheck::weld_and_check(&m.positions, &mut tris)?;
+    Ok(PrintMesh {
+        positions,
+        tris,
+        report,
+        ..m.clone()
     })
 }
 
