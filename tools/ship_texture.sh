@@ -1,0 +1,72 @@
+#!/usr/bin/env bash
+# Trains a camouflage and ships it beside the object's mesh, with its provenance and its score
+# under the evaluation protocol:
+#
+#   tools/ship_texture.sh OBJECT TARGET [ITERATIONS] [EVAL_SEED] [EXTRA TRAIN FLAGS...]
+#   tools/ship_texture.sh pickup person 1200 31
+#
+# writes meshes/OBJECT/cac-TARGET.png (the atlas) and meshes/OBJECT/cac-TARGET.json: the exact
+# commands, the scene and attack config, the seed, the versions, the training time and the
+# evaluation summary (FV/RV x bright/dark, 50 views per level and set, seed EVAL_SEED, NanoDet and
+# CenterNet). The run folder stays in runs/ship-OBJECT-TARGET (resumable); the evaluation report in
+# runs/ship-OBJECT-TARGET-eval. Needs a release build (cargo build --release) and python3.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+object=${1:?object (pickup, jeep, barrel, container)}
+target=${2:?target COCO class, e.g. person or "stop sign"}
+iterations=${3:-1200}
+eval_seed=${4:-31}
+invocation="tools/ship_texture.sh $*"
+shift $(( $# < 4 ? $# : 4 ))
+slug=$(echo "$target" | tr ' ' '_')
+cac=target/release/cac
+[ -x "$cac" ] || { echo "build first: cargo build --release" >&2; exit 1; }
+run=runs/ship-$object-$slug
+ev=runs/ship-$object-$slug-eval
+mkdir -p runs
+"$cac" config > "$run.toml.tmp"
+sed -e "s/^mesh = .*/mesh = \"$object\"/" -e 's/^width = 512/width = 320/' \
+    -e 's/^height = 512/height = 320/' -e 's/^samples = 4/samples = 1/' \
+    -e 's/^atlas_res = 512/atlas_res = 256/' "$run.toml.tmp" > "$run.toml"
+rm "$run.toml.tmp"
+train=("$cac" train --config "$run.toml" --target "$target" --iterations "$iterations" --seed 0 "$@")
+start=$(date +%s)
+if [ -f "$run/run.json" ]; then
+    "$cac" train --resume "$run" --iterations "$iterations"
+else
+    "${train[@]}" --out "$run"
+fi
+train_s=$(( $(date +%s) - start ))
+case "$object" in
+    barrel|container) true_classes=none ;;
+    *) true_classes=car,truck ;;
+esac
+evalcmd=("$cac" eval --object "$object" --texture "original,CAC=$run" --models nanodet,centernet
+         --views 50 --seed "$eval_seed" --target "$target" --true-classes "$true_classes" --out "$ev")
+"${evalcmd[@]}"
+cp "$run/atlas.png" "meshes/$object/cac-$slug.png.tmp"
+mv "meshes/$object/cac-$slug.png.tmp" "meshes/$object/cac-$slug.png"
+python3 - "$run" "$ev" "meshes/$object/cac-$slug.json" "$train_s" "${train[*]} --out $run" \
+    "${evalcmd[*]}" "$invocation" <<'EOF'
+import json, os, subprocess, sys
+run, ev, out, train_s, train_cmd, eval_cmd, invocation = sys.argv[1:]
+r = json.load(open(os.path.join(run, "run.json")))
+e = json.load(open(os.path.join(ev, "results.json")))
+rev = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
+doc = {
+    "texture": os.path.basename(out).replace(".json", ".png"),
+    "commands": {"train": train_cmd, "evaluate": eval_cmd,
+                 "regenerate": invocation},
+    "seed": r["seed"], "iterations": r["iteration"], "train_seconds_wall": int(train_s),
+    "versions": {"cac": r["cac_version"], "burn": r["burn_version"], "git": rev},
+    "scene": r["scene"], "attack": r["attack"],
+    "evaluation": {"info": e["info"], "protocol": e["protocol_text"],
+                   "summaries": [s for s in e["summaries"] if s.get("texture") == "CAC"
+                                 or s.get("texture") == "Original"]},
+}
+tmp = out + ".tmp"
+with open(tmp, "w") as f:
+    json.dump(doc, f, indent=1)
+os.replace(tmp, out)
+print("wrote", out)
+EOF
