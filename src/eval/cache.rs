@@ -198,11 +198,37 @@ pub fn load_shard(
     }
 }
 
-/// Reads a shard file (errors name the file).
-pub fn read_shard(path: &Path) -> Result<ShardPart> {
+/// Reads a shard file's number, key and views, not its examples (errors name the file).
+pub fn read_shard_header(path: &Path) -> Result<ShardHeader> {
+    let st = read_stored(path)?;
+    Ok(ShardHeader {
+        path: path.to_path_buf(),
+        key: st.key,
+        shard: st
+            .shard
+            .with_context(|| format!("{} holds no shard number", path.display()))?,
+        views: st.views,
+    })
+}
+
+/// A shard file's identity: which shard, written with which settings, covering which views.
+pub struct ShardHeader {
+    pub path: PathBuf,
+    pub key: String,
+    /// `(K, N)`: shard K of N.
+    pub shard: (usize, usize),
+    pub views: Vec<(usize, usize)>,
+}
+
+fn read_stored(path: &Path) -> Result<Stored> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let st: Stored = serde_json::from_slice(&bytes)
-        .with_context(|| format!("{} is not a readable shard file", path.display()))?;
+    serde_json::from_slice(&bytes)
+        .with_context(|| format!("{} is not a readable shard file", path.display()))
+}
+
+/// Reads a shard file with its example views (errors name the file).
+pub fn read_shard(path: &Path) -> Result<ShardPart> {
+    let st = read_stored(path)?;
     let shard = st
         .shard
         .with_context(|| format!("{} holds no shard number", path.display()))?;

@@ -8,7 +8,7 @@
 //! Not a scheduler: the shards are plain processes (`cac eval --shard K/N`), started by Slurm,
 //! Kubernetes, GNU parallel or by hand; `cac eval --merge` assembles the report.
 
-use super::cache::{self, ShardPart};
+use super::cache::{self, ShardHeader, ShardPart};
 use super::run::{ImageRecord, TextureResult, ViewGroup};
 use anyhow::{bail, Context, Result};
 use std::collections::BTreeMap;
@@ -86,9 +86,10 @@ pub fn merge(
             dir.display()
         );
     }
-    let parts: Vec<ShardPart> = files
+    // Check the files' numbers, keys and views first; read records and examples after.
+    let parts: Vec<ShardHeader> = files
         .iter()
-        .map(|f| cache::read_shard(f))
+        .map(|f| cache::read_shard_header(f))
         .collect::<Result<_>>()?;
     for p in &parts {
         if p.key != key {
@@ -112,7 +113,7 @@ pub fn merge(
             o.shard.1
         );
     }
-    let mut by_k: BTreeMap<usize, &ShardPart> = BTreeMap::new();
+    let mut by_k: BTreeMap<usize, &ShardHeader> = BTreeMap::new();
     for p in &parts {
         if let Some(first) = by_k.insert(p.shard.0, p) {
             bail!(
@@ -154,13 +155,15 @@ pub fn merge(
                 want.len()
             );
         }
-        out.records.extend(p.result.records.iter().cloned());
-        out.skipped += p.result.skipped;
     }
-    // Examples cannot be cloned (images are moved out of the parts below).
-    let mut parts = parts;
-    for p in &mut parts {
-        out.examples.append(&mut p.result.examples);
+    for p in by_k.values() {
+        let mut part: ShardPart = cache::read_shard(&p.path)?;
+        if part.key != key || part.shard != p.shard {
+            bail!("{} changed while it was being merged", p.path.display());
+        }
+        out.records.append(&mut part.result.records);
+        out.skipped += part.result.skipped;
+        out.examples.append(&mut part.result.examples);
     }
     let group = |set, b| {
         groups
