@@ -14,6 +14,7 @@ pub mod job;
 pub mod report;
 pub mod run;
 pub mod shard;
+pub mod slurm;
 pub mod study;
 pub mod summary;
 pub mod textures;
