@@ -8,6 +8,7 @@ use cac::config::SceneConfig;
 use cac::environment::ViewpointSet;
 use cac::eval::job::{self, EvalJob};
 use cac::eval::run::ViewPlan;
+use cac::eval::shard::Shard;
 use cac::eval::Protocol;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
@@ -61,6 +62,14 @@ pub struct Args {
     /// Output folder (finished textures are reused from its cache/ on a rerun).
     #[arg(long, default_value = "eval-out")]
     pub out: PathBuf,
+    /// Evaluate only shard K of N (K = 0 .. N-1): every N-th view of the seeded view list,
+    /// written into OUT/cache/ as one file per texture and shard; no report. Rerun to resume.
+    #[arg(long, value_name = "K/N", conflicts_with = "merge")]
+    pub shard: Option<Shard>,
+    /// Write the report from the shards' files (and the cache) only, rendering nothing; refuses a
+    /// missing or duplicated shard or shards written with other settings.
+    #[arg(long)]
+    pub merge: bool,
 }
 
 /// Parses `fv`/`rv` lists.
@@ -82,7 +91,8 @@ pub fn parse_sets(s: &[String]) -> Result<Vec<ViewpointSet>> {
     Ok(out)
 }
 
-pub fn run(a: Args) -> Result<()> {
+/// The evaluation job the arguments describe.
+pub fn job(a: &Args) -> Result<EvalJob> {
     let mut scene = match &a.config {
         Some(p) => SceneConfig::from_file(p)?,
         None => SceneConfig::default(),
@@ -122,6 +132,11 @@ pub fn run(a: Args) -> Result<()> {
             .collect::<Result<_>>()?,
         out: a.out.clone(),
     };
+    Ok(job)
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let job = job(&a)?;
     let dets = train::load_detectors(&a.models)?;
     let refs: Vec<&dyn cac::detect::Detector> = dets.iter().map(|d| d.as_ref()).collect();
     let pb = ProgressBar::new(0);
@@ -129,10 +144,21 @@ pub fn run(a: Args) -> Result<()> {
         ProgressStyle::with_template("{bar:30} {pos}/{len} images, {per_sec}, ETA {eta}")
             .expect("template"),
     );
-    let o = job::run(&job, &refs, &device::inference(), &mut |d, t| {
+    let mut bar = |d: usize, t: usize| {
         pb.set_length(t as u64);
         pb.set_position(d as u64);
-    })?;
+    };
+    if let Some(shard) = a.shard {
+        let o = job::run_shard(&job, shard, &refs, &device::inference(), &mut bar)?;
+        pb.finish_and_clear();
+        print_shard(&o);
+        return Ok(());
+    }
+    let o = if a.merge {
+        job::merge(&job, &refs, &device::inference())?
+    } else {
+        job::run(&job, &refs, &device::inference(), &mut bar)?
+    };
     pb.finish_and_clear();
     let md = std::fs::read_to_string(a.out.join("report.md")).unwrap_or_default();
     println!("{md}");
@@ -141,6 +167,12 @@ pub fn run(a: Args) -> Result<()> {
             "reused from {}/cache: {}",
             a.out.display(),
             o.reused.join(", ")
+        );
+    }
+    for (t, n) in &o.merged {
+        println!(
+            "{t}: assembled from {n} shard(s) in {}/cache",
+            a.out.display()
         );
     }
     if o.info.skipped.iter().any(|&s| s > 0) {
@@ -156,4 +188,19 @@ pub fn run(a: Args) -> Result<()> {
         o.info.seconds
     );
     Ok(())
+}
+
+/// What a shard did, one line per texture.
+pub fn print_shard(o: &job::ShardOutcome) {
+    for (t, f) in &o.written {
+        println!("shard {}: {t} -> {}", o.shard, f.display());
+    }
+    if !o.reused.is_empty() {
+        println!("shard {}: already done: {}", o.shard, o.reused.join(", "));
+    }
+    println!(
+        "shard {} finished: {} images scored in {:.1} s; run the same command with --merge \
+         instead of --shard once every shard is done",
+        o.shard, o.images_scored, o.seconds
+    );
 }

@@ -18,6 +18,7 @@ pub mod models;
 pub mod render;
 pub mod score;
 pub mod score_video;
+pub mod slurm;
 pub mod study;
 pub mod texture;
 pub mod train;
@@ -67,6 +68,9 @@ pub enum Command {
     /// Studies built from training runs and evaluations (the top-n denseness study).
     #[command(subcommand)]
     Study(study::Cmd),
+    /// Run an evaluation or a study as a Slurm sweep: job arrays and a dependent merge.
+    #[command(subcommand)]
+    Slurm(slurm::Cmd),
     /// Benchmarks: print a table and write CSV (timings are measured here, never in tests).
     #[command(subcommand)]
     Bench(BenchCmd),
@@ -97,6 +101,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Eval(a) => eval::run(a),
         Command::Explain(a) => explain::run(a),
         Command::Study(c) => study::run(c),
+        Command::Slurm(c) => slurm::run(c),
         Command::Render(a) => render::run(a),
         Command::Texture(a) => texture::run(a),
         Command::Train(a) => train::run(a),

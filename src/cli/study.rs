@@ -58,6 +58,16 @@ pub struct TopnArgs {
     pub seed: u64,
     #[arg(long, default_value = "study-topn")]
     pub out: PathBuf,
+    // Sweep entry points (cac slurm study topn, docs/sweeps.md).
+    /// Train only setting K (the K-th value of --n, from 0) and exit: one array task per setting.
+    #[arg(long, value_name = "K", conflicts_with_all = ["shard", "merge"])]
+    pub task: Option<usize>,
+    /// Evaluate only shard K of N of the study's evaluation and exit (every run must be finished).
+    #[arg(long, value_name = "K/N", conflicts_with = "merge")]
+    pub shard: Option<cac::eval::shard::Shard>,
+    /// Write the study from the evaluation's shard files, rendering nothing.
+    #[arg(long)]
+    pub merge: bool,
 }
 
 pub fn run(c: Cmd) -> Result<()> {
@@ -85,7 +95,18 @@ fn topn(a: TopnArgs) -> Result<()> {
     let sources = train::load_detectors(&a.models)?;
     let src: Vec<&dyn cac::detect::Detector> = sources.iter().map(|d| d.as_ref()).collect();
     let mut specs = vec!["original".to_string()];
-    for &n in &a.n {
+    // Sweep: --task K trains setting K only; --shard and --merge train nothing.
+    if let Some(k) = a.task.filter(|&k| k >= a.n.len()) {
+        bail!(
+            "--task {k} is out of range: the study has {} setting(s) (--n), tasks 0 to {}",
+            a.n.len(),
+            a.n.len() - 1
+        );
+    }
+    for (k, &n) in a.n.iter().enumerate() {
+        if a.task.is_some_and(|t| t != k) {
+            continue;
+        }
         let dir = a.out.join(format!("n{n}"));
         let ac = AttackConfig {
             models: a.models.clone(),
@@ -127,6 +148,9 @@ fn topn(a: TopnArgs) -> Result<()> {
             tr = tr.resume(&dir)?;
         }
         let it = tr.state.iteration;
+        if (a.shard.is_some() || a.merge) && it < a.iterations {
+            bail!("n = {n}: the run in {} is not finished (iteration {it} of {}); train it first (--task {k})", dir.display(), a.iterations);
+        }
         if it >= a.iterations {
             println!("n = {n}: reusing the finished run in {}", dir.display());
         } else {
@@ -138,6 +162,9 @@ fn topn(a: TopnArgs) -> Result<()> {
         }
         train::train_loop(&mut tr, &dir, &cfg, true)?;
         specs.push(format!("{}={}", study::run_name(n), dir.display()));
+    }
+    if a.task.is_some() {
+        return Ok(());
     }
 
     let mut eval_scene = cfg.clone();
@@ -170,7 +197,15 @@ fn topn(a: TopnArgs) -> Result<()> {
         job.textures.len(),
         a.eval_models.join(", ")
     );
-    let o = job::run(&job, &refs, &device::inference(), &mut |_, _| {})?;
+    let o = match (a.shard, a.merge) {
+        (Some(s), _) => {
+            let o = job::run_shard(&job, s, &refs, &device::inference(), &mut |_, _| {})?;
+            super::eval::print_shard(&o);
+            return Ok(());
+        }
+        (None, true) => job::merge(&job, &refs, &device::inference())?,
+        (None, false) => job::run(&job, &refs, &device::inference(), &mut |_, _| {})?,
+    };
     let t = study::topn_table(&o.records, &a.n, &o.info.models, &a.models);
     let img = study::topn_plot(&o.records, &a.n, &o.info.models, &a.models)?;
     cac::io::save_png_atomic(&a.out.join("topn.png"), &img)?;

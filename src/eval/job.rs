@@ -1,9 +1,15 @@
 //! One whole evaluation: resolve the textures, draw the views, score every texture with every
 //! model (reusing finished textures from the cache folder), and write the report into the output
 //! folder (`report.md`, `report.html`, tables as CSV, `results.json`, plots).
+//!
+//! The same job can be split: [`run_shard`] evaluates one shard's views and only writes its cache
+//! files, [`merge`] writes the report from those files without rendering (see [`super::shard`]).
 
 use super::report::{self, EvalInfo};
-use super::run::{evaluate_texture, view_groups, ViewPlan};
+use super::run::{
+    all_views, evaluate_texture, evaluate_texture_in, view_groups, ViewGroup, ViewPlan,
+};
+use super::shard::{self, Shard};
 use super::{cache, textures, Protocol};
 use crate::config::SceneConfig;
 use crate::detect::Detector;
@@ -39,47 +45,196 @@ pub struct Outcome {
     /// Images rendered and scored in this call (cached textures excluded).
     pub images_scored: usize,
     pub reused: Vec<String>,
+    /// Textures assembled from shard files in this call, with their shard count N.
+    pub merged: Vec<(String, usize)>,
 }
 
-/// Runs the job. `progress(done, total)` is called once per image.
+/// What a shard wrote.
+pub struct ShardOutcome {
+    pub shard: Shard,
+    /// Textures this shard evaluated now, with the file each went to.
+    pub written: Vec<(String, PathBuf)>,
+    /// Textures whose part was already there (a finished shard file, or the whole texture in the
+    /// cache): a rerun of a killed shard resumes after them.
+    pub reused: Vec<String>,
+    /// Images rendered and scored in this call.
+    pub images_scored: usize,
+    pub seconds: f64,
+}
+
+/// Which part of the job a call does.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Part {
+    /// Everything missing from the cache; complete shard sets are merged, not re-rendered.
+    All,
+    /// The report from the cache and the shard files only; nothing is rendered.
+    Merge,
+}
+
+/// The resolved job: textures, views, keys.
+struct Prepared {
+    scene: crate::scene::Scene,
+    texs: Vec<textures::NamedTexture>,
+    env: Environment,
+    groups: Vec<ViewGroup>,
+    views: Vec<(usize, usize)>,
+    models: Vec<String>,
+    keys: Vec<String>,
+    cache_dir: PathBuf,
+}
+
+fn prepare(job: &EvalJob, dets: &[&dyn Detector]) -> Result<Prepared> {
+    let scene = job.scene.object.load()?;
+    let res = job.scene.render.atlas_res;
+    let texs = textures::resolve_all(&job.textures, &scene, res, job.plan.seed)?;
+    let env = Environment::new(job.scene.environment.clone())?;
+    let groups = view_groups(&env, &job.plan);
+    let views = all_views(&groups);
+    let models: Vec<String> = dets.iter().map(|d| d.name().to_string()).collect();
+    let settings = serde_json::json!({
+        "scene": job.scene, "plan": job.plan, "protocol": job.protocol,
+        "models": models, "examples": job.examples_per_group,
+    });
+    let keys = texs
+        .iter()
+        .map(|t| cache::key(&settings, &t.atlas.texels))
+        .collect();
+    Ok(Prepared {
+        scene,
+        texs,
+        env,
+        groups,
+        views,
+        models,
+        keys,
+        cache_dir: job.out.join("cache"),
+    })
+}
+
+/// Runs the job: every texture not in the cache is rendered and scored (a texture whose shards
+/// are all in the cache, from the same settings, is assembled from them instead), and the report
+/// is written. `progress(done, total)` is called once per image.
 pub fn run(
     job: &EvalJob,
     dets: &[&dyn Detector],
     device: &Device,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<Outcome> {
+    report_part(job, Part::All, dets, device, progress)
+}
+
+/// Assembles the report from the cache and the shards' files only (nothing is rendered): each
+/// texture is either whole in the cache or has all N shard files of one split, written with the
+/// same settings. Anything else is an error naming the file, and then nothing is written.
+pub fn merge(job: &EvalJob, dets: &[&dyn Detector], device: &Device) -> Result<Outcome> {
+    report_part(job, Part::Merge, dets, device, &mut |_, _| {})
+}
+
+/// Evaluates shard `shard` of the job's views for every texture and writes each texture's part
+/// into its own file in the cache (`OUT/cache/NAME.shard-K-of-N.json`); writes no report. A
+/// texture whose part (or whole result) is already there with the same settings is skipped, so
+/// a killed shard resumes. `progress(done, total)` is called once per image.
+pub fn run_shard(
+    job: &EvalJob,
+    shard: Shard,
+    dets: &[&dyn Detector],
+    device: &Device,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<ShardOutcome> {
     let start = Instant::now();
-    let scene = job.scene.object.load()?;
-    let res = job.scene.render.atlas_res;
-    let texs = textures::resolve_all(&job.textures, &scene, res, job.plan.seed)?;
-    let renderer = Renderer::new(scene, job.scene.render.clone())?;
-    let env = Environment::new(job.scene.environment.clone())?;
-    let groups = view_groups(&env, &job.plan);
-    let models: Vec<String> = dets.iter().map(|d| d.name().to_string()).collect();
-    let per_texture: usize = groups.iter().map(|g| g.conditions.len()).sum();
-    let total = per_texture * texs.len();
-    let cache_dir = job.out.join("cache");
-    let settings = serde_json::json!({
-        "scene": job.scene, "plan": job.plan, "protocol": job.protocol,
-        "models": models, "examples": job.examples_per_group,
-    });
-    let (mut records, mut examples, mut skipped, mut reused) = (vec![], vec![], vec![], vec![]);
+    let p = prepare(job, dets)?;
+    let mine = shard.part(&p.views);
+    let total = mine.len() * p.texs.len();
+    let mut renderer = None;
+    let mut out = ShardOutcome {
+        shard,
+        written: vec![],
+        reused: vec![],
+        images_scored: 0,
+        seconds: 0.0,
+    };
+    let mut done = 0;
+    for (t, key) in p.texs.iter().zip(&p.keys) {
+        let have = cache::load_shard(&p.cache_dir, &t.name, key, (shard.k, shard.n))?.is_some()
+            || cache::load(&p.cache_dir, &t.name, key)?.is_some();
+        if have {
+            out.reused.push(t.name.clone());
+            done += mine.len();
+            progress(done, total);
+            continue;
+        }
+        if renderer.is_none() {
+            renderer = Some(Renderer::new(p.scene.clone(), job.scene.render.clone())?);
+        }
+        let r = evaluate_texture_in(
+            renderer.as_ref().expect("built above"),
+            &p.env,
+            &p.groups,
+            &mine,
+            &t.name,
+            &t.atlas,
+            dets,
+            &job.protocol,
+            job.examples_per_group,
+            device,
+            &mut || {
+                done += 1;
+                progress(done, total);
+            },
+        )?;
+        out.images_scored += mine.len();
+        let file = cache::store_shard(&p.cache_dir, &t.name, key, (shard.k, shard.n), &mine, &r)?;
+        out.written.push((t.name.clone(), file));
+    }
+    out.seconds = start.elapsed().as_secs_f64();
+    Ok(out)
+}
+
+fn report_part(
+    job: &EvalJob,
+    part: Part,
+    dets: &[&dyn Detector],
+    device: &Device,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<Outcome> {
+    let start = Instant::now();
+    let p = prepare(job, dets)?;
+    let per_texture = p.views.len();
+    let total = per_texture * p.texs.len();
+    let mut renderer = None;
+    let (mut results, mut reused, mut merged) = (vec![], vec![], vec![]);
     let mut done = 0;
     let mut scored = 0;
-    for t in &texs {
-        let key = cache::key(&settings, &t.atlas.texels);
-        let r = match cache::load(&cache_dir, &t.name, &key)? {
-            Some(r) => {
-                reused.push(t.name.clone());
+    for (t, key) in p.texs.iter().zip(&p.keys) {
+        if let Some(r) = cache::load(&p.cache_dir, &t.name, key)? {
+            reused.push(t.name.clone());
+            done += per_texture;
+            progress(done, total);
+            results.push((r, false));
+            continue;
+        }
+        let from_shards = shard::merge(&p.cache_dir, &t.name, key, &p.groups, &p.views, &p.models);
+        match (part, from_shards) {
+            (_, Ok((r, n))) => {
+                merged.push((t.name.clone(), n));
                 done += per_texture;
                 progress(done, total);
-                r
+                results.push((r, true));
             }
-            None => {
+            (Part::Merge, Err(e)) => {
+                return Err(e.context(format!(
+                    "cannot merge the evaluation in {} (nothing was written)",
+                    job.out.display()
+                )))
+            }
+            (_, Err(_)) => {
+                if renderer.is_none() {
+                    renderer = Some(Renderer::new(p.scene.clone(), job.scene.render.clone())?);
+                }
                 let r = evaluate_texture(
-                    &renderer,
-                    &env,
-                    &groups,
+                    renderer.as_ref().expect("built above"),
+                    &p.env,
+                    &p.groups,
                     &t.name,
                     &t.atlas,
                     dets,
@@ -92,15 +247,25 @@ pub fn run(
                     },
                 )?;
                 scored += per_texture;
-                cache::store(&cache_dir, &t.name, &key, &r)?;
-                r
+                cache::store(&p.cache_dir, &t.name, key, &r)?;
+                results.push((r, false));
             }
-        };
+        }
+    }
+    // Every texture is there: keep the merged ones whole in the cache (a later run reads one
+    // file), then write the report.
+    for ((r, from_shards), (t, key)) in results.iter().zip(p.texs.iter().zip(&p.keys)) {
+        if *from_shards {
+            cache::store(&p.cache_dir, &t.name, key, r)?;
+        }
+    }
+    let (mut records, mut examples, mut skipped) = (vec![], vec![], vec![]);
+    for (r, _) in results {
         records.extend(r.records);
         examples.push(r.examples);
         skipped.push(r.skipped);
     }
-    let names: Vec<String> = texs.iter().map(|t| t.name.clone()).collect();
+    let names: Vec<String> = p.texs.iter().map(|t| t.name.clone()).collect();
     let reference = names
         .iter()
         .find(|n| n.eq_ignore_ascii_case("original"))
@@ -113,7 +278,7 @@ pub fn run(
         render: job.scene.render.clone(),
         textures: names,
         reference,
-        models,
+        models: p.models,
         skipped,
         reused: reused.clone(),
         seconds: start.elapsed().as_secs_f64(),
@@ -134,5 +299,6 @@ pub fn run(
         files,
         images_scored: scored,
         reused,
+        merged,
     })
 }

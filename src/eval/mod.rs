@@ -4,7 +4,8 @@
 //!
 //! [`run`] draws the protocol's views and scores textures in them, [`summary`] aggregates the
 //! per-image records, [`report`] writes the tables, plots and HTML, [`textures`] resolves the
-//! texture list, [`cache`] keeps finished textures so an interrupted evaluation resumes.
+//! texture list, [`cache`] keeps finished textures so an interrupted evaluation resumes, [`shard`]
+//! splits an evaluation into shards and merges them back.
 
 pub mod blender;
 pub mod cache;
@@ -12,6 +13,8 @@ pub mod gradcam;
 pub mod job;
 pub mod report;
 pub mod run;
+pub mod shard;
+pub mod slurm;
 pub mod study;
 pub mod summary;
 pub mod textures;

@@ -117,6 +117,16 @@ pub struct TextureResult {
     pub examples: Vec<Example>,
 }
 
+/// Every view of the plan as `(group index, view index)`, group by group: the seeded view list
+/// that shards split (see [`super::shard`]).
+pub fn all_views(groups: &[ViewGroup]) -> Vec<(usize, usize)> {
+    groups
+        .iter()
+        .enumerate()
+        .flat_map(|(g, grp)| (0..grp.conditions.len()).map(move |i| (g, i)))
+        .collect()
+}
+
 /// Renders `atlas` in every view of every group, scores it with each detector, and keeps the
 /// first `examples_per_group` images of each group. `progress` is called once per image.
 #[allow(clippy::too_many_arguments)]
@@ -132,14 +142,48 @@ pub fn evaluate_texture(
     device: &Device,
     progress: &mut dyn FnMut(),
 ) -> Result<TextureResult> {
+    let views = all_views(groups);
+    evaluate_texture_in(
+        r,
+        env,
+        groups,
+        &views,
+        texture,
+        atlas,
+        dets,
+        p,
+        examples_per_group,
+        device,
+        progress,
+    )
+}
+
+/// [`evaluate_texture`] restricted to `views` (`(group index, view index)`, in that order): the
+/// records and examples are those a whole run has for these views.
+#[allow(clippy::too_many_arguments)]
+pub fn evaluate_texture_in(
+    r: &Renderer,
+    env: &Environment,
+    groups: &[ViewGroup],
+    views: &[(usize, usize)],
+    texture: &str,
+    atlas: &Texture,
+    dets: &[&dyn Detector],
+    p: &Protocol,
+    examples_per_group: usize,
+    device: &Device,
+    progress: &mut dyn FnMut(),
+) -> Result<TextureResult> {
     let mut out = TextureResult {
         records: vec![],
         skipped: 0,
         examples: vec![],
     };
     let a = render::atlas_tensor(atlas, device);
-    for g in groups {
-        for (i, c) in g.conditions.iter().enumerate() {
+    for &(gi, i) in views {
+        let g = &groups[gi];
+        let c = &g.conditions[i];
+        {
             progress();
             let plan = r.plan(&c.viewpoint, &env.lighting(c), &env.backdrop(c))?;
             let Some(gt) = plan.object_box else {

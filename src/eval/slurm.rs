@@ -1,0 +1,160 @@
+//! Slurm batch scripts for sweeps: a pipeline of stages (a job array of training tasks, a job
+//! array of evaluation shards, one merge), each stage a plain `cac` command line in which
+//! `{task}` stands for the array index. Only text is made here; `cac slurm` submits it with
+//! `sbatch --array=... --dependency=afterok:...`. Not a scheduler: the same commands run under
+//! any scheduler or by hand (docs/sweeps.md).
+
+/// `#SBATCH` settings shared by every stage.
+#[derive(Clone, Debug, Default)]
+pub struct Batch {
+    pub partition: Option<String>,
+    /// Wall-time limit (`--time`, e.g. `2:00:00`).
+    pub time: Option<String>,
+    pub cpus_per_task: usize,
+    /// Memory per task (`--mem`, e.g. `4G`).
+    pub mem: Option<String>,
+    /// Further `#SBATCH` options, verbatim (e.g. `--account=lab`).
+    pub extra: Vec<String>,
+}
+
+/// One stage: a job array over `tasks` (or a single job when `None`) running `argv`, with
+/// `{task}` in an argument replaced by the task's index.
+#[derive(Clone, Debug)]
+pub struct Stage {
+    /// `train`, `eval`, `merge`: the script is `<name>.sbatch`, logs `<name>-<job>_<task>.log`.
+    pub name: String,
+    pub tasks: Option<usize>,
+    pub argv: Vec<String>,
+}
+
+/// Quotes `s` for a POSIX shell (single quotes; a single quote inside becomes `'\''`), leaving
+/// plain words as they are.
+pub fn quote(s: &str) -> String {
+    let plain = !s.is_empty()
+        && s.chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_./=:,+@%".contains(c));
+    if plain {
+        s.to_string()
+    } else {
+        format!("'{}'", s.replace('\'', r"'\''"))
+    }
+}
+
+/// The `--array` value for `n` tasks: `0-(n-1)`.
+pub fn array(n: usize) -> String {
+    format!("0-{}", n.saturating_sub(1))
+}
+
+/// The batch script of `stage`. `job_name` names every job of one sweep (so a rerun can see
+/// whether some are still queued), `workdir` is where the commands run, `log_dir` receives the
+/// logs (appended to, so a requeued task's log keeps the killed run's lines).
+pub fn script(
+    stage: &Stage,
+    job_name: &str,
+    batch: &Batch,
+    workdir: &std::path::Path,
+    log_dir: &std::path::Path,
+) -> String {
+    let mut s = String::from("#!/bin/bash\n");
+    let mut opt = |o: String| s.push_str(&format!("#SBATCH {o}\n"));
+    opt(format!("--job-name={job_name}"));
+    let log = match stage.tasks {
+        Some(_) => format!("{}-%A_%a.log", stage.name),
+        None => format!("{}-%j.log", stage.name),
+    };
+    opt(format!("--output={}", log_dir.join(log).display()));
+    opt("--open-mode=append".into());
+    // A task killed by a node failure or preemption is put back in the queue; it resumes from
+    // what it had written (finished runs, checkpoints, shard files).
+    opt("--requeue".into());
+    opt(format!("--chdir={}", workdir.display()));
+    opt(format!("--cpus-per-task={}", batch.cpus_per_task.max(1)));
+    if let Some(p) = &batch.partition {
+        opt(format!("--partition={p}"));
+    }
+    if let Some(t) = &batch.time {
+        opt(format!("--time={t}"));
+    }
+    if let Some(m) = &batch.mem {
+        opt(format!("--mem={m}"));
+    }
+    if stage.tasks.is_none() {
+        // The merge waits for every task (afterok); when one of them fails or is cancelled the
+        // merge can never run: Slurm removes it rather than leaving it pending forever.
+        opt("--kill-on-invalid-dep=yes".into());
+    }
+    for e in &batch.extra {
+        opt(e.clone());
+    }
+    s.push_str("set -euo pipefail\n");
+    s.push_str("export RAYON_NUM_THREADS=\"${SLURM_CPUS_PER_TASK:-1}\"\n");
+    s.push_str("echo \"cac ${SLURM_JOB_ID:-} task ${SLURM_ARRAY_TASK_ID:-} on $(hostname) (restart ${SLURM_RESTART_COUNT:-0})\"\n");
+    let words: Vec<String> = stage
+        .argv
+        .iter()
+        .map(|a| {
+            if a.contains("{task}") {
+                // Double quotes so that the variable expands; the rest is checked to be plain.
+                format!("\"{}\"", a.replace("{task}", "${SLURM_ARRAY_TASK_ID}"))
+            } else {
+                quote(a)
+            }
+        })
+        .collect();
+    s.push_str(&format!("exec {}\n", words.join(" ")));
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    #[test]
+    fn scripts_quote_arguments_and_index_the_array() {
+        assert_eq!(quote("fv,rv"), "fv,rv");
+        assert_eq!(quote("stop sign"), "'stop sign'");
+        assert_eq!(quote("it's"), r"'it'\''s'");
+        assert_eq!(quote(""), "''");
+        assert_eq!(array(1), "0-0");
+        assert_eq!(array(4), "0-3");
+        let st = Stage {
+            name: "eval".into(),
+            tasks: Some(3),
+            argv: vec![
+                "/bin/cac".into(),
+                "eval".into(),
+                "--target".into(),
+                "stop sign".into(),
+                "--shard".into(),
+                "{task}/3".into(),
+            ],
+        };
+        let b = Batch {
+            partition: Some("gpu".into()),
+            cpus_per_task: 2,
+            extra: vec!["--account=lab".into()],
+            ..Default::default()
+        };
+        let s = script(&st, "cac-x", &b, Path::new("/w"), Path::new("/w/out/slurm"));
+        for want in [
+            "#SBATCH --job-name=cac-x\n",
+            "#SBATCH --output=/w/out/slurm/eval-%A_%a.log\n",
+            "#SBATCH --requeue\n",
+            "#SBATCH --partition=gpu\n",
+            "#SBATCH --cpus-per-task=2\n",
+            "#SBATCH --account=lab\n",
+            "exec /bin/cac eval --target 'stop sign' --shard \"${SLURM_ARRAY_TASK_ID}/3\"\n",
+        ] {
+            assert!(s.contains(want), "{want:?} not in\n{s}");
+        }
+        assert!(!s.contains("kill-on-invalid-dep"), "only the merge");
+        let m = Stage {
+            name: "merge".into(),
+            tasks: None,
+            argv: vec!["cac".into(), "eval".into(), "--merge".into()],
+        };
+        let s = script(&m, "cac-x", &b, Path::new("/w"), Path::new("/l"));
+        assert!(s.contains("--output=/l/merge-%j.log") && s.contains("--kill-on-invalid-dep=yes"));
+    }
+}
