@@ -62,9 +62,7 @@ fn every_baseline_runs_with_finite_loss_and_changes_only_paintable_texels() {
     let cfg = config(Method::Upc);
     for i in 0..4 {
         for c in cac::attack::draw_conditions(&env, &cfg, i) {
-            let plan = r
-                .plan(&c.viewpoint, &env.lighting(&c), &env.backdrop(&c))
-                .unwrap();
+            let plan = cac::environment::plan(&r, &env, &c).unwrap();
             for &t in &plan.tap_texel {
                 assert!(
                     mask[t as usize],

@@ -19,7 +19,7 @@ pub mod report;
 
 use crate::detect::Detector;
 use crate::environment::{self, Brightness, Condition, Environment, ViewpointSet};
-use crate::render::{self, Renderer};
+use crate::render::Renderer;
 use crate::scene::Texture;
 use adam::Adam;
 use anyhow::{bail, Context, Result};
@@ -318,21 +318,11 @@ impl<'a> Trainer<'a> {
         let goal = self.config.goal()?;
         let conds = self.conditions(i);
         let t0 = Instant::now();
-        let plans = conds
-            .iter()
-            .map(|c| {
-                self.renderer
-                    .plan(&c.viewpoint, &self.env.lighting(c), &self.env.backdrop(c))
-            })
-            .collect::<Result<Vec<_>>>()?;
         let r = self.state.atlas_res;
         let atlas =
             Tensor::<4>::from_data(TensorData::new(self.composed(), [1, r, r, 3]), &self.device)
                 .require_grad();
-        let images = environment::photometric(
-            render::composite(&plans, environment::print_error(atlas.clone(), &conds)),
-            &conds,
-        );
+        let (images, plans) = environment::form(self.renderer, self.env, &conds, atlas.clone())?;
         let ms_render = t0.elapsed().as_secs_f64() * 1e3;
         let t1 = Instant::now();
         let objects: Vec<_> = plans.iter().map(|p| p.object_box).collect();

@@ -29,15 +29,7 @@ pub fn views_sheet(
             c.brightness = Brightness::Dark;
         }
     }
-    let plans = conds
-        .iter()
-        .map(|c| r.plan(&c.viewpoint, &env.lighting(c), &env.backdrop(c)))
-        .collect::<Result<Vec<_>>>()?;
-    let a = render::atlas_tensor(atlas, device);
-    let img = environment::photometric(
-        render::composite(&plans, environment::print_error(a, &conds)),
-        &conds,
-    );
+    let (img, _) = environment::form(r, env, &conds, render::atlas_tensor(atlas, device))?;
     Ok(render::contact_sheet(&render::to_images(&img)))
 }
 

@@ -128,10 +128,8 @@ pub fn render_conditions(
 ) -> Result<Vec<image::RgbImage>> {
     let mut out = Vec::new();
     for c in conds {
-        let plan = r.plan(&c.viewpoint, &env.lighting(c), &env.backdrop(c))?;
         let t = render::atlas_tensor(atlas, dev);
-        let t = environment::print_error(t, std::slice::from_ref(c));
-        let img = environment::photometric(render::composite(&[plan], t), std::slice::from_ref(c));
+        let (img, _) = environment::form(r, env, std::slice::from_ref(c), t)?;
         out.extend(render::to_images(&img));
     }
     Ok(out)

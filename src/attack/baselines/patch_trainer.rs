@@ -123,13 +123,9 @@ impl<'a> PatchTrainer<'a> {
     /// Backgrounds of iteration `i` (host `[B, 3, H, W]`), their dims, and the object boxes.
     fn backgrounds(&self, i: usize) -> Result<(Vec<f32>, [usize; 4], Vec<[f32; 4]>)> {
         let conds = draw_conditions(self.env, &self.config, i);
-        let plans = conds
-            .iter()
-            .map(|c| {
-                self.renderer
-                    .plan(&c.viewpoint, &self.env.lighting(c), &self.env.backdrop(c))
-            })
-            .collect::<Result<Vec<_>>>()?;
+        let plain = self.device.clone().inner();
+        let a = render::atlas_tensor(&self.base, &plain);
+        let (img, plans) = environment::form(self.renderer, self.env, &conds, a)?;
         let (w, h) = (
             self.renderer.settings.width as f32,
             self.renderer.settings.height as f32,
@@ -141,12 +137,6 @@ impl<'a> PatchTrainer<'a> {
                     .unwrap_or([0.25 * w, 0.25 * h, 0.75 * w, 0.75 * h])
             })
             .collect();
-        let plain = self.device.clone().inner();
-        let a = render::atlas_tensor(&self.base, &plain);
-        let img = environment::photometric(
-            render::composite(&plans, environment::print_error(a, &conds)),
-            &conds,
-        );
         let dims = img.dims();
         Ok((crate::detect::to_vec(&img)?, dims, boxes))
     }

@@ -68,13 +68,8 @@ pub fn run(a: Args) -> Result<()> {
         let (mut tr, mut td, mut ts, mut n) = (0.0, 0.0, 0.0, 0);
         for (i, c) in conds.iter().enumerate() {
             let t0 = Stopwatch::start();
-            let plan = r.plan(&c.viewpoint, &env.lighting(c), &env.backdrop(c))?;
-            let gt = plan.object_box.unwrap_or([0.0; 4]);
-            let one = std::slice::from_ref(c);
-            let img = environment::photometric(
-                render::composite(&[plan], environment::print_error(a_t.clone(), one)),
-                one,
-            );
+            let (img, plans) = environment::form(&r, &env, std::slice::from_ref(c), a_t.clone())?;
+            let gt = plans[0].object_box.unwrap_or([0.0; 4]);
             let _ = img.clone().slice([0..1, 0..1, 0..1, 0..1]).into_data();
             let render_s = t0.secs();
             let t1 = Stopwatch::start();

@@ -251,9 +251,7 @@ pub fn run(a: Args) -> Result<()> {
         )?;
         let atlas = r.scene.initial_atlas(r.settings.atlas_res);
         let (secs, img) = best_of(a.repeats.min(3), || {
-            let plan = r
-                .plan(&cond.viewpoint, &env.lighting(&cond), &env.backdrop(&cond))
-                .expect("plan");
+            let plan = cac::environment::plan(&r, &env, &cond).expect("plan");
             plan.render_cpu(&atlas)
         });
         Ok((secs, img))
