@@ -79,7 +79,7 @@ fn resume_and_paintable(scales: usize) {
     let mut b = Trainer::new(config(4), &r, &env, vec![d.as_ref()], dev.clone(), &init).unwrap();
     b.step().unwrap();
     b.step().unwrap();
-    attack::save_checkpoint(dir.path(), &b.state).unwrap();
+    attack::checkpoint::save(dir.path(), &b.state).unwrap();
     drop(b);
     let mut c = Trainer::new(config(4), &r, &env, vec![d.as_ref()], dev, &init)
         .unwrap()

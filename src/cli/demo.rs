@@ -6,8 +6,8 @@
 //! sheets draw each detector's boxes and labels.
 
 use super::{device, train};
-use anyhow::{bail, Result};
-use cac::attack::{AttackConfig, Trainer};
+use anyhow::Result;
+use cac::attack::{run::RunDir, AttackConfig, Trainer};
 use cac::config::SceneConfig;
 use cac::detect::Detector;
 use cac::environment::{Environment, ViewpointSet};
@@ -99,8 +99,8 @@ pub fn run(a: Args) -> Result<()> {
     );
     let before = score("original", &original)?;
 
-    let run_dir = a.out.join("run");
-    let mut tr = Trainer::new(
+    let run = RunDir::open_or_create(&a.out.join("run"), cfg.clone(), attack.clone())?;
+    let tr = Trainer::new(
         attack.clone(),
         &renderer,
         &env,
@@ -108,21 +108,8 @@ pub fn run(a: Args) -> Result<()> {
         device::training(),
         &original,
     )?;
-    if run_dir.join("run.json").exists() {
-        let old: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(run_dir.join("run.json"))?)?;
-        let same = serde_json::to_value(&attack)?;
-        let mut was = old["attack"].clone();
-        if let (Some(w), Some(s)) = (was.as_object_mut(), same.as_object()) {
-            w.insert("iterations".into(), s["iterations"].clone());
-        }
-        if was != same || old["scene"] != serde_json::to_value(&cfg)? {
-            bail!(
-                "{} holds a run with other settings; remove it or pass another --out",
-                run_dir.display()
-            );
-        }
-        tr = tr.resume(&run_dir)?;
+    let mut tr = run.resume(tr)?;
+    if tr.state.iteration > 0 {
         println!(
             "resuming the demo's run at iteration {}",
             tr.state.iteration
@@ -133,7 +120,7 @@ pub fn run(a: Args) -> Result<()> {
          batch 2, protocol distances) ...",
         a.iterations
     );
-    train::train_loop(&mut tr, &run_dir, &cfg, true)?;
+    run.train(&mut tr, true)?;
     let learned = tr.atlas();
     println!("scoring the learned texture on the same views ...");
     let after = score("learned", &learned)?;

@@ -7,7 +7,7 @@
 
 use super::{demo, device, eval::parse_sets, train};
 use anyhow::{bail, Context, Result};
-use cac::attack::{AttackConfig, Trainer};
+use cac::attack::{run::RunDir, AttackConfig, Trainer};
 use cac::config::SceneConfig;
 use cac::environment::{Environment, ViewpointSet};
 use cac::eval::job::{self, EvalJob};
@@ -98,34 +98,16 @@ fn topn(a: TopnArgs) -> Result<()> {
             viewpoints: ViewpointSet::Free,
             ..Default::default()
         };
-        let mut tr = Trainer::new(
-            ac.clone(),
+        let run = RunDir::open_or_create(&dir, cfg.clone(), ac.clone())?;
+        let tr = Trainer::new(
+            ac,
             &renderer,
             &env,
             src.clone(),
             device::training(),
             &original,
         )?;
-        if dir.join("run.json").exists() {
-            let run: serde_json::Value =
-                serde_json::from_slice(&std::fs::read(dir.join("run.json"))?)
-                    .with_context(|| format!("{}: malformed run.json", dir.display()))?;
-            let old: AttackConfig = serde_json::from_value(run["attack"].clone())
-                .with_context(|| format!("{}: run.json attack settings", dir.display()))?;
-            let same = |c: &AttackConfig| AttackConfig {
-                iterations: 0,
-                ..c.clone()
-            };
-            if same(&old) != same(&ac) || run["scene"] != serde_json::to_value(&cfg)? {
-                bail!(
-                    "{} holds a run with other settings (n = {}, models {:?}, or another scene); use another --out",
-                    dir.display(),
-                    old.top_n,
-                    old.models
-                );
-            }
-            tr = tr.resume(&dir)?;
-        }
+        let mut tr = run.resume(tr)?;
         let it = tr.state.iteration;
         if it >= a.iterations {
             println!("n = {n}: reusing the finished run in {}", dir.display());
@@ -136,7 +118,7 @@ fn topn(a: TopnArgs) -> Result<()> {
                 dir.display()
             );
         }
-        train::train_loop(&mut tr, &dir, &cfg, true)?;
+        run.train(&mut tr, true)?;
         specs.push(format!("{}={}", study::run_name(n), dir.display()));
     }
 

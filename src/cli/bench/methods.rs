@@ -6,8 +6,7 @@
 use super::timer::Stopwatch;
 use crate::cli::{demo, device, train};
 use anyhow::Result;
-use cac::attack::baselines::PatchTrainer;
-use cac::attack::{AttackConfig, Method, Run, Trainer};
+use cac::attack::{AttackConfig, Method, Trainer};
 use cac::config;
 use cac::environment::{street_views, Brightness, Environment};
 use cac::eval::{self, Protocol};
@@ -99,21 +98,9 @@ pub fn run(iterations: usize, views_per_level: usize, csv: &Path) -> Result<()> 
             checkpoint_every: 0,
             ..Default::default()
         };
-        let dev = device::training();
-        let mut tr: Box<dyn Run> = if method.is_2d() {
-            Box::new(PatchTrainer::new(
-                ac,
-                &r,
-                &env,
-                vec![all[0]],
-                dev,
-                &original,
-            )?)
-        } else {
-            Box::new(Trainer::new(ac, &r, &env, vec![all[0]], dev, &original)?)
-        };
+        let mut tr = Trainer::new(ac, &r, &env, vec![all[0]], device::training(), &original)?;
         let t = Stopwatch::start();
-        while tr.state().iteration < iterations {
+        while tr.state.iteration < iterations {
             tr.step()?;
         }
         report(method.name(), t.secs(), &tr.atlas())?;
