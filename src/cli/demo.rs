@@ -37,14 +37,9 @@ pub struct Args {
     pub view_seed: u64,
 }
 
-/// The demo's scene: the training preset (the protocol's distribution, 320² renders).
-pub fn demo_scene() -> SceneConfig {
-    SceneConfig::training()
-}
-
 pub fn run(a: Args) -> Result<()> {
     let start = Instant::now();
-    let cfg = demo_scene();
+    let cfg = SceneConfig::training();
     let scene = cfg.object.load()?;
     let original = scene.initial_atlas(cfg.render.atlas_res);
     let renderer = Renderer::new(scene, cfg.render.clone())?;

@@ -5,7 +5,7 @@
 //! topn.md, topn.html; the full evaluation report in OUT/eval/). Defaults are small so the study finishes
 //! on a laptop in minutes; `--iterations 2000 --views 200 --size 512` approaches the paper's.
 
-use super::{demo, device, eval::parse_sets, train};
+use super::{device, eval::parse_sets, train};
 use anyhow::{bail, Context, Result};
 use cac::attack::{run::RunDir, AttackConfig, Trainer};
 use cac::config::SceneConfig;
@@ -73,11 +73,18 @@ fn topn(a: TopnArgs) -> Result<()> {
     let cfg = match &a.config {
         Some(p) => SceneConfig::from_file(p)?,
         None => {
-            let mut c = demo::demo_scene();
+            let mut c = SceneConfig::training();
             c.object.mesh = "pickup".into();
             c
         }
     };
+    let specs = train_runs(&a, &cfg)?;
+    evaluate(&a, &cfg, specs)
+}
+
+/// Trains (or reuses, or resumes) one run per n in OUT/n<N>/; returns the texture specs for the
+/// evaluation, the original first.
+fn train_runs(a: &TopnArgs, cfg: &SceneConfig) -> Result<Vec<String>> {
     let scene = cfg.object.load()?;
     let original = scene.initial_atlas(cfg.render.atlas_res);
     let renderer = Renderer::new(scene, cfg.render.clone())?;
@@ -121,7 +128,11 @@ fn topn(a: TopnArgs) -> Result<()> {
         run.train(&mut tr, true)?;
         specs.push(format!("{}={}", study::run_name(n), dir.display()));
     }
+    Ok(specs)
+}
 
+/// Evaluates the textures with the protocol and writes the study's table, plot and pages.
+fn evaluate(a: &TopnArgs, cfg: &SceneConfig, specs: Vec<String>) -> Result<()> {
     let mut eval_scene = cfg.clone();
     if let Some(s) = a.size {
         (eval_scene.render.width, eval_scene.render.height) = (s, s);

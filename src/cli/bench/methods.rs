@@ -4,7 +4,7 @@
 //! (transfer). Prints a table and writes a CSV. A benchmark, not a test.
 
 use super::timer::Stopwatch;
-use crate::cli::{demo, device, train};
+use crate::cli::{device, train};
 use anyhow::Result;
 use cac::attack::{AttackConfig, Method, Trainer};
 use cac::config;
@@ -16,7 +16,7 @@ use cac::scene::textures::{self, Kind};
 use std::path::Path;
 
 pub fn run(iterations: usize, views_per_level: usize, csv: &Path) -> Result<()> {
-    let cfg = demo::demo_scene();
+    let cfg = config::SceneConfig::training();
     let scene = cfg.object.load()?;
     let res = cfg.render.atlas_res;
     let original = scene.initial_atlas(res);
