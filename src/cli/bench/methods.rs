@@ -6,6 +6,7 @@
 use super::timer::Stopwatch;
 use crate::cli::{device, train};
 use anyhow::Result;
+use cac::attack::baselines::atlas::{paint, paintable_texels};
 use cac::attack::{AttackConfig, Method, Trainer};
 use cac::config;
 use cac::environment::{street_views, Brightness, Environment};
@@ -31,25 +32,8 @@ pub fn run(iterations: usize, views_per_level: usize, csv: &Path) -> Result<()> 
         target: Some(0),
         ..Default::default()
     };
-    let mask = cac::attack::baselines::atlas::paintable_texels(&r.scene, res);
-    let mut rows = Table::new([
-        "texture",
-        "train_s",
-        "nanodet_p05",
-        "nanodet_person",
-        "centernet_p05",
-        "centernet_person",
-    ]);
-    println!("{} views (416², 4 spp); P@0.5 = car/truck at IoU >= 0.5, conf >= 0.3; {iterations} iterations, batch 2, n = 300, target person", views.len());
-    println!(
-        "{:<13} {:>8} {:>12} {:>15} {:>14} {:>17}",
-        "texture",
-        "train_s",
-        "nanodet P@.5",
-        "nanodet person",
-        "centernet P@.5",
-        "centernet person"
-    );
+    let mask = paintable_texels(&r.scene, res);
+    let mut rows = header(views.len(), iterations);
     let mut report = |name: &str, secs: f64, atlas: &cac::scene::Texture| -> Result<()> {
         let out = eval::evaluate(
             &eval_r,
@@ -81,13 +65,7 @@ pub fn run(iterations: usize, views_per_level: usize, csv: &Path) -> Result<()> 
     report("original", 0.0, &original)?;
     for kind in [Kind::Natural, Kind::Naive, Kind::Random] {
         // Simple textures go on the paintable texels only, like every attack's atlas.
-        let t = textures::generate(kind, res, 0)?;
-        let mut a = original.clone();
-        for (k, m) in mask.iter().enumerate() {
-            if *m {
-                a.texels[k] = t.texels[k];
-            }
-        }
+        let a = paint(&original, &textures::generate(kind, res, 0)?, &mask);
         report(&format!("{kind:?}").to_lowercase(), 0.0, &a)?;
     }
     for method in Method::ALL {
@@ -108,4 +86,26 @@ pub fn run(iterations: usize, views_per_level: usize, csv: &Path) -> Result<()> 
     cac::io::write_atomic(csv, rows.csv().as_bytes())?;
     println!("wrote {}", csv.display());
     Ok(())
+}
+
+/// Prints the table's heading; returns the CSV table.
+fn header(views: usize, iterations: usize) -> Table {
+    println!("{views} views (416², 4 spp); P@0.5 = car/truck at IoU >= 0.5, conf >= 0.3; {iterations} iterations, batch 2, n = 300, target person");
+    println!(
+        "{:<13} {:>8} {:>12} {:>15} {:>14} {:>17}",
+        "texture",
+        "train_s",
+        "nanodet P@.5",
+        "nanodet person",
+        "centernet P@.5",
+        "centernet person"
+    );
+    Table::new([
+        "texture",
+        "train_s",
+        "nanodet_p05",
+        "nanodet_person",
+        "centernet_p05",
+        "centernet_person",
+    ])
 }

@@ -134,13 +134,7 @@ fn texture(name: &str, original: &Texture, mask: &[bool]) -> Result<Texture> {
         })?;
         textures::generate(kind, original.width, 0)?
     };
-    let mut a = original.clone();
-    for (k, m) in mask.iter().enumerate() {
-        if *m {
-            a.texels[k] = t.texels[k];
-        }
-    }
-    Ok(a)
+    Ok(cac::attack::baselines::atlas::paint(original, &t, mask))
 }
 
 /// What every row shares: the flags, the scene config, the detectors and the protocol.
