@@ -147,20 +147,7 @@ fn error_against_time(
         ..Default::default()
     };
     let inf = device::inference();
-    println!("\nwhite-box error against training time: nanodet, target \"person\", demo scene (320², 1 spp), {} street-level views (416², 4 spp)", views.len());
-    println!(
-        "{:>5} {:>5} {:>7} {:>10} {:>10} {:>7} {:>14}",
-        "batch", "n", "texture", "iterations", "train_s", "P@0.5", "person_success"
-    );
-    let mut rows = Table::new([
-        "batch",
-        "n",
-        "texture_res",
-        "iterations",
-        "train_s",
-        "p_at_05",
-        "targeted_success",
-    ]);
+    let mut rows = error_header(views.len());
     for (batch, n, res) in settings {
         let mut c = dcfg.clone();
         c.render.atlas_res = res;
@@ -213,6 +200,24 @@ fn error_against_time(
     cac::io::write_atomic(&p, rows.csv().as_bytes())?;
     println!("wrote {}", p.display());
     Ok(())
+}
+
+/// Prints the error table's heading for `views` views; returns the CSV table.
+fn error_header(views: usize) -> Table {
+    println!("\nwhite-box error against training time: nanodet, target \"person\", demo scene (320², 1 spp), {} street-level views (416², 4 spp)", views);
+    println!(
+        "{:>5} {:>5} {:>7} {:>10} {:>10} {:>7} {:>14}",
+        "batch", "n", "texture", "iterations", "train_s", "P@0.5", "person_success"
+    );
+    Table::new([
+        "batch",
+        "n",
+        "texture_res",
+        "iterations",
+        "train_s",
+        "p_at_05",
+        "targeted_success",
+    ])
 }
 
 /// `BATCHxNxRES,...` → `(batch, n, res)` triples.

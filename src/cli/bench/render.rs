@@ -130,31 +130,7 @@ pub fn run(a: Args) -> Result<()> {
 
 /// BVH build and ray throughput per scene, 1 and 2 threads, beside Embree: render_rays.csv.
 fn rays(a: &Args) -> Result<()> {
-    let mut csv = Table::new([
-        "scene",
-        "triangles",
-        "bvh_build_ms",
-        "threads",
-        "rays",
-        "seconds",
-        "mrays_per_s",
-        "gbuffer_ms",
-        "hits",
-        "embree_build_ms",
-        "embree_mrays_per_s",
-        "embree_hits",
-    ]);
-    println!(
-        "{:<11} {:>9} {:>9} {:>7} {:>10} {:>11} {:>13} {:>12}",
-        "scene",
-        "triangles",
-        "build ms",
-        "threads",
-        "Mrays/s",
-        "embree Mr/s",
-        "cac / embree",
-        "G-buffer ms"
-    );
+    let mut csv = rays_header();
     let settings = RenderSettings {
         width: a.size,
         height: a.size,
@@ -224,6 +200,36 @@ fn rays(a: &Args) -> Result<()> {
         }
     }
     cac::io::write_atomic(&a.out.join("render_rays.csv"), csv.csv().as_bytes())
+}
+
+/// Prints the ray table's heading; returns the CSV table.
+fn rays_header() -> Table {
+    let t = Table::new([
+        "scene",
+        "triangles",
+        "bvh_build_ms",
+        "threads",
+        "rays",
+        "seconds",
+        "mrays_per_s",
+        "gbuffer_ms",
+        "hits",
+        "embree_build_ms",
+        "embree_mrays_per_s",
+        "embree_hits",
+    ]);
+    println!(
+        "{:<11} {:>9} {:>9} {:>7} {:>10} {:>11} {:>13} {:>12}",
+        "scene",
+        "triangles",
+        "build ms",
+        "threads",
+        "Mrays/s",
+        "embree Mr/s",
+        "cac / embree",
+        "G-buffer ms"
+    );
+    t
 }
 
 /// Seconds of the fastest closest-hit pass over `g0`'s rays (the same work as Embree's: the
