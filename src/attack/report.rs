@@ -2,7 +2,7 @@
 //! learned camouflage (`views.png`) and the loss curve (`loss.png`, drawn with `plotters`).
 //!
 //! Plots are drawn by `cac::report::plot` (text only when a system font is found). Not here:
-//! writing files (the CLI does, atomically).
+//! writing files (the run folder does, atomically: [`super::run`]).
 
 use super::IterationLog;
 use crate::environment::street_views;
