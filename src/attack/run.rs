@@ -62,6 +62,17 @@ pub struct RunDir {
 }
 
 impl RunDir {
+    /// A run of these settings in `path`, started over where it has no checkpoint.
+    fn new(path: &Path, scene: SceneConfig, attack: AttackConfig) -> Result<RunDir> {
+        attack.validate()?;
+        Ok(RunDir {
+            path: path.to_path_buf(),
+            scene,
+            attack,
+            must_resume: false,
+        })
+    }
+
     /// A new run in `path` (created on the first write); refuses a folder that holds a run.
     pub fn create(path: &Path, scene: SceneConfig, attack: AttackConfig) -> Result<RunDir> {
         if path.join("run.json").exists() {
@@ -71,13 +82,7 @@ impl RunDir {
                 path.display()
             );
         }
-        attack.validate()?;
-        Ok(RunDir {
-            path: path.to_path_buf(),
-            scene,
-            attack,
-            must_resume: false,
-        })
+        RunDir::new(path, scene, attack)
     }
 
     /// The run in `path` with the settings its run.json records; it continues from its last
@@ -121,13 +126,7 @@ impl RunDir {
                 diff.join("; ")
             );
         }
-        attack.validate()?;
-        Ok(RunDir {
-            path: path.to_path_buf(),
-            scene,
-            attack,
-            must_resume: false,
-        })
+        RunDir::new(path, scene, attack)
     }
 
     /// Whether the folder holds a checkpoint to continue from.
