@@ -143,7 +143,10 @@ fn tensor_composite_equals_cpu_composite() {
     let plan = cac::environment::plan(&r, &env, &c).unwrap();
     let atlas = r.scene.initial_atlas(64);
     let cpu = plan.render_cpu(&atlas);
-    let t = render::composite(&[plan.clone()], render::atlas_tensor(&atlas, &device()));
+    let t = render::composite(
+        std::slice::from_ref(&plan),
+        render::atlas_tensor(&atlas, &device()),
+    );
     let v = data_f64(&t);
     let mut worst = 0.0f64;
     for (p, px) in cpu.iter().enumerate() {

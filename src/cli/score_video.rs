@@ -170,13 +170,16 @@ pub fn run(a: Args) -> Result<()> {
     print_scores(&a, &scores, &notes)
 }
 
+/// Video times in seconds.
+type Times = Vec<f64>;
+
 /// The ground truth the flags name, and with `--at-log` the times to score (video seconds).
 /// `creation` is the video's creation time (Unix seconds) where it records one.
 fn ground_truth(
     a: &Args,
     creation: Option<f64>,
     size: (u32, u32),
-) -> Result<(Box<dyn GroundTruth>, Option<Vec<f64>>)> {
+) -> Result<(Box<dyn GroundTruth>, Option<Times>)> {
     let p = match (&a.annotations, &a.log) {
         (Some(p), None) => return Ok((Box::new(Annotations::load(p)?), None)),
         (None, Some(p)) => p,
