@@ -8,7 +8,7 @@
 use super::{device, train};
 use anyhow::Result;
 use cac::attack::{run::RunDir, AttackConfig, Trainer};
-use cac::config::SceneConfig;
+use cac::config::{SceneConfig, Stage};
 use cac::detect::Detector;
 use cac::environment::{Environment, ViewpointSet};
 use cac::eval::run::{
@@ -43,9 +43,11 @@ pub struct Args {
 pub fn run(a: Args) -> Result<()> {
     let start = Instant::now();
     let cfg = SceneConfig::training();
-    let scene = cfg.object.load()?;
-    let original = scene.initial_atlas(cfg.render.atlas_res);
-    let renderer = Renderer::new(scene, cfg.render.clone())?;
+    let Stage {
+        renderer,
+        env,
+        original,
+    } = cfg.stage()?;
     // Scored as `cac eval` renders by default: 512², 4 samples per pixel.
     let eval_renderer = Renderer::new(
         renderer.scene.clone(),
@@ -56,7 +58,6 @@ pub fn run(a: Args) -> Result<()> {
             ..cfg.render.clone()
         },
     )?;
-    let env = Environment::new(cfg.environment.clone())?;
     println!("loading detectors (fetched once into the cache on first use) ...");
     let dets = train::load_detectors(&["nanodet".into(), "centernet".into()])?;
     let all: Vec<&dyn Detector> = dets.iter().map(|d| d.as_ref()).collect();

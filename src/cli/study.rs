@@ -8,12 +8,11 @@
 use super::{device, eval::parse_sets, train};
 use anyhow::{bail, Context, Result};
 use cac::attack::{run::RunDir, AttackConfig, Trainer};
-use cac::config::SceneConfig;
-use cac::environment::{Environment, ViewpointSet};
+use cac::config::{SceneConfig, Stage};
+use cac::environment::ViewpointSet;
 use cac::eval::job::{self, EvalJob};
 use cac::eval::run::ViewPlan;
 use cac::eval::{study, Protocol};
-use cac::render::Renderer;
 use cac::report::Html;
 use std::path::PathBuf;
 
@@ -85,10 +84,11 @@ fn topn(a: TopnArgs) -> Result<()> {
 /// Trains (or reuses, or resumes) one run per n in OUT/n<N>/; returns the texture specs for the
 /// evaluation, the original first.
 fn train_runs(a: &TopnArgs, cfg: &SceneConfig) -> Result<Vec<String>> {
-    let scene = cfg.object.load()?;
-    let original = scene.initial_atlas(cfg.render.atlas_res);
-    let renderer = Renderer::new(scene, cfg.render.clone())?;
-    let env = Environment::new(cfg.environment.clone())?;
+    let Stage {
+        renderer,
+        env,
+        original,
+    } = cfg.stage()?;
     let sources = train::load_detectors(&a.models)?;
     let src: Vec<&dyn cac::detect::Detector> = sources.iter().map(|d| d.as_ref()).collect();
     let mut specs = vec!["original".to_string()];

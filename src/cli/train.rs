@@ -7,8 +7,7 @@ use anyhow::{Context, Result};
 use cac::attack::{run::RunDir, AttackConfig, Method, Trainer};
 use cac::config::SceneConfig;
 use cac::detect::{self, Detector};
-use cac::environment::{Environment, ViewpointSet};
-use cac::render::Renderer;
+use cac::environment::ViewpointSet;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -93,22 +92,19 @@ pub fn run(a: Args) -> Result<()> {
             a.target
         );
     }
-    let cfg = &run.scene;
-    let scene = cfg.object.load()?;
+    let stage = run.scene.stage()?;
     let init = match &a.init {
         Some(p) => cac::scene::Texture::from_rgb8(
             &cac::io::load_rgb(p).with_context(|| format!("--init {}", p.display()))?,
         ),
-        None => scene.initial_atlas(cfg.render.atlas_res),
+        None => stage.original.clone(),
     };
-    let renderer = Renderer::new(scene, cfg.render.clone())?;
-    let env = Environment::new(cfg.environment.clone())?;
     let dets = load_detectors(&run.attack.models)?;
     let dets_ref: Vec<&dyn Detector> = dets.iter().map(|d| d.as_ref()).collect();
     let tr = Trainer::new(
         run.attack.clone(),
-        &renderer,
-        &env,
+        &stage.renderer,
+        &stage.env,
         dets_ref,
         device::training(),
         &init,

@@ -79,9 +79,11 @@ pub fn run(a: Args) -> Result<()> {
 /// (1) The iteration time split on the default scene (512², 4 spp, 512² atlas); returns the scene.
 fn time_split(a: &Args, det: &[&dyn Detector]) -> Result<Scene> {
     let cfg = SceneConfig::default();
-    let renderer = Renderer::new(cfg.object.load()?, cfg.render.clone())?;
-    let env = Environment::new(cfg.environment.clone())?;
-    let init = renderer.scene.initial_atlas(cfg.render.atlas_res);
+    let config::Stage {
+        renderer,
+        env,
+        original: init,
+    } = cfg.stage()?;
     println!("iteration time, nanodet, n = 300, {}x{} renders ({} spp), {}² atlas, CPU (median of {} after 1 warm-up)", cfg.render.width, cfg.render.height, cfg.render.samples, cfg.render.atlas_res, a.runs);
     println!(
         "{:>5} {:>10} {:>11} {:>12} {:>13} {:>9}",

@@ -5,10 +5,10 @@
 use super::timer::Stopwatch;
 use crate::cli::{device, train};
 use anyhow::{bail, Result};
-use cac::config::SceneConfig;
-use cac::environment::{self, Brightness, Environment, ViewpointSet};
+use cac::config::{SceneConfig, Stage};
+use cac::environment::{self, Brightness, ViewpointSet};
 use cac::eval::{score_image, Protocol};
-use cac::render::{self, Renderer};
+use cac::render;
 use cac::report::Table;
 use std::path::PathBuf;
 
@@ -40,10 +40,11 @@ pub fn run(a: Args) -> Result<()> {
     let mut cfg = SceneConfig::default();
     cfg.object.mesh = a.object.clone();
     (cfg.render.width, cfg.render.height, cfg.render.samples) = (a.size, a.size, a.samples);
-    let scene = cfg.object.load()?;
-    let atlas = scene.initial_atlas(cfg.render.atlas_res);
-    let r = Renderer::new(scene, cfg.render.clone())?;
-    let env = Environment::new(cfg.environment.clone())?;
+    let Stage {
+        renderer: r,
+        env,
+        original: atlas,
+    } = cfg.stage()?;
     let dets = train::load_detectors(&a.models)?;
     let dev = device::inference();
     let p = Protocol::default();

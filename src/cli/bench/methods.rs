@@ -9,7 +9,7 @@ use anyhow::Result;
 use cac::attack::baselines::atlas::{paint, paintable_texels};
 use cac::attack::{AttackConfig, Method, Trainer};
 use cac::config;
-use cac::environment::{street_views, Brightness, Environment};
+use cac::environment::{street_views, Brightness};
 use cac::eval::{self, Protocol};
 use cac::render::Renderer;
 use cac::report::Table;
@@ -18,12 +18,13 @@ use std::path::Path;
 
 pub fn run(iterations: usize, views_per_level: usize, csv: &Path) -> Result<()> {
     let cfg = config::SceneConfig::training();
-    let scene = cfg.object.load()?;
     let res = cfg.render.atlas_res;
-    let original = scene.initial_atlas(res);
-    let r = Renderer::new(scene, cfg.render.clone())?;
+    let config::Stage {
+        renderer: r,
+        env,
+        original,
+    } = cfg.stage()?;
     let eval_r = Renderer::new(r.scene.clone(), config::eval_render(&cfg.render))?;
-    let env = Environment::new(cfg.environment.clone())?;
     let dets = train::load_detectors(&["nanodet".into(), "centernet".into()])?;
     let all: Vec<&dyn cac::detect::Detector> = dets.iter().map(|d| d.as_ref()).collect();
     let mut views = street_views(views_per_level, 1.5, Brightness::Bright);
