@@ -1,10 +1,11 @@
 //! The scene config (TOML): which object, how it is rendered, and the environment distribution.
 //! Every field has a documented default (`cac config` prints them), so an empty file is valid.
-//! Named presets that several commands share live here too ([`eval_render`]).
+//! Named presets that several commands share live here too ([`eval_render`]), and
+//! [`SceneConfig::stage`], the config made ready to render.
 
-use crate::environment::EnvConfig;
-use crate::render::RenderSettings;
-use crate::scene::{generate, LoadOptions, PaintRule, Scene};
+use crate::environment::{EnvConfig, Environment};
+use crate::render::{RenderSettings, Renderer};
+use crate::scene::{generate, LoadOptions, PaintRule, Scene, Texture};
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -86,16 +87,39 @@ impl SceneConfig {
     /// 0.4 s on 2 cores. `cac train` without `--config`, `cac demo`, `cac study topn` and the
     /// attack benches use it.
     pub fn training() -> SceneConfig {
-        let mut cfg = SceneConfig::default();
-        cfg.render = crate::render::RenderSettings {
-            width: 320,
-            height: 320,
-            samples: 1,
-            vfov_deg: 45.0,
-            atlas_res: 256,
-        };
-        cfg
+        SceneConfig {
+            render: RenderSettings {
+                width: 320,
+                height: 320,
+                samples: 1,
+                vfov_deg: 45.0,
+                atlas_res: 256,
+            },
+            ..Default::default()
+        }
     }
+
+    /// The config made ready: the object loaded into its renderer, the environment, and the
+    /// object's own atlas at the configured resolution.
+    pub fn stage(&self) -> Result<Stage> {
+        let scene = self.object.load()?;
+        let original = scene.initial_atlas(self.render.atlas_res);
+        Ok(Stage {
+            renderer: Renderer::new(scene, self.render.clone())?,
+            env: Environment::new(self.environment.clone())?,
+            original,
+        })
+    }
+}
+
+/// A scene config made ready ([`SceneConfig::stage`]): what training, evaluation and rendering
+/// start from.
+pub struct Stage {
+    /// The renderer, holding the loaded object (`renderer.scene`).
+    pub renderer: Renderer,
+    pub env: Environment,
+    /// The object's own texture as an atlas of the configured resolution.
+    pub original: Texture,
 }
 
 /// The evaluation renderer preset ("416², 4 spp"): street-level views scored at 416 × 416 pixels

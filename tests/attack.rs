@@ -79,7 +79,7 @@ fn resume_and_paintable(scales: usize) {
     let mut b = Trainer::new(config(4), &r, &env, vec![d.as_ref()], dev.clone(), &init).unwrap();
     b.step().unwrap();
     b.step().unwrap();
-    attack::save_checkpoint(dir.path(), &b.state).unwrap();
+    attack::checkpoint::save(dir.path(), &b.state).unwrap();
     drop(b);
     let mut c = Trainer::new(config(4), &r, &env, vec![d.as_ref()], dev, &init)
         .unwrap()
@@ -107,9 +107,7 @@ fn resume_and_paintable(scales: usize) {
     let mut touched = HashSet::new();
     for i in 0..4 {
         for cond in a.conditions(i) {
-            let plan = r
-                .plan(&cond.viewpoint, &env.lighting(&cond), &env.backdrop(&cond))
-                .unwrap();
+            let plan = cac::environment::plan(&r, &env, &cond).unwrap();
             touched.extend(plan.tap_texel.iter().copied());
         }
     }
@@ -175,20 +173,9 @@ fn the_attack_lowers_its_loss_on_a_fixed_view() {
 
 /// The trainer's objective for `atlas` in the views `conds` (no step taken).
 fn loss_on(t: &Trainer, atlas: &Texture, conds: &[Condition]) -> f64 {
-    let plans: Vec<_> = conds
-        .iter()
-        .map(|c| {
-            t.renderer
-                .plan(&c.viewpoint, &t.env.lighting(c), &t.env.backdrop(c))
-                .unwrap()
-        })
-        .collect();
-    let objects: Vec<_> = plans.iter().map(|p| p.object_box).collect();
     let a = cac::render::atlas_tensor(atlas, &inference());
-    let img = cac::environment::photometric(
-        cac::render::composite(&plans, cac::environment::print_error(a, conds)),
-        conds,
-    );
+    let (img, plans) = cac::environment::form(t.renderer, t.env, conds, a).unwrap();
+    let objects: Vec<_> = plans.iter().map(|p| p.object_box).collect();
     let goal = t.config.goal().unwrap();
     let (l, _) = attack::ensemble_loss(&t.detectors, &img, &objects, &t.config, goal).unwrap();
     l.into_data().convert::<f64>().try_to_vec::<f64>().unwrap()[0]
@@ -209,18 +196,9 @@ fn the_fixed_proposals_are_the_candidates_on_the_object() {
     // the object's box in iteration 0's views.
     let mut want = 0;
     for c in t.conditions(0) {
-        let plan = r
-            .plan(&c.viewpoint, &env.lighting(&c), &env.backdrop(&c))
-            .unwrap();
-        let gt = plan.object_box.expect("the object is in view");
         let a = cac::render::atlas_tensor(&init, &inference());
-        let img = cac::environment::photometric(
-            cac::render::composite(
-                std::slice::from_ref(&plan),
-                cac::environment::print_error(a, std::slice::from_ref(&c)),
-            ),
-            std::slice::from_ref(&c),
-        );
+        let (img, plans) = cac::environment::form(&r, &env, std::slice::from_ref(&c), a).unwrap();
+        let gt = plans[0].object_box.expect("the object is in view");
         let boxes: Vec<f32> = d
             .candidates(img)
             .unwrap()
@@ -258,17 +236,13 @@ fn loss_and_gradients_stay_finite_at_environment_extremes() {
         c.noise_std = noise;
         c.channel_mul = [1.3, 0.7, 1.3];
         c.channel_add = [0.15, -0.15, 0.15];
-        let plan = r
-            .plan(&c.viewpoint, &env.lighting(&c), &env.backdrop(&c))
-            .unwrap();
+        let plan = cac::environment::plan(&r, &env, &c).unwrap();
         for goal in [Goal::Targeted(0), Goal::Hide] {
             // burn has no retain_graph: one forward pass per backward.
             let atlas = cac::render::atlas_tensor(&init, &dev).require_grad();
-            let img = cac::environment::photometric(
-                cac::render::composite(
-                    std::slice::from_ref(&plan),
-                    cac::environment::print_error(atlas.clone(), std::slice::from_ref(&c)),
-                ),
+            let img = cac::environment::form_planned(
+                std::slice::from_ref(&plan),
+                atlas.clone(),
                 std::slice::from_ref(&c),
             );
             let cand = d.candidates(img).unwrap();

@@ -2,8 +2,8 @@
 //! changes only paintable texels; the 2D patch transforms keep values in [0, 1]; `cac train`
 //! rejects bad `--method` arguments with clear errors.
 
-use cac::attack::baselines::{atlas, patch2d, PatchTrainer};
-use cac::attack::{AttackConfig, Method, Run, Trainer};
+use cac::attack::baselines::{atlas, patch2d};
+use cac::attack::{AttackConfig, Method, Trainer};
 use cac::detect::{self, Detector};
 use cac::environment::{EnvConfig, Environment};
 use cac::render::{RenderSettings, Renderer};
@@ -62,9 +62,7 @@ fn every_baseline_runs_with_finite_loss_and_changes_only_paintable_texels() {
     let cfg = config(Method::Upc);
     for i in 0..4 {
         for c in cac::attack::draw_conditions(&env, &cfg, i) {
-            let plan = r
-                .plan(&c.viewpoint, &env.lighting(&c), &env.backdrop(&c))
-                .unwrap();
+            let plan = cac::environment::plan(&r, &env, &c).unwrap();
             for &t in &plan.tap_texel {
                 assert!(
                     mask[t as usize],
@@ -81,13 +79,7 @@ fn every_baseline_runs_with_finite_loss_and_changes_only_paintable_texels() {
         Method::Camou,
     ] {
         let cfg = config(method);
-        let mut run: Box<dyn Run> = if method.is_2d() {
-            Box::new(
-                PatchTrainer::new(cfg, &r, &env, vec![d.as_ref()], dev.clone(), &init).unwrap(),
-            )
-        } else {
-            Box::new(Trainer::new(cfg, &r, &env, vec![d.as_ref()], dev.clone(), &init).unwrap())
-        };
+        let mut run = Trainer::new(cfg, &r, &env, vec![d.as_ref()], dev.clone(), &init).unwrap();
         for _ in 0..3 {
             let log = run.step().unwrap();
             assert!(
@@ -131,18 +123,16 @@ fn a_resumed_patch_run_equals_an_uninterrupted_one() {
     let init = r.scene.initial_atlas(48);
     let dev = burn::tensor::Device::autodiff(inference());
     let cfg = config(Method::Advpat);
-    let mut a =
-        PatchTrainer::new(cfg.clone(), &r, &env, vec![d.as_ref()], dev.clone(), &init).unwrap();
+    let mut a = Trainer::new(cfg.clone(), &r, &env, vec![d.as_ref()], dev.clone(), &init).unwrap();
     for _ in 0..3 {
         a.step().unwrap();
     }
     let dir = tempfile::tempdir().unwrap();
-    let mut b =
-        PatchTrainer::new(cfg.clone(), &r, &env, vec![d.as_ref()], dev.clone(), &init).unwrap();
+    let mut b = Trainer::new(cfg.clone(), &r, &env, vec![d.as_ref()], dev.clone(), &init).unwrap();
     b.step().unwrap();
     b.step().unwrap();
-    cac::attack::save_checkpoint(dir.path(), &b.state).unwrap();
-    let mut c = PatchTrainer::new(cfg, &r, &env, vec![d.as_ref()], dev, &init)
+    cac::attack::checkpoint::save(dir.path(), &b.state).unwrap();
+    let mut c = Trainer::new(cfg, &r, &env, vec![d.as_ref()], dev, &init)
         .unwrap()
         .resume(dir.path())
         .unwrap();

@@ -64,9 +64,7 @@ fn blender_matches_cac_in_mask_box_and_mean_colour() {
         .expect("Blender must be installed (CI installs it: .ci/run)");
     assert_eq!(views.len(), conds.len());
     for (i, (c, v)) in conds.iter().zip(&views).enumerate() {
-        let plan = r
-            .plan(&c.viewpoint, &env.lighting(c), &env.backdrop(c))
-            .unwrap();
+        let plan = cac::environment::plan(&r, &env, c).unwrap();
         let ours = plan.object_box.unwrap();
         let theirs = v.object_box.expect("object visible in Blender");
         for k in 0..4 {
@@ -222,9 +220,7 @@ fn with_a_ground_the_box_still_matches_and_the_ground_is_opaque() {
     let v = blender::render_views(&r, &env, &[c.clone()], &atlas, &s, &device())
         .unwrap()
         .remove(0);
-    let plan = r
-        .plan(&c.viewpoint, &env.lighting(&c), &env.backdrop(&c))
-        .unwrap();
+    let plan = cac::environment::plan(&r, &env, &c).unwrap();
     let (ours, theirs) = (plan.object_box.unwrap(), v.object_box.unwrap());
     for k in 0..4 {
         assert!((ours[k] - theirs[k]).abs() <= 1.0, "{ours:?} vs {theirs:?}");

@@ -35,9 +35,7 @@ fn side_view() -> (burn::tensor::Tensor<4>, [f32; 4]) {
     .unwrap();
     let env = Environment::new(EnvConfig::default()).unwrap();
     let c = Condition::plain(Viewpoint::new(80.0, 10.0, 1.5), Brightness::Bright);
-    let plan = r
-        .plan(&c.viewpoint, &env.lighting(&c), &env.backdrop(&c))
-        .unwrap();
+    let plan = cac::environment::plan(&r, &env, &c).unwrap();
     let gt = plan.object_box.unwrap();
     let img = render::composite(&[plan], render::atlas_tensor(&atlas, &inference()));
     (img, gt)

@@ -64,10 +64,7 @@ fn texture_gradient_matches_finite_differences_in_f64() {
     }
     let plans: Vec<_> = conds
         .iter()
-        .map(|c| {
-            r.plan(&c.viewpoint, &env.lighting(c), &env.backdrop(c))
-                .unwrap()
-        })
+        .map(|c| cac::environment::plan(&r, &env, c).unwrap())
         .collect();
     assert!(
         plans.iter().all(|p| !p.tap_pixel.is_empty()),
@@ -87,10 +84,7 @@ fn texture_gradient_matches_finite_differences_in_f64() {
             (&dev, DType::F64),
         );
         let t = if grad { t.require_grad() } else { t };
-        let img = environment::photometric(
-            render::composite(&plans, environment::print_error(t.clone(), &conds)),
-            &conds,
-        );
+        let img = environment::form_planned(&plans, t.clone(), &conds);
         let w = Tensor::<4>::from_data(
             TensorData::new(wimg.clone(), [2, 3, 48, 48]),
             (&dev, DType::F64),
@@ -146,12 +140,13 @@ fn tensor_composite_equals_cpu_composite() {
     let r = jeep_renderer(64, 4, 64);
     let env = Environment::new(EnvConfig::default()).unwrap();
     let c = Condition::plain(Viewpoint::new(40.0, 15.0, 1.5), Brightness::Bright);
-    let plan = r
-        .plan(&c.viewpoint, &env.lighting(&c), &env.backdrop(&c))
-        .unwrap();
+    let plan = cac::environment::plan(&r, &env, &c).unwrap();
     let atlas = r.scene.initial_atlas(64);
     let cpu = plan.render_cpu(&atlas);
-    let t = render::composite(&[plan.clone()], render::atlas_tensor(&atlas, &device()));
+    let t = render::composite(
+        std::slice::from_ref(&plan),
+        render::atlas_tensor(&atlas, &device()),
+    );
     let v = data_f64(&t);
     let mut worst = 0.0f64;
     for (p, px) in cpu.iter().enumerate() {
@@ -168,18 +163,8 @@ fn same_seed_gives_bit_identical_images() {
     let env = Environment::new(EnvConfig::default()).unwrap();
     let run = || {
         let conds = env.sample_n(3, ViewpointSet::Free, Brightness::Dark, 42);
-        let plans: Vec<_> = conds
-            .iter()
-            .map(|c| {
-                r.plan(&c.viewpoint, &env.lighting(c), &env.backdrop(c))
-                    .unwrap()
-            })
-            .collect();
         let a = render::atlas_tensor(&r.scene.initial_atlas(32), &device());
-        data_f64(&environment::photometric(
-            render::composite(&plans, environment::print_error(a, &conds)),
-            &conds,
-        ))
+        data_f64(&environment::form(&r, &env, &conds, a).unwrap().0)
     };
     let (a, b) = (run(), run());
     assert!(
@@ -217,21 +202,13 @@ fn extreme_conditions_stay_finite_and_in_range() {
         c.channel_add = [0.15, -0.15, 0.15];
         c.noise_std = 0.1;
         c.noise_seed = 9;
-        let plan = r
-            .plan(&c.viewpoint, &env.lighting(&c), &env.backdrop(&c))
-            .unwrap();
+        let plan = cac::environment::plan(&r, &env, &c).unwrap();
         assert!(
             plan.object_box.is_some(),
             "object not visible at az {az} el {el} d {d}"
         );
         assert!(plan.tap_weight.iter().all(|w| w.is_finite() && *w >= 0.0));
-        let img = environment::photometric(
-            render::composite(
-                &[plan],
-                environment::print_error(atlas.clone(), &[c.clone()]),
-            ),
-            &[c],
-        );
+        let img = environment::form_planned(&[plan], atlas.clone(), &[c]);
         let v = data_f64(&img);
         assert!(
             v.iter().all(|x| x.is_finite() && (0.0..=1.0).contains(x)),

@@ -11,7 +11,11 @@ pub struct Adam {
     pub eps: f32,
     /// Steps taken.
     pub t: u64,
+    /// First and second moments. Not in the serialised form: a checkpoint stores them as binary
+    /// arrays beside its metadata ([`super::checkpoint`]).
+    #[serde(skip)]
     pub m: Vec<f32>,
+    #[serde(skip)]
     pub v: Vec<f32>,
 }
 

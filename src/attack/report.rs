@@ -2,7 +2,7 @@
 //! learned camouflage (`views.png`) and the loss curve (`loss.png`, drawn with `plotters`).
 //!
 //! Plots are drawn by `cac::report::plot` (text only when a system font is found). Not here:
-//! writing files (the CLI does, atomically).
+//! writing files (the run folder does, atomically: [`super::run`]).
 
 use super::IterationLog;
 use crate::environment::street_views;
@@ -29,15 +29,7 @@ pub fn views_sheet(
             c.brightness = Brightness::Dark;
         }
     }
-    let plans = conds
-        .iter()
-        .map(|c| r.plan(&c.viewpoint, &env.lighting(c), &env.backdrop(c)))
-        .collect::<Result<Vec<_>>>()?;
-    let a = render::atlas_tensor(atlas, device);
-    let img = environment::photometric(
-        render::composite(&plans, environment::print_error(a, &conds)),
-        &conds,
-    );
+    let (img, _) = environment::form(r, env, &conds, render::atlas_tensor(atlas, device))?;
     Ok(render::contact_sheet(&render::to_images(&img)))
 }
 

@@ -6,16 +6,19 @@
 //! sheets draw each detector's boxes and labels.
 
 use super::{device, train};
-use anyhow::{bail, Result};
-use cac::attack::{AttackConfig, Trainer};
-use cac::config::SceneConfig;
+use anyhow::Result;
+use cac::attack::{run::RunDir, AttackConfig, Trainer};
+use cac::config::{SceneConfig, Stage};
 use cac::detect::Detector;
 use cac::environment::{Environment, ViewpointSet};
-use cac::eval::run::{evaluate_texture, level_name, set_name, view_groups, ViewPlan};
+use cac::eval::run::{
+    evaluate_texture, level_name, set_name, view_groups, TextureResult, ViewPlan,
+};
 use cac::eval::summary::{figures, sel};
 use cac::eval::{report::example_image, Protocol};
 use cac::render::{RenderSettings, Renderer};
-use std::path::PathBuf;
+use cac::scene::Texture;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 #[derive(clap::Args, Debug)]
@@ -37,17 +40,14 @@ pub struct Args {
     pub view_seed: u64,
 }
 
-/// The demo's scene: the training preset (the protocol's distribution, 320² renders).
-pub fn demo_scene() -> SceneConfig {
-    SceneConfig::training()
-}
-
 pub fn run(a: Args) -> Result<()> {
     let start = Instant::now();
-    let cfg = demo_scene();
-    let scene = cfg.object.load()?;
-    let original = scene.initial_atlas(cfg.render.atlas_res);
-    let renderer = Renderer::new(scene, cfg.render.clone())?;
+    let cfg = SceneConfig::training();
+    let Stage {
+        renderer,
+        env,
+        original,
+    } = cfg.stage()?;
     // Scored as `cac eval` renders by default: 512², 4 samples per pixel.
     let eval_renderer = Renderer::new(
         renderer.scene.clone(),
@@ -58,19 +58,10 @@ pub fn run(a: Args) -> Result<()> {
             ..cfg.render.clone()
         },
     )?;
-    let env = Environment::new(cfg.environment.clone())?;
     println!("loading detectors (fetched once into the cache on first use) ...");
     let dets = train::load_detectors(&["nanodet".into(), "centernet".into()])?;
     let all: Vec<&dyn Detector> = dets.iter().map(|d| d.as_ref()).collect();
-    let attack = AttackConfig {
-        models: vec!["nanodet".into()],
-        iterations: a.iterations,
-        seed: a.seed,
-        batch: 2,
-        checkpoint_every: 50,
-        viewpoints: ViewpointSet::Free,
-        ..Default::default()
-    };
+    let attack = attack_config(&a);
     let proto = Protocol::from_labels("car,truck", Some(&attack.target))?;
     let plan = ViewPlan {
         views_per_level: a.views,
@@ -79,7 +70,7 @@ pub fn run(a: Args) -> Result<()> {
     };
     let groups = view_groups(&env, &plan);
     let dev = device::inference();
-    let score = |name: &str, atlas: &cac::scene::Texture| {
+    let score = |name: &str, atlas: &Texture| {
         evaluate_texture(
             &eval_renderer,
             &env,
@@ -99,30 +90,71 @@ pub fn run(a: Args) -> Result<()> {
     );
     let before = score("original", &original)?;
 
-    let run_dir = a.out.join("run");
-    let mut tr = Trainer::new(
-        attack.clone(),
-        &renderer,
-        &env,
-        vec![all[0]],
-        device::training(),
-        &original,
+    let (learned, iterations) = train(&a, &cfg, &attack, &renderer, &env, all[0], &original)?;
+    println!("scoring the learned texture on the same views ...");
+    let after = score("learned", &learned)?;
+
+    let rows = print_results(&a, &cfg, &before, &after);
+    let (sheets, sheet_views) = write_images(&a.out, &original, &learned, &before, &after)?;
+    let summary = serde_json::json!({
+        "protocol": proto,
+        "views": plan,
+        "scene": cfg,
+        "attack": attack,
+        "iterations": iterations,
+        "results": rows,
+        "sheets": sheets,
+        "sheet_views": sheet_views,
+        "seconds": start.elapsed().as_secs_f64(),
+    });
+    cac::io::write_atomic(
+        &a.out.join("summary.json"),
+        serde_json::to_string_pretty(&summary)?.as_bytes(),
     )?;
-    if run_dir.join("run.json").exists() {
-        let old: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(run_dir.join("run.json"))?)?;
-        let same = serde_json::to_value(&attack)?;
-        let mut was = old["attack"].clone();
-        if let (Some(w), Some(s)) = (was.as_object_mut(), same.as_object()) {
-            w.insert("iterations".into(), s["iterations"].clone());
-        }
-        if was != same || old["scene"] != serde_json::to_value(&cfg)? {
-            bail!(
-                "{} holds a run with other settings; remove it or pass another --out",
-                run_dir.display()
-            );
-        }
-        tr = tr.resume(&run_dir)?;
+    println!(
+        "\nwrote {} (atlases, before/after view sheets with each detector's boxes, summary.json, \
+         run/) in {:.0} s",
+        a.out.display(),
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+/// The demo's attack: NanoDet, target "person", batch 2, checkpoints every 50 iterations.
+fn attack_config(a: &Args) -> AttackConfig {
+    AttackConfig {
+        models: vec!["nanodet".into()],
+        iterations: a.iterations,
+        seed: a.seed,
+        batch: 2,
+        checkpoint_every: 50,
+        viewpoints: ViewpointSet::Free,
+        ..Default::default()
+    }
+}
+
+/// Trains (or resumes) the demo's run in OUT/run; returns the learned atlas and the iteration
+/// reached.
+fn train(
+    a: &Args,
+    cfg: &SceneConfig,
+    attack: &AttackConfig,
+    renderer: &Renderer,
+    env: &Environment,
+    source: &dyn Detector,
+    original: &Texture,
+) -> Result<(Texture, usize)> {
+    let run = RunDir::open_or_create(&a.out.join("run"), cfg.clone(), attack.clone())?;
+    let tr = Trainer::new(
+        attack.clone(),
+        renderer,
+        env,
+        vec![source],
+        device::training(),
+        original,
+    )?;
+    let mut tr = run.resume(tr)?;
+    if tr.state.iteration > 0 {
         println!(
             "resuming the demo's run at iteration {}",
             tr.state.iteration
@@ -133,11 +165,17 @@ pub fn run(a: Args) -> Result<()> {
          batch 2, protocol distances) ...",
         a.iterations
     );
-    train::train_loop(&mut tr, &run_dir, &cfg, true)?;
-    let learned = tr.atlas();
-    println!("scoring the learned texture on the same views ...");
-    let after = score("learned", &learned)?;
+    run.train(&mut tr, true)?;
+    Ok((tr.atlas(), tr.state.iteration))
+}
 
+/// Prints the before/after table; returns its rows for summary.json.
+fn print_results(
+    a: &Args,
+    cfg: &SceneConfig,
+    before: &TextureResult,
+    after: &TextureResult,
+) -> Vec<serde_json::Value> {
     println!(
         "\n{} protocol views (cac eval's: FV and RV x bright and dark, {} each; distance ratio \
          {:?}, elevation {:?} deg; view seed {}, training seed {}); 512², 4 spp.\nhit = car/truck \
@@ -177,19 +215,31 @@ pub fn run(a: Args) -> Result<()> {
             }));
         }
     }
-    std::fs::create_dir_all(&a.out)?;
-    cac::io::save_png_atomic(&a.out.join("atlas_original.png"), &original.to_rgb8())?;
-    cac::io::save_png_atomic(&a.out.join("atlas_learned.png"), &learned.to_rgb8())?;
+    rows
+}
+
+/// Writes both atlases and the before/after view sheets per detector; returns the sheets' names
+/// and the views they show.
+fn write_images(
+    out: &Path,
+    original: &Texture,
+    learned: &Texture,
+    before: &TextureResult,
+    after: &TextureResult,
+) -> Result<(Vec<String>, Vec<String>)> {
+    std::fs::create_dir_all(out)?;
+    cac::io::save_png_atomic(&out.join("atlas_original.png"), &original.to_rgb8())?;
+    cac::io::save_png_atomic(&out.join("atlas_learned.png"), &learned.to_rgb8())?;
     let mut sheets = vec![];
     for (m, model) in ["nanodet", "centernet"].iter().enumerate() {
-        for (tex, r) in [("original", &before), ("learned", &after)] {
+        for (tex, r) in [("original", before), ("learned", after)] {
             let imgs: Vec<_> = r
                 .examples
                 .iter()
                 .map(|e| example_image(e, m, 320))
                 .collect();
             let name = format!("views_{tex}_{model}.png");
-            cac::io::save_png_atomic(&a.out.join(&name), &cac::render::contact_sheet(&imgs))?;
+            cac::io::save_png_atomic(&out.join(&name), &cac::render::contact_sheet(&imgs))?;
             sheets.push(name);
         }
     }
@@ -205,26 +255,5 @@ pub fn run(a: Args) -> Result<()> {
             )
         })
         .collect();
-    let summary = serde_json::json!({
-        "protocol": proto,
-        "views": plan,
-        "scene": cfg,
-        "attack": attack,
-        "iterations": tr.state.iteration,
-        "results": rows,
-        "sheets": sheets,
-        "sheet_views": sheet_views,
-        "seconds": start.elapsed().as_secs_f64(),
-    });
-    cac::io::write_atomic(
-        &a.out.join("summary.json"),
-        serde_json::to_string_pretty(&summary)?.as_bytes(),
-    )?;
-    println!(
-        "\nwrote {} (atlases, before/after view sheets with each detector's boxes, summary.json, \
-         run/) in {:.0} s",
-        a.out.display(),
-        start.elapsed().as_secs_f64()
-    );
-    Ok(())
+    Ok((sheets, sheet_views))
 }

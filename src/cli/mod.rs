@@ -4,7 +4,6 @@ use anyhow::Result;
 use clap::{Parser, Subcommand};
 
 pub mod bench;
-pub mod bench_attack;
 pub mod capture;
 pub mod config;
 pub mod demo;
@@ -86,7 +85,7 @@ pub enum BenchCmd {
     /// Bake error against triangles and seconds for several subdivision limits.
     Export(export::BenchArgs),
     /// The attack: iteration time split, and white-box error against wall time.
-    Attack(bench_attack::Args),
+    Attack(bench::attack::Args),
     /// Offline video scoring: decode frames/s and scored frames/s per detector and codec.
     Video(bench::video::Args),
     /// Evaluation throughput: images scored per second (render + detect + score) per detector.
@@ -116,7 +115,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Bench(BenchCmd::Render(a)) => bench::render::run(a),
         Command::Bench(BenchCmd::Detect(a)) => bench::detect::run(a),
         Command::Bench(BenchCmd::Export(a)) => export::bench(a),
-        Command::Bench(BenchCmd::Attack(a)) => bench_attack::run(a),
+        Command::Bench(BenchCmd::Attack(a)) => bench::attack::run(a),
         Command::Bench(BenchCmd::Video(a)) => bench::video::run(a),
         Command::Bench(BenchCmd::Eval(a)) => bench::eval::run(a),
         Command::Bench(BenchCmd::Realism(a)) => bench::realism::run(a),

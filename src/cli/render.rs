@@ -2,7 +2,7 @@
 
 use super::device;
 use anyhow::{bail, Result};
-use cac::config::SceneConfig;
+use cac::config::{SceneConfig, Stage};
 use cac::environment::{self, Brightness, Condition, Environment, ViewpointSet};
 use cac::render::{self, Renderer, Viewpoint};
 use clap::Args as ClapArgs;
@@ -79,14 +79,16 @@ pub fn run(a: Args) -> Result<()> {
         BrightnessArg::Bright => Brightness::Bright,
         BrightnessArg::Dark => Brightness::Dark,
     };
-    let scene = cfg.object.load()?;
+    let Stage {
+        renderer,
+        env,
+        original,
+    } = cfg.stage()?;
     let atlas = match &a.texture {
         Some(p) => cac::scene::Texture::from_rgb8(&cac::io::load_rgb(p)?)
             .resized(cfg.render.atlas_res, cfg.render.atlas_res),
-        None => scene.initial_atlas(cfg.render.atlas_res),
+        None => original,
     };
-    let renderer = Renderer::new(scene, cfg.render.clone())?;
-    let env = Environment::new(cfg.environment.clone())?;
     let conds = match a.contact_sheet {
         Some(0) => bail!("--contact-sheet needs at least one view"),
         Some(n) => {
@@ -128,10 +130,8 @@ pub fn render_conditions(
 ) -> Result<Vec<image::RgbImage>> {
     let mut out = Vec::new();
     for c in conds {
-        let plan = r.plan(&c.viewpoint, &env.lighting(c), &env.backdrop(c))?;
         let t = render::atlas_tensor(atlas, dev);
-        let t = environment::print_error(t, std::slice::from_ref(c));
-        let img = environment::photometric(render::composite(&[plan], t), std::slice::from_ref(c));
+        let (img, _) = environment::form(r, env, std::slice::from_ref(c), t)?;
         out.extend(render::to_images(&img));
     }
     Ok(out)

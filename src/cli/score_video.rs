@@ -108,83 +108,8 @@ pub fn run(a: Args) -> Result<()> {
     };
     let mut stream = cac::video::open(&tools, &a.input, &opts)?;
     let (w, h) = stream.size();
-    let mut at_times = a.at.clone();
-    let gt: Box<dyn GroundTruth> = match (&a.annotations, &a.log) {
-        (Some(p), None) => Box::new(Annotations::load(p)?),
-        (None, Some(p)) => {
-            let log = TurntableLog::load(p)?;
-            let offset_s = match a.log_offset.as_str() {
-                "creation" => stream.creation_time().with_context(|| {
-                    format!(
-                        "{} has no creation_time: give --log-offset in seconds",
-                        a.input.display()
-                    )
-                })?,
-                s => s
-                    .parse::<f64>()
-                    .ok()
-                    .filter(|v| v.is_finite())
-                    .with_context(|| format!("--log-offset {s:?}: seconds or `creation`"))?,
-            };
-            let t0 = log.samples()[0].t;
-            if t0 > 1e8 && offset_s.abs() < 1e8 {
-                bail!(
-                    "{}: times look like Unix seconds ({t0}) but the video starts at 0 s: give \
-                     --log-offset creation or the Unix time of the video's first frame",
-                    p.display()
-                );
-            }
-            if a.at_log {
-                at_times = Some(log.samples().iter().map(|s| s.t - offset_s).collect());
-            }
-            let projector: Box<dyn Projector> = match &a.rig {
-                Some(r) => Box::new(RigProjector::new(
-                    cac::physical::rig::Rig::load(r)?,
-                    (w, h),
-                )?),
-                None => {
-                    let calibration = match &a.calib {
-                        Some(c) => TwinCalibration::load(c)?,
-                        None => TwinCalibration::default(),
-                    };
-                    let object = cac::config::ObjectConfig {
-                        mesh: a.mesh.clone(),
-                        ..Default::default()
-                    };
-                    let settings = RenderSettings {
-                        width: w as usize,
-                        height: h as usize,
-                        samples: 1,
-                        vfov_deg: a.vfov,
-                        atlas_res: 2,
-                    };
-                    let r = Renderer::new(object.load()?, settings)?;
-                    Box::new(TwinProjector::new(r, calibration))
-                }
-            };
-            Box::new(LogGroundTruth {
-                log,
-                projector,
-                offset_s,
-                segments: match a.segments {
-                    SegArg::Revolution => LogSegments::Revolution,
-                    SegArg::Ratio => LogSegments::Ratio,
-                },
-                default_ratio: a.ratio,
-            })
-        }
-        _ => bail!("give the ground truth: --annotations FILE or --log FILE"),
-    };
-    let protocol = Protocol {
-        target: match &a.target {
-            Some(t) => Some(
-                detect::labels::class_id(t).with_context(|| format!("unknown COCO class {t:?}"))?,
-            ),
-            None => None,
-        },
-        ..Default::default()
-    };
-    let sampling = match at_times {
+    let (gt, log_times) = ground_truth(&a, stream.creation_time(), (w, h))?;
+    let sampling = match log_times.or_else(|| a.at.clone()) {
         Some(t) => Sampling::At(t),
         None => Sampling::Every(a.every),
     };
@@ -197,7 +122,7 @@ pub fn run(a: Args) -> Result<()> {
         segmenting: a
             .window
             .map_or(Segmenting::FromGroundTruth, Segmenting::Window),
-        protocol,
+        protocol: protocol(a.target.as_deref())?,
         max_frames: a.max_frames,
     };
     let device = super::device::inference();
@@ -242,8 +167,105 @@ pub fn run(a: Args) -> Result<()> {
         notes.push(format!("annotated output: {}", p.display()));
     }
     report::write_all(&a.out, &scores, &notes, &examples.frames)?;
-    print!("{}", report::summary_table(&scores).markdown());
-    for n in &notes {
+    print_scores(&a, &scores, &notes)
+}
+
+/// Video times in seconds.
+type Times = Vec<f64>;
+
+/// The ground truth the flags name, and with `--at-log` the times to score (video seconds).
+/// `creation` is the video's creation time (Unix seconds) where it records one.
+fn ground_truth(
+    a: &Args,
+    creation: Option<f64>,
+    size: (u32, u32),
+) -> Result<(Box<dyn GroundTruth>, Option<Times>)> {
+    let p = match (&a.annotations, &a.log) {
+        (Some(p), None) => return Ok((Box::new(Annotations::load(p)?), None)),
+        (None, Some(p)) => p,
+        _ => bail!("give the ground truth: --annotations FILE or --log FILE"),
+    };
+    let log = TurntableLog::load(p)?;
+    let offset_s = match a.log_offset.as_str() {
+        "creation" => creation.with_context(|| {
+            format!(
+                "{} has no creation_time: give --log-offset in seconds",
+                a.input.display()
+            )
+        })?,
+        s => s
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .with_context(|| format!("--log-offset {s:?}: seconds or `creation`"))?,
+    };
+    let t0 = log.samples()[0].t;
+    if t0 > 1e8 && offset_s.abs() < 1e8 {
+        bail!(
+            "{}: times look like Unix seconds ({t0}) but the video starts at 0 s: give \
+             --log-offset creation or the Unix time of the video's first frame",
+            p.display()
+        );
+    }
+    let times = a
+        .at_log
+        .then(|| log.samples().iter().map(|s| s.t - offset_s).collect());
+    let gt = LogGroundTruth {
+        log,
+        projector: projector(a, size)?,
+        offset_s,
+        segments: match a.segments {
+            SegArg::Revolution => LogSegments::Revolution,
+            SegArg::Ratio => LogSegments::Ratio,
+        },
+        default_ratio: a.ratio,
+    };
+    Ok((Box::new(gt), times))
+}
+
+/// The log's projector: the calibrated rig (`--rig`) or the digital twin of `--mesh`.
+fn projector(a: &Args, (w, h): (u32, u32)) -> Result<Box<dyn Projector>> {
+    if let Some(r) = &a.rig {
+        let rig = cac::physical::rig::Rig::load(r)?;
+        return Ok(Box::new(RigProjector::new(rig, (w, h))?));
+    }
+    let calibration = match &a.calib {
+        Some(c) => TwinCalibration::load(c)?,
+        None => TwinCalibration::default(),
+    };
+    let object = cac::config::ObjectConfig {
+        mesh: a.mesh.clone(),
+        ..Default::default()
+    };
+    let settings = RenderSettings {
+        width: w as usize,
+        height: h as usize,
+        samples: 1,
+        vfov_deg: a.vfov,
+        atlas_res: 2,
+    };
+    let r = Renderer::new(object.load()?, settings)?;
+    Ok(Box::new(TwinProjector::new(r, calibration)))
+}
+
+/// The protocol, with `--target`'s class.
+fn protocol(target: Option<&str>) -> Result<Protocol> {
+    let target = match target {
+        Some(t) => {
+            Some(detect::labels::class_id(t).with_context(|| format!("unknown COCO class {t:?}"))?)
+        }
+        None => None,
+    };
+    Ok(Protocol {
+        target,
+        ..Default::default()
+    })
+}
+
+/// Prints the summary table and notes; fails when no frame was scored.
+fn print_scores(a: &Args, scores: &cac::video::VideoScores, notes: &[String]) -> Result<()> {
+    print!("{}", report::summary_table(scores).markdown());
+    for n in notes {
         println!("{n}");
     }
     if !scores.missed_times.is_empty() {

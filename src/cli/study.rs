@@ -4,16 +4,18 @@
 //! not among the sources measures transfer), and plots P@0.5 against n (OUT/topn.png, topn.csv,
 //! topn.md, topn.html; the full evaluation report in OUT/eval/). Defaults are small so the study finishes
 //! on a laptop in minutes; `--iterations 2000 --views 200 --size 512` approaches the paper's.
+//! Under the default proposal rule (the candidates on the object, about 30 per image) n caps how
+//! many of them are fixed, hence the small default values; `--proposals topn --n 50,100,200,300`
+//! is the paper's Figure 5 (top-n after NMS over the whole image).
 
-use super::{demo, device, eval::parse_sets, train};
+use super::{device, eval::parse_sets, train};
 use anyhow::{bail, Context, Result};
-use cac::attack::{AttackConfig, Trainer};
-use cac::config::SceneConfig;
-use cac::environment::{Environment, ViewpointSet};
+use cac::attack::{run::RunDir, AttackConfig, Trainer};
+use cac::config::{SceneConfig, Stage};
+use cac::environment::ViewpointSet;
 use cac::eval::job::{self, EvalJob};
 use cac::eval::run::ViewPlan;
 use cac::eval::{study, Protocol};
-use cac::render::Renderer;
 use cac::report::Html;
 use std::path::PathBuf;
 
@@ -26,8 +28,11 @@ pub enum Cmd {
 #[derive(clap::Args, Debug)]
 pub struct TopnArgs {
     /// Values of n, comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "50,100,200,300")]
+    #[arg(long, value_delimiter = ',', default_value = "1,4,16,64")]
     pub n: Vec<usize>,
+    /// Which candidates are fixed: `overlap` (on the object, the n best) or `topn` (the paper's).
+    #[arg(long, value_enum, default_value_t = cac::attack::loss::ProposalRule::Overlap)]
+    pub proposals: cac::attack::loss::ProposalRule,
     /// Scene config (default: the demo's scene, the pickup at street level, 320² renders).
     #[arg(long)]
     pub config: Option<PathBuf>,
@@ -83,15 +88,26 @@ fn topn(a: TopnArgs) -> Result<()> {
     let cfg = match &a.config {
         Some(p) => SceneConfig::from_file(p)?,
         None => {
-            let mut c = demo::demo_scene();
+            let mut c = SceneConfig::training();
             c.object.mesh = "pickup".into();
             c
         }
     };
-    let scene = cfg.object.load()?;
-    let original = scene.initial_atlas(cfg.render.atlas_res);
-    let renderer = Renderer::new(scene, cfg.render.clone())?;
-    let env = Environment::new(cfg.environment.clone())?;
+    let specs = train_runs(&a, &cfg)?;
+    if a.task.is_some() {
+        return Ok(());
+    }
+    evaluate(&a, &cfg, specs)
+}
+
+/// Trains (or reuses, or resumes) one run per n in OUT/n<N>/; returns the texture specs for the
+/// evaluation, the original first.
+fn train_runs(a: &TopnArgs, cfg: &SceneConfig) -> Result<Vec<String>> {
+    let Stage {
+        renderer,
+        env,
+        original,
+    } = cfg.stage()?;
     let sources = train::load_detectors(&a.models)?;
     let src: Vec<&dyn cac::detect::Detector> = sources.iter().map(|d| d.as_ref()).collect();
     let mut specs = vec!["original".to_string()];
@@ -111,6 +127,7 @@ fn topn(a: TopnArgs) -> Result<()> {
         let ac = AttackConfig {
             models: a.models.clone(),
             target: a.target.clone(),
+            proposals: a.proposals,
             top_n: n,
             batch: a.batch,
             iterations: a.iterations,
@@ -119,34 +136,16 @@ fn topn(a: TopnArgs) -> Result<()> {
             viewpoints: ViewpointSet::Free,
             ..Default::default()
         };
-        let mut tr = Trainer::new(
-            ac.clone(),
+        let run = RunDir::open_or_create(&dir, cfg.clone(), ac.clone())?;
+        let tr = Trainer::new(
+            ac,
             &renderer,
             &env,
             src.clone(),
             device::training(),
             &original,
         )?;
-        if dir.join("run.json").exists() {
-            let run: serde_json::Value =
-                serde_json::from_slice(&std::fs::read(dir.join("run.json"))?)
-                    .with_context(|| format!("{}: malformed run.json", dir.display()))?;
-            let old: AttackConfig = serde_json::from_value(run["attack"].clone())
-                .with_context(|| format!("{}: run.json attack settings", dir.display()))?;
-            let same = |c: &AttackConfig| AttackConfig {
-                iterations: 0,
-                ..c.clone()
-            };
-            if same(&old) != same(&ac) || run["scene"] != serde_json::to_value(&cfg)? {
-                bail!(
-                    "{} holds a run with other settings (n = {}, models {:?}, or another scene); use another --out",
-                    dir.display(),
-                    old.top_n,
-                    old.models
-                );
-            }
-            tr = tr.resume(&dir)?;
-        }
+        let mut tr = run.resume(tr)?;
         let it = tr.state.iteration;
         if (a.shard.is_some() || a.merge) && it < a.iterations {
             bail!("n = {n}: the run in {} is not finished (iteration {it} of {}); train it first (--task {k})", dir.display(), a.iterations);
@@ -160,13 +159,14 @@ fn topn(a: TopnArgs) -> Result<()> {
                 dir.display()
             );
         }
-        train::train_loop(&mut tr, &dir, &cfg, true)?;
+        run.train(&mut tr, true)?;
         specs.push(format!("{}={}", study::run_name(n), dir.display()));
     }
-    if a.task.is_some() {
-        return Ok(());
-    }
+    Ok(specs)
+}
 
+/// Evaluates the textures with the protocol and writes the study's table, plot and pages.
+fn evaluate(a: &TopnArgs, cfg: &SceneConfig, specs: Vec<String>) -> Result<()> {
     let mut eval_scene = cfg.clone();
     if let Some(s) = a.size {
         (eval_scene.render.width, eval_scene.render.height) = (s, s);

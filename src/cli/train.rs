@@ -3,14 +3,12 @@
 //! with `--resume DIR`.
 
 use super::device;
-use anyhow::{bail, Context, Result};
-use cac::attack::{self, baselines::PatchTrainer, AttackConfig, Method, Run, Trainer};
+use anyhow::{Context, Result};
+use cac::attack::{run::RunDir, AttackConfig, Method, Trainer};
 use cac::config::SceneConfig;
 use cac::detect::{self, Detector};
-use cac::environment::{Environment, ViewpointSet};
-use cac::render::Renderer;
-use indicatif::{ProgressBar, ProgressStyle};
-use std::path::{Path, PathBuf};
+use cac::environment::ViewpointSet;
+use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -79,173 +77,91 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let run_dir = a.resume.clone().unwrap_or_else(|| a.out.clone());
-    let (cfg, attack_cfg) = if let Some(dir) = &a.resume {
-        let run: serde_json::Value = serde_json::from_slice(
-            &std::fs::read(dir.join("run.json"))
-                .with_context(|| format!("{} is not a run folder (no run.json)", dir.display()))?,
-        )
-        .with_context(|| format!("{}: malformed run.json", dir.display()))?;
-        let cfg: SceneConfig =
-            serde_json::from_value(run["scene"].clone()).context("run.json: scene")?;
-        let mut ac: AttackConfig =
-            serde_json::from_value(run["attack"].clone()).context("run.json: attack")?;
-        ac.iterations = ac.iterations.max(a.iterations);
-        (cfg, ac)
-    } else {
-        if run_dir.join("run.json").exists() {
-            bail!(
-                "{} already holds a run: use --resume {} or another --out",
-                run_dir.display(),
-                run_dir.display()
-            );
+    let run = match &a.resume {
+        Some(dir) => {
+            let mut run = RunDir::open(dir)?;
+            run.attack.iterations = run.attack.iterations.max(a.iterations);
+            run
         }
-        let mut cfg = match &a.config {
-            Some(p) => SceneConfig::from_file(p)?,
-            None => SceneConfig::training(),
-        };
-        if let Some(r) = a.texture_res {
-            cfg.render.atlas_res = r;
-        }
-        let ac = AttackConfig {
-            method: a.method,
-            patch_res: a.patch_res,
-            patch_tiles: a.patch_tiles,
-            models: a.models.clone(),
-            target: a.target.clone(),
-            hide: a.hide,
-            proposals: a.proposals,
-            overlap_iou: a.overlap_iou,
-            scales: a.scales,
-            top_n: a.top_n,
-            batch: a.batch,
-            iterations: a.iterations,
-            lr: a.lr,
-            seed: a.seed,
-            checkpoint_every: a.checkpoint_every,
-            viewpoints: if a.restricted {
-                ViewpointSet::Restricted
-            } else {
-                ViewpointSet::Free
-            },
-            ..Default::default()
-        };
-        ac.validate()?;
-        if !a.method.is_targeted() && a.target != "person" {
-            eprintln!(
-                "note: {} is non-targeted; --target {:?} is ignored",
-                a.method.name(),
-                a.target
-            );
-        }
-        (cfg, ac)
+        None => RunDir::create(&a.out, scene_config(&a)?, attack_config(&a))?,
     };
-    let scene = cfg.object.load()?;
+    if a.resume.is_none() && !a.method.is_targeted() && a.target != "person" {
+        eprintln!(
+            "note: {} is non-targeted; --target {:?} is ignored",
+            a.method.name(),
+            a.target
+        );
+    }
+    let stage = run.scene.stage()?;
     let init = match &a.init {
         Some(p) => cac::scene::Texture::from_rgb8(
             &cac::io::load_rgb(p).with_context(|| format!("--init {}", p.display()))?,
         ),
-        None => scene.initial_atlas(cfg.render.atlas_res),
+        None => stage.original.clone(),
     };
-    let renderer = Renderer::new(scene, cfg.render.clone())?;
-    let env = Environment::new(cfg.environment.clone())?;
-    let dets = load_detectors(&attack_cfg.models)?;
+    let dets = load_detectors(&run.attack.models)?;
     let dets_ref: Vec<&dyn Detector> = dets.iter().map(|d| d.as_ref()).collect();
-    let dev = device::training();
-    let mut tr: Box<dyn Run> = if attack_cfg.method.is_2d() {
-        let t = PatchTrainer::new(attack_cfg.clone(), &renderer, &env, dets_ref, dev, &init)?;
-        Box::new(match &a.resume {
-            Some(d) => t.resume(d)?,
-            None => t,
-        })
-    } else {
-        let t = Trainer::new(attack_cfg.clone(), &renderer, &env, dets_ref, dev, &init)?;
-        Box::new(match &a.resume {
-            Some(d) => t.resume(d)?,
-            None => t,
-        })
-    };
+    let tr = Trainer::new(
+        run.attack.clone(),
+        &stage.renderer,
+        &stage.env,
+        dets_ref,
+        device::training(),
+        &init,
+    )?;
+    let mut tr = run.resume(tr)?;
     if a.resume.is_some() {
         println!(
             "resuming {} at iteration {}",
-            run_dir.display(),
-            tr.state().iteration
+            run.path.display(),
+            tr.state.iteration
         );
     }
-    train_loop(tr.as_mut(), &run_dir, &cfg, true)?;
-    println!("wrote {}", run_dir.display());
+    run.train(&mut tr, true)?;
+    println!("wrote {}", run.path.display());
     Ok(())
+}
+
+/// The scene of a new run: the config file or the training preset, `--texture-res` applied.
+fn scene_config(a: &Args) -> Result<SceneConfig> {
+    let mut cfg = match &a.config {
+        Some(p) => SceneConfig::from_file(p)?,
+        None => SceneConfig::training(),
+    };
+    if let Some(r) = a.texture_res {
+        cfg.render.atlas_res = r;
+    }
+    Ok(cfg)
+}
+
+/// The attack settings of a new run from the flags.
+fn attack_config(a: &Args) -> AttackConfig {
+    AttackConfig {
+        method: a.method,
+        patch_res: a.patch_res,
+        patch_tiles: a.patch_tiles,
+        models: a.models.clone(),
+        target: a.target.clone(),
+        hide: a.hide,
+        proposals: a.proposals,
+        overlap_iou: a.overlap_iou,
+        scales: a.scales,
+        top_n: a.top_n,
+        batch: a.batch,
+        iterations: a.iterations,
+        lr: a.lr,
+        seed: a.seed,
+        checkpoint_every: a.checkpoint_every,
+        viewpoints: if a.restricted {
+            ViewpointSet::Restricted
+        } else {
+            ViewpointSet::Free
+        },
+        ..Default::default()
+    }
 }
 
 /// Loads detectors by name on the inference device (gradients flow through their inputs).
 pub fn load_detectors(names: &[String]) -> Result<Vec<Box<dyn Detector>>> {
     detect::load_all(names, None, &device::inference())
-}
-
-/// Runs the remaining iterations with a progress bar, checkpointing and writing the run folder.
-pub fn train_loop(
-    tr: &mut dyn Run,
-    run_dir: &Path,
-    cfg: &SceneConfig,
-    progress: bool,
-) -> Result<()> {
-    std::fs::create_dir_all(run_dir)
-        .with_context(|| format!("cannot create run folder {}", run_dir.display()))?;
-    let total = tr.config().iterations;
-    let pb = if progress {
-        ProgressBar::new(total as u64)
-    } else {
-        ProgressBar::hidden()
-    };
-    pb.set_style(
-        ProgressStyle::with_template("{bar:30} {pos}/{len} iterations, loss {msg}, ETA {eta}")
-            .expect("template"),
-    );
-    pb.set_position(tr.state().iteration as u64);
-    write_run(tr, run_dir, cfg, false)?;
-    while tr.state().iteration < total {
-        let log = tr.step()?;
-        pb.set_message(format!("{:.4}", log.loss));
-        pb.inc(1);
-        let (k, it) = (tr.config().checkpoint_every, tr.state().iteration);
-        if k > 0 && it % k == 0 && it < total {
-            attack::save_checkpoint(run_dir, tr.state())?;
-            write_run(tr, run_dir, cfg, false)?;
-        }
-    }
-    pb.finish_and_clear();
-    attack::save_checkpoint(run_dir, tr.state())?;
-    write_run(tr, run_dir, cfg, true)
-}
-
-fn write_run(tr: &dyn Run, run_dir: &Path, cfg: &SceneConfig, finished: bool) -> Result<()> {
-    let run = serde_json::json!({
-        "cac_version": env!("CARGO_PKG_VERSION"),
-        "burn_version": "0.22.1",
-        "finished": finished,
-        "seed": tr.config().seed,
-        "method": tr.config().method,
-        "attack": tr.config(),
-        "scene": cfg,
-        "iteration": tr.state().iteration,
-        "log": tr.state().log,
-    });
-    cac::io::write_atomic(
-        &run_dir.join("run.json"),
-        serde_json::to_string_pretty(&run)?.as_bytes(),
-    )?;
-    let atlas = tr.atlas();
-    cac::io::save_png_atomic(&run_dir.join("atlas.png"), &atlas.to_rgb8())?;
-    for (name, img) in tr.extra_images() {
-        cac::io::save_png_atomic(&run_dir.join(name), &img)?;
-    }
-    let title = format!("{} loss", tr.config().method.name());
-    let plot = attack::report::loss_plot(&tr.state().log, &title, 640, 400)?;
-    cac::io::save_png_atomic(&run_dir.join("loss.png"), &plot)?;
-    if finished {
-        let sheet =
-            attack::report::views_sheet(tr.renderer(), tr.env(), &atlas, 8, &device::inference())?;
-        cac::io::save_png_atomic(&run_dir.join("views.png"), &sheet)?;
-    }
-    Ok(())
 }

@@ -4,10 +4,13 @@
 //! A [`Condition`] is one draw. Its geometric and lighting part (viewpoint, sun, background,
 //! ground) goes to the renderer; its photometric part is applied as tensor ops so gradients pass:
 //! print error on the atlas ([`print_error`]), and lighten/darken plus sensor noise on the image
-//! ([`photometric`]). See `docs/environment.md` for every parameter and its default.
+//! ([`photometric`]). [`form`] is the one image-formation call that chains them with the renderer.
+//! See `docs/environment.md` for every parameter and its default.
 
+mod formation;
 mod transforms;
 
+pub use formation::{form, form_planned, plan, plans};
 pub use transforms::{photometric, print_error};
 
 use crate::render::skyline::Skyline;

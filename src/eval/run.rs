@@ -185,16 +185,12 @@ pub fn evaluate_texture_in(
         let c = &g.conditions[i];
         {
             progress();
-            let plan = r.plan(&c.viewpoint, &env.lighting(c), &env.backdrop(c))?;
+            let plan = environment::plan(r, env, c)?;
             let Some(gt) = plan.object_box else {
                 out.skipped += 1;
                 continue;
             };
-            let one = std::slice::from_ref(c);
-            let img = environment::photometric(
-                render::composite(&[plan], environment::print_error(a.clone(), one)),
-                one,
-            );
+            let img = environment::form_planned(&[plan], a.clone(), std::slice::from_ref(c));
             let mut per_model = vec![];
             for d in dets {
                 let found = d

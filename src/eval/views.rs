@@ -34,18 +34,12 @@ pub fn evaluate(
         images: vec![],
     };
     for (i, c) in conds.iter().enumerate() {
-        let plan = r.plan(&c.viewpoint, &env.lighting(c), &env.backdrop(c))?;
+        let plan = environment::plan(r, env, c)?;
         let gt = plan
             .object_box
             .with_context(|| format!("view {i}: the object is not visible"))?;
         let a = render::atlas_tensor(atlas, device);
-        let img = environment::photometric(
-            render::composite(
-                &[plan],
-                environment::print_error(a, std::slice::from_ref(c)),
-            ),
-            std::slice::from_ref(c),
-        );
+        let img = environment::form_planned(&[plan], a, std::slice::from_ref(c));
         for (m, d) in dets.iter().enumerate() {
             let found = d
                 .detect(img.clone())?

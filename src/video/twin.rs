@@ -117,17 +117,9 @@ pub fn render_turntable(
     let mut out = Vec::with_capacity(poses.len());
     for &(angle, ratio) in poses {
         let c = Condition::plain(calib.viewpoint(angle, ratio), Brightness::Bright);
-        let plan = r.plan(&c.viewpoint, &env.lighting(&c), &env.backdrop(&c))?;
-        let bbox = plan.object_box;
         let t = render::atlas_tensor(atlas, device);
-        let img = environment::photometric(
-            render::composite(
-                &[plan],
-                environment::print_error(t, std::slice::from_ref(&c)),
-            ),
-            std::slice::from_ref(&c),
-        );
-        out.push((render::to_images(&img).remove(0), bbox));
+        let (img, plans) = environment::form(r, env, std::slice::from_ref(&c), t)?;
+        out.push((render::to_images(&img).remove(0), plans[0].object_box));
     }
     Ok(out)
 }

@@ -5,7 +5,7 @@
 //! metres, so one tile has the same physical size on every face: with `tiles` tiles across the
 //! atlas, every side of the vehicle carries copies of the patch at one scale. Texels that no
 //! paintable triangle covers keep the base texture. Not here: training the patch
-//! ([`super::patch_trainer`]).
+//! ([`super::patch`]).
 
 use crate::scene::{Scene, Texture};
 
@@ -94,6 +94,20 @@ pub fn paintable_texels(scene: &Scene, res: usize) -> Vec<bool> {
                     out[ny * res + nx] = true;
                 }
             }
+        }
+    }
+    out
+}
+
+/// `base` with `texture`'s texels where `mask` is true: a whole-atlas texture (a simple texture,
+/// an image) put on the paintable surfaces only, as every attack's atlas is.
+pub fn paint(base: &Texture, texture: &Texture, mask: &[bool]) -> Texture {
+    assert_eq!(mask.len(), base.texels.len(), "mask size");
+    assert_eq!(texture.texels.len(), base.texels.len(), "texture size");
+    let mut out = base.clone();
+    for (k, m) in mask.iter().enumerate() {
+        if *m {
+            out.texels[k] = texture.texels[k];
         }
     }
     out

@@ -1,22 +1,24 @@
 //! The paper's attack baselines, run in the same renderer, environment and detectors as CAC so
 //! tables compare like with like.
 //!
-//! * 3D, full atlas, EOT over the environment ([`crate::attack::Trainer`] with another objective):
-//!   **UPC** (Huang et al. 2020) and **CAMOU** (Zhang et al. 2019).
+//! * 3D, full atlas, EOT over the environment (the trainer's atlas parameterisation with another
+//!   objective): **UPC** (Huang et al. 2020) and **CAMOU** (Zhang et al. 2019).
 //! * 2D, a square patch trained under plane transformations pasted on rendered images of the
-//!   vehicle, then tiled over every paintable texel ([`PatchTrainer`], [`atlas`]): **AdvPat**
-//!   (Thys et al. 2019) and **ShapeShifter** (Chen et al. 2018).
+//!   vehicle, then tiled over every paintable texel (the trainer's [`patch::Patch`]
+//!   parameterisation, [`atlas`]): **AdvPat** (Thys et al. 2019) and **ShapeShifter** (Chen et
+//!   al. 2018).
+//!
+//! All five are trained by the one [`crate::attack::Trainer`].
 //!
 //! The objectives are in [`objectives`]; `docs/attack.md` says exactly how each paper is realised
 //! and where it departs from it. Not here: the CLI, evaluation.
 
 pub mod atlas;
 pub mod objectives;
+pub mod patch;
 pub mod patch2d;
-mod patch_trainer;
 
 pub use objectives::objective;
-pub use patch_trainer::PatchTrainer;
 
 use serde::{Deserialize, Serialize};
 

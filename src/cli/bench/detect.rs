@@ -69,6 +69,46 @@ pub fn run(a: DetectBench) -> Result<()> {
     Ok(())
 }
 
+/// The astronaut from ../shared, or a synthetic 512² image written into `tmp`.
+fn reference_image(root: &Path, tmp: &Path) -> Result<PathBuf> {
+    let shared = root.join("../shared/reference/images/astronaut.png");
+    if shared.exists() {
+        return Ok(shared);
+    }
+    let p = tmp.join("noise.png");
+    let img = image::RgbImage::from_fn(512, 512, |x, y| {
+        image::Rgb([(x * 7 + y) as u8, (y * 13) as u8, (x ^ y) as u8])
+    });
+    cac::io::save_png_atomic(&p, &img)?;
+    Ok(p)
+}
+
+/// Milliseconds of a forward pass on `x` and of a forward and backward pass on a random batch
+/// of its shape on the `training` device.
+fn forward_backward_ms(
+    det: &dyn detect::Detector,
+    runs: usize,
+    x: Tensor<4>,
+    training: &burn::tensor::Device,
+) -> Result<(f64, f64)> {
+    let fwd = time(runs, || {
+        let c = det.candidates(x.clone())?;
+        let _ = c.scores.sum().into_scalar::<f32>();
+        Ok(())
+    })?;
+    let xa = Tensor::<4>::random(x.dims(), Distribution::Uniform(0.0, 1.0), training);
+    let bwd = time(runs, || {
+        let x = xa.clone().require_grad();
+        let c = det.candidates(x.clone())?;
+        let loss = c.logits.max_dim(2).sum();
+        let g = loss.backward();
+        let grad = x.grad(&g).context("no gradient")?;
+        let _ = grad.sum().into_scalar::<f32>();
+        Ok(())
+    })?;
+    Ok((fwd, bwd))
+}
+
 fn bench_tfjs(a: &DetectBench) -> Result<()> {
     let models = detect::fetch::ensure_models()?;
     let inference = device::inference();
@@ -82,19 +122,7 @@ fn bench_tfjs(a: &DetectBench) -> Result<()> {
     let tmp = tempfile::tempdir()?;
     let image = match &a.image {
         Some(i) => i.clone(),
-        None => {
-            let shared = root.join("../shared/reference/images/astronaut.png");
-            if shared.exists() {
-                shared
-            } else {
-                let p = tmp.path().join("noise.png");
-                let img = image::RgbImage::from_fn(512, 512, |x, y| {
-                    image::Rgb([(x * 7 + y) as u8, (y * 13) as u8, (x ^ y) as u8])
-                });
-                cac::io::save_png_atomic(&p, &img)?;
-                p
-            }
-        }
+        None => reference_image(root, tmp.path())?,
     };
     let have_runner = runner.join("detect.mjs").exists();
     if !have_runner {
@@ -133,22 +161,7 @@ fn bench_tfjs(a: &DetectBench) -> Result<()> {
                 Distribution::Uniform(0.0, 1.0),
                 &inference,
             );
-            let fwd = time(a.runs, || {
-                let c = det.candidates(x.clone())?;
-                let _ = c.scores.sum().into_scalar::<f32>();
-                Ok(())
-            })?;
-            let xa =
-                Tensor::<4>::random([batch, 3, h, w], Distribution::Uniform(0.0, 1.0), &training);
-            let bwd = time(a.runs, || {
-                let x = xa.clone().require_grad();
-                let c = det.candidates(x.clone())?;
-                let loss = c.logits.max_dim(2).sum();
-                let g = loss.backward();
-                let grad = x.grad(&g).context("no gradient")?;
-                let _ = grad.sum().into_scalar::<f32>();
-                Ok(())
-            })?;
+            let (fwd, bwd) = forward_backward_ms(det.as_ref(), a.runs, x, &training)?;
             let t = if batch == 1 { tfjs } else { None };
             let ratio = t.map(|t| fwd / t);
             let f =

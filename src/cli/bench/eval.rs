@@ -5,8 +5,10 @@
 use super::timer::Stopwatch;
 use crate::cli::{device, train};
 use anyhow::{bail, Result};
-use cac::config::SceneConfig;
-use cac::environment::{self, Brightness, Environment, ViewpointSet};
+use burn::tensor::Tensor;
+use cac::config::{SceneConfig, Stage};
+use cac::detect::Detector;
+use cac::environment::{self, Brightness, Condition, Environment, ViewpointSet};
 use cac::eval::{score_image, Protocol};
 use cac::render::{self, Renderer};
 use cac::report::Table;
@@ -40,10 +42,11 @@ pub fn run(a: Args) -> Result<()> {
     let mut cfg = SceneConfig::default();
     cfg.object.mesh = a.object.clone();
     (cfg.render.width, cfg.render.height, cfg.render.samples) = (a.size, a.size, a.samples);
-    let scene = cfg.object.load()?;
-    let atlas = scene.initial_atlas(cfg.render.atlas_res);
-    let r = Renderer::new(scene, cfg.render.clone())?;
-    let env = Environment::new(cfg.environment.clone())?;
+    let Stage {
+        renderer: r,
+        env,
+        original: atlas,
+    } = cfg.stage()?;
     let dets = train::load_detectors(&a.models)?;
     let dev = device::inference();
     let p = Protocol::default();
@@ -66,27 +69,9 @@ pub fn run(a: Args) -> Result<()> {
     }
     for which in rows {
         let (mut tr, mut td, mut ts, mut n) = (0.0, 0.0, 0.0, 0);
+        let chosen: Vec<&dyn Detector> = which.iter().map(|&k| dets[k].as_ref()).collect();
         for (i, c) in conds.iter().enumerate() {
-            let t0 = Stopwatch::start();
-            let plan = r.plan(&c.viewpoint, &env.lighting(c), &env.backdrop(c))?;
-            let gt = plan.object_box.unwrap_or([0.0; 4]);
-            let one = std::slice::from_ref(c);
-            let img = environment::photometric(
-                render::composite(&[plan], environment::print_error(a_t.clone(), one)),
-                one,
-            );
-            let _ = img.clone().slice([0..1, 0..1, 0..1, 0..1]).into_data();
-            let render_s = t0.secs();
-            let t1 = Stopwatch::start();
-            let mut found = vec![];
-            for &k in &which {
-                found.push(dets[k].detect(img.clone())?.remove(0));
-            }
-            let detect_s = t1.secs();
-            let t2 = Stopwatch::start();
-            let hits = found.iter().filter(|f| score_image(f, &gt, &p).hit).count();
-            std::hint::black_box(hits);
-            let score_s = t2.secs();
+            let (render_s, detect_s, score_s) = time_image(&r, &env, c, a_t.clone(), &chosen, &p)?;
             if i == 0 {
                 continue; // warm-up
             }
@@ -118,4 +103,30 @@ pub fn run(a: Args) -> Result<()> {
     cac::io::write_atomic(&a.csv, t.csv().as_bytes())?;
     println!("\nwrote {}", a.csv.display());
     Ok(())
+}
+
+/// Seconds to form one image of `c`, to detect with `dets`, and to score the detections.
+fn time_image(
+    r: &Renderer,
+    env: &Environment,
+    c: &Condition,
+    atlas: Tensor<4>,
+    dets: &[&dyn Detector],
+    p: &Protocol,
+) -> Result<(f64, f64, f64)> {
+    let t0 = Stopwatch::start();
+    let (img, plans) = environment::form(r, env, std::slice::from_ref(c), atlas)?;
+    let gt = plans[0].object_box.unwrap_or([0.0; 4]);
+    let _ = img.clone().slice([0..1, 0..1, 0..1, 0..1]).into_data();
+    let render_s = t0.secs();
+    let t1 = Stopwatch::start();
+    let mut found = vec![];
+    for d in dets {
+        found.push(d.detect(img.clone())?.remove(0));
+    }
+    let detect_s = t1.secs();
+    let t2 = Stopwatch::start();
+    let hits = found.iter().filter(|f| score_image(f, &gt, p).hit).count();
+    std::hint::black_box(hits);
+    Ok((render_s, detect_s, t2.secs()))
 }

@@ -38,6 +38,44 @@ fn torch_ms(
     Some((v["forward_ms"].as_f64()?, v["backward_ms"].as_f64()?))
 }
 
+/// The input size of `name` (synthetic weights), and milliseconds of a forward pass on the
+/// `inference` device and of forward and backward (to the input) on `training`.
+fn forward_backward_ms(
+    name: &str,
+    runs: usize,
+    inference: &burn::tensor::Device,
+    training: &burn::tensor::Device,
+) -> Result<((usize, usize), f64, f64)> {
+    let arch = Arch::from_name(name)?;
+    let m = FasterRcnn::from_state_dict(
+        arch,
+        &synthetic::state_dict(arch, inference),
+        arch.config(),
+        inference,
+    )?;
+    let (w, h) = m.input_size();
+    let x = Tensor::<4>::random([1, 3, h, w], Distribution::Uniform(0.0, 1.0), inference);
+    let fwd = time(runs, || m.run(x.clone()).map(|_| ()))?;
+    let xa = Tensor::<4>::random([1, 3, h, w], Distribution::Uniform(0.0, 1.0), training);
+    let ma = FasterRcnn::from_state_dict(
+        arch,
+        &synthetic::state_dict(arch, training),
+        arch.config(),
+        training,
+    )?;
+    let bwd = time(runs, || {
+        let x = xa.clone().require_grad();
+        let (f, g, _) = ma.features(x.clone())?;
+        let props = ma.rpn_proposals(&f, g)?;
+        let (logits, _) = ma.box_outputs(&f, g, &props).context("no proposal")?;
+        let grads = logits.sum().backward();
+        let grad = x.grad(&grads).context("no gradient")?;
+        let _ = grad.sum().into_scalar::<f32>();
+        Ok(())
+    })?;
+    Ok(((w, h), fwd, bwd))
+}
+
 /// Prints the table and returns it (for the CSV).
 pub fn bench(runs: usize, python: &str) -> Result<Table> {
     let inference = device::inference();
@@ -69,33 +107,7 @@ pub fn bench(runs: usize, python: &str) -> Result<Table> {
         "bwd/pt"
     );
     for name in MODELS {
-        let arch = Arch::from_name(name)?;
-        let m = FasterRcnn::from_state_dict(
-            arch,
-            &synthetic::state_dict(arch, &inference),
-            arch.config(),
-            &inference,
-        )?;
-        let (w, h) = m.input_size();
-        let x = Tensor::<4>::random([1, 3, h, w], Distribution::Uniform(0.0, 1.0), &inference);
-        let fwd = time(runs, || m.run(x.clone()).map(|_| ()))?;
-        let xa = Tensor::<4>::random([1, 3, h, w], Distribution::Uniform(0.0, 1.0), &training);
-        let ma = FasterRcnn::from_state_dict(
-            arch,
-            &synthetic::state_dict(arch, &training),
-            arch.config(),
-            &training,
-        )?;
-        let bwd = time(runs, || {
-            let x = xa.clone().require_grad();
-            let (f, g, _) = ma.features(x.clone())?;
-            let props = ma.rpn_proposals(&f, g)?;
-            let (logits, _) = ma.box_outputs(&f, g, &props).context("no proposal")?;
-            let grads = logits.sum().backward();
-            let grad = x.grad(&grads).context("no gradient")?;
-            let _ = grad.sum().into_scalar::<f32>();
-            Ok(())
-        })?;
+        let ((w, h), fwd, bwd) = forward_backward_ms(name, runs, &inference, &training)?;
         let torch = torch_ms(python, name, (threads, torch_device), runs, (h, w));
         let f = |v: Option<f64>, p: usize| v.map(|v| format!("{v:.p$}")).unwrap_or("n/a".into());
         let (tf, tb) = (torch.map(|t| t.0), torch.map(|t| t.1));

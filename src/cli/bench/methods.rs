@@ -4,12 +4,12 @@
 //! (transfer). Prints a table and writes a CSV. A benchmark, not a test.
 
 use super::timer::Stopwatch;
-use crate::cli::{demo, device, train};
+use crate::cli::{device, train};
 use anyhow::Result;
-use cac::attack::baselines::PatchTrainer;
-use cac::attack::{AttackConfig, Method, Run, Trainer};
+use cac::attack::baselines::atlas::{paint, paintable_texels};
+use cac::attack::{AttackConfig, Method, Trainer};
 use cac::config;
-use cac::environment::{street_views, Brightness, Environment};
+use cac::environment::{street_views, Brightness};
 use cac::eval::{self, Protocol};
 use cac::render::Renderer;
 use cac::report::Table;
@@ -17,13 +17,14 @@ use cac::scene::textures::{self, Kind};
 use std::path::Path;
 
 pub fn run(iterations: usize, views_per_level: usize, csv: &Path) -> Result<()> {
-    let cfg = demo::demo_scene();
-    let scene = cfg.object.load()?;
+    let cfg = config::SceneConfig::training();
     let res = cfg.render.atlas_res;
-    let original = scene.initial_atlas(res);
-    let r = Renderer::new(scene, cfg.render.clone())?;
+    let config::Stage {
+        renderer: r,
+        env,
+        original,
+    } = cfg.stage()?;
     let eval_r = Renderer::new(r.scene.clone(), config::eval_render(&cfg.render))?;
-    let env = Environment::new(cfg.environment.clone())?;
     let dets = train::load_detectors(&["nanodet".into(), "centernet".into()])?;
     let all: Vec<&dyn cac::detect::Detector> = dets.iter().map(|d| d.as_ref()).collect();
     let mut views = street_views(views_per_level, 1.5, Brightness::Bright);
@@ -32,25 +33,8 @@ pub fn run(iterations: usize, views_per_level: usize, csv: &Path) -> Result<()> 
         target: Some(0),
         ..Default::default()
     };
-    let mask = cac::attack::baselines::atlas::paintable_texels(&r.scene, res);
-    let mut rows = Table::new([
-        "texture",
-        "train_s",
-        "nanodet_p05",
-        "nanodet_person",
-        "centernet_p05",
-        "centernet_person",
-    ]);
-    println!("{} views (416², 4 spp); P@0.5 = car/truck at IoU >= 0.5, conf >= 0.3; {iterations} iterations, batch 2, n = 300, target person", views.len());
-    println!(
-        "{:<13} {:>8} {:>12} {:>15} {:>14} {:>17}",
-        "texture",
-        "train_s",
-        "nanodet P@.5",
-        "nanodet person",
-        "centernet P@.5",
-        "centernet person"
-    );
+    let mask = paintable_texels(&r.scene, res);
+    let mut rows = header(views.len(), iterations);
     let mut report = |name: &str, secs: f64, atlas: &cac::scene::Texture| -> Result<()> {
         let out = eval::evaluate(
             &eval_r,
@@ -82,13 +66,7 @@ pub fn run(iterations: usize, views_per_level: usize, csv: &Path) -> Result<()> 
     report("original", 0.0, &original)?;
     for kind in [Kind::Natural, Kind::Naive, Kind::Random] {
         // Simple textures go on the paintable texels only, like every attack's atlas.
-        let t = textures::generate(kind, res, 0)?;
-        let mut a = original.clone();
-        for (k, m) in mask.iter().enumerate() {
-            if *m {
-                a.texels[k] = t.texels[k];
-            }
-        }
+        let a = paint(&original, &textures::generate(kind, res, 0)?, &mask);
         report(&format!("{kind:?}").to_lowercase(), 0.0, &a)?;
     }
     for method in Method::ALL {
@@ -99,21 +77,9 @@ pub fn run(iterations: usize, views_per_level: usize, csv: &Path) -> Result<()> 
             checkpoint_every: 0,
             ..Default::default()
         };
-        let dev = device::training();
-        let mut tr: Box<dyn Run> = if method.is_2d() {
-            Box::new(PatchTrainer::new(
-                ac,
-                &r,
-                &env,
-                vec![all[0]],
-                dev,
-                &original,
-            )?)
-        } else {
-            Box::new(Trainer::new(ac, &r, &env, vec![all[0]], dev, &original)?)
-        };
+        let mut tr = Trainer::new(ac, &r, &env, vec![all[0]], device::training(), &original)?;
         let t = Stopwatch::start();
-        while tr.state().iteration < iterations {
+        while tr.state.iteration < iterations {
             tr.step()?;
         }
         report(method.name(), t.secs(), &tr.atlas())?;
@@ -121,4 +87,26 @@ pub fn run(iterations: usize, views_per_level: usize, csv: &Path) -> Result<()> 
     cac::io::write_atomic(csv, rows.csv().as_bytes())?;
     println!("wrote {}", csv.display());
     Ok(())
+}
+
+/// Prints the table's heading; returns the CSV table.
+fn header(views: usize, iterations: usize) -> Table {
+    println!("{views} views (416², 4 spp); P@0.5 = car/truck at IoU >= 0.5, conf >= 0.3; {iterations} iterations, batch 2, n = 300, target person");
+    println!(
+        "{:<13} {:>8} {:>12} {:>15} {:>14} {:>17}",
+        "texture",
+        "train_s",
+        "nanodet P@.5",
+        "nanodet person",
+        "centernet P@.5",
+        "centernet person"
+    );
+    Table::new([
+        "texture",
+        "train_s",
+        "nanodet_p05",
+        "nanodet_person",
+        "centernet_p05",
+        "centernet_person",
+    ])
 }

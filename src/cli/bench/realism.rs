@@ -134,13 +134,19 @@ fn texture(name: &str, original: &Texture, mask: &[bool]) -> Result<Texture> {
         })?;
         textures::generate(kind, original.width, 0)?
     };
-    let mut a = original.clone();
-    for (k, m) in mask.iter().enumerate() {
-        if *m {
-            a.texels[k] = t.texels[k];
-        }
-    }
-    Ok(a)
+    Ok(cac::attack::baselines::atlas::paint(original, &t, mask))
+}
+
+/// What every row shares: the flags, the scene config, the detectors and the protocol.
+struct Bench<'a> {
+    a: &'a Args,
+    cfg: SceneConfig,
+    all: Vec<&'a dyn Detector>,
+    proto: Protocol,
+    bs: blender::BlenderSettings,
+    dev: burn::tensor::Device,
+    rows: Table,
+    per_view: Table,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -156,8 +162,6 @@ pub fn run(a: Args) -> Result<()> {
     };
     let dev = device::inference();
     let dets = detect::load_all(&["nanodet", "centernet"], None, &dev)?;
-    let all: Vec<&dyn Detector> = dets.iter().map(|d| d.as_ref()).collect();
-    let proto = Protocol::default();
     let bs = blender::BlenderSettings {
         samples: a.blender_samples,
         ..Default::default()
@@ -173,128 +177,174 @@ pub fn run(a: Args) -> Result<()> {
         "{:<16} {:<8} {:<9} {:<10} {:<6} {:>8} {:>10} {:>8} {:>10} {:>6}",
         "mesh", "renderer", "texture", "set", "light", "nanodet", "conf", "centernet", "conf", "s"
     );
-    let mut rows = Table::new([
-        "mesh",
-        "renderer",
-        "texture",
-        "set",
-        "brightness",
-        "views",
-        "nanodet_p05",
-        "nanodet_mean_conf",
-        "centernet_p05",
-        "centernet_mean_conf",
-        "seconds",
-    ]);
-    let mut per_view = Table::new([
-        "mesh",
-        "renderer",
-        "texture",
-        "set",
-        "brightness",
-        "view",
-        "azimuth",
-        "elevation",
-        "distance_ratio",
-        "nanodet_hit",
-        "nanodet_conf",
-        "centernet_hit",
-        "centernet_conf",
-    ]);
+    let mut b = Bench {
+        a: &a,
+        cfg,
+        all: dets.iter().map(|d| d.as_ref()).collect(),
+        proto: Protocol::default(),
+        bs,
+        dev,
+        rows: Table::new([
+            "mesh",
+            "renderer",
+            "texture",
+            "set",
+            "brightness",
+            "views",
+            "nanodet_p05",
+            "nanodet_mean_conf",
+            "centernet_p05",
+            "centernet_mean_conf",
+            "seconds",
+        ]),
+        per_view: Table::new([
+            "mesh",
+            "renderer",
+            "texture",
+            "set",
+            "brightness",
+            "view",
+            "azimuth",
+            "elevation",
+            "distance_ratio",
+            "nanodet_hit",
+            "nanodet_conf",
+            "centernet_hit",
+            "centernet_conf",
+        ]),
+    };
     for mesh in &a.meshes {
+        b.mesh(mesh)?;
+    }
+    cac::io::write_atomic(&a.csv, b.rows.csv().as_bytes())?;
+    if let Some(p) = &a.per_view {
+        cac::io::write_atomic(p, b.per_view.csv().as_bytes())?;
+        println!("wrote {}", p.display());
+    }
+    println!("wrote {}", a.csv.display());
+    Ok(())
+}
+
+/// A file's stem, or `name` itself.
+fn stem(name: &str) -> String {
+    std::path::Path::new(name)
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or(name.to_string())
+}
+
+impl Bench<'_> {
+    /// Every row of one mesh: textures × sets × brightness levels × renderers.
+    fn mesh(&mut self, mesh: &str) -> Result<()> {
+        let (a, cfg) = (self.a, &self.cfg);
         let mut oc = cfg.object.clone();
-        oc.mesh = mesh.clone();
+        oc.mesh = mesh.to_string();
         let scene = oc.load().with_context(|| format!("loading mesh {mesh}"))?;
-        let short = std::path::Path::new(mesh)
-            .file_stem()
-            .map(|s| s.to_string_lossy().to_string())
-            .unwrap_or(mesh.clone());
         let original = scene.initial_atlas(cfg.render.atlas_res);
         let mask = cac::attack::baselines::atlas::paintable_texels(&scene, cfg.render.atlas_res);
         let r = Renderer::new(scene, cfg.render.clone())?;
         let env = Environment::new(cfg.environment.clone())?;
         for tname in &a.textures {
             let atlas = texture(tname, &original, &mask)?;
-            let tname = &std::path::Path::new(tname)
-                .file_stem()
-                .map(|s| s.to_string_lossy().to_string())
-                .unwrap_or(tname.clone());
             for &set in &a.sets {
                 for b in [Brightness::Bright, Brightness::Dark] {
-                    let conds = views(set, &cfg, a.views, b, a.seed, a.photometric)?;
+                    let conds = views(set, &self.cfg, a.views, b, a.seed, a.photometric)?;
                     for &which in &a.renderers {
                         let t0 = Stopwatch::start();
-                        let (scores, images) = match which {
-                            Which::Cac => {
-                                let o =
-                                    eval::evaluate(&r, &env, &conds, &atlas, &all, &proto, &dev)?;
-                                (o.scores, o.images)
-                            }
-                            Which::Blender => {
-                                let views =
-                                    blender::render_views(&r, &env, &conds, &atlas, &bs, &dev)?;
-                                let s = blender::score_views(&views, &all, &proto, &dev)?;
-                                (s, views.into_iter().map(|v| v.image).collect())
-                            }
-                        };
-                        let secs = t0.secs();
-                        let wname = format!("{which:?}").to_lowercase();
-                        let sname = format!("{set:?}").to_lowercase();
-                        let bname = format!("{b:?}").to_lowercase();
-                        if let Some(dir) = &a.save {
-                            let d = dir.join(format!("{short}_{wname}_{tname}_{sname}_{bname}"));
-                            std::fs::create_dir_all(&d)?;
-                            for (i, img) in images.iter().enumerate() {
-                                cac::io::save_png_atomic(&d.join(format!("{i:02}.png")), img)?;
-                            }
-                        }
-                        for (i, cd) in conds.iter().enumerate() {
-                            let v = &cd.viewpoint;
-                            let (n, c) = (&scores[0][i], &scores[1][i]);
-                            per_view.row([
-                                short.clone(),
-                                wname.clone(),
-                                tname.clone(),
-                                sname.clone(),
-                                bname.clone(),
-                                i.to_string(),
-                                format!("{:.1}", v.azimuth_deg.rem_euclid(360.0)),
-                                format!("{:.1}", v.elevation_deg),
-                                format!("{:.2}", v.distance_ratio),
-                                (n.hit as u8).to_string(),
-                                format!("{:.3}", n.best_true_conf),
-                                (c.hit as u8).to_string(),
-                                format!("{:.3}", c.best_true_conf),
-                            ]);
-                        }
-                        let (n, c) = (eval::summarise(&scores[0]), eval::summarise(&scores[1]));
-                        println!(
-                            "{short:<16} {wname:<8} {tname:<9} {sname:<10} {bname:<6} {:>8.3} {:>10.3} {:>8.3} {:>10.3} {secs:>6.0}",
-                            n.p_at_05, n.mean_best_true_conf, c.p_at_05, c.mean_best_true_conf
-                        );
-                        rows.row([
-                            short.clone(),
-                            wname,
-                            tname.clone(),
-                            sname,
-                            bname,
-                            conds.len().to_string(),
-                            format!("{:.4}", n.p_at_05),
-                            format!("{:.4}", n.mean_best_true_conf),
-                            format!("{:.4}", c.p_at_05),
-                            format!("{:.4}", c.mean_best_true_conf),
-                            format!("{secs:.1}"),
-                        ]);
+                        let (scores, images) = self.score(which, &r, &env, &conds, &atlas)?;
+                        let key = [
+                            stem(mesh),
+                            format!("{which:?}").to_lowercase(),
+                            stem(tname),
+                            format!("{set:?}").to_lowercase(),
+                            format!("{b:?}").to_lowercase(),
+                        ];
+                        self.record(key, &conds, &scores, &images, t0.secs())?;
                     }
                 }
             }
         }
+        Ok(())
     }
-    cac::io::write_atomic(&a.csv, rows.csv().as_bytes())?;
-    if let Some(p) = &a.per_view {
-        cac::io::write_atomic(p, per_view.csv().as_bytes())?;
-        println!("wrote {}", p.display());
+
+    /// Renders `atlas` in `conds` with `which` and scores both detectors: per detector, per view
+    /// scores; and the images.
+    fn score(
+        &self,
+        which: Which,
+        r: &Renderer,
+        env: &Environment,
+        conds: &[Condition],
+        atlas: &Texture,
+    ) -> Result<(Vec<Vec<eval::ImageScore>>, Vec<image::RgbImage>)> {
+        let (all, proto, dev) = (&self.all, &self.proto, &self.dev);
+        Ok(match which {
+            Which::Cac => {
+                let o = eval::evaluate(r, env, conds, atlas, all, proto, dev)?;
+                (o.scores, o.images)
+            }
+            Which::Blender => {
+                let views = blender::render_views(r, env, conds, atlas, &self.bs, dev)?;
+                let s = blender::score_views(&views, all, proto, dev)?;
+                (s, views.into_iter().map(|v| v.image).collect())
+            }
+        })
     }
-    println!("wrote {}", a.csv.display());
-    Ok(())
+
+    /// Saves the images (with --save), adds the per-view rows and the summary row, and prints it.
+    fn record(
+        &mut self,
+        key: [String; 5],
+        conds: &[Condition],
+        scores: &[Vec<eval::ImageScore>],
+        images: &[image::RgbImage],
+        secs: f64,
+    ) -> Result<()> {
+        let [short, wname, tname, sname, bname] = key;
+        if let Some(dir) = &self.a.save {
+            let d = dir.join(format!("{short}_{wname}_{tname}_{sname}_{bname}"));
+            std::fs::create_dir_all(&d)?;
+            for (i, img) in images.iter().enumerate() {
+                cac::io::save_png_atomic(&d.join(format!("{i:02}.png")), img)?;
+            }
+        }
+        for (i, cd) in conds.iter().enumerate() {
+            let v = &cd.viewpoint;
+            let (n, c) = (&scores[0][i], &scores[1][i]);
+            self.per_view.row([
+                short.clone(),
+                wname.clone(),
+                tname.clone(),
+                sname.clone(),
+                bname.clone(),
+                i.to_string(),
+                format!("{:.1}", v.azimuth_deg.rem_euclid(360.0)),
+                format!("{:.1}", v.elevation_deg),
+                format!("{:.2}", v.distance_ratio),
+                (n.hit as u8).to_string(),
+                format!("{:.3}", n.best_true_conf),
+                (c.hit as u8).to_string(),
+                format!("{:.3}", c.best_true_conf),
+            ]);
+        }
+        let (n, c) = (eval::summarise(&scores[0]), eval::summarise(&scores[1]));
+        println!(
+            "{short:<16} {wname:<8} {tname:<9} {sname:<10} {bname:<6} {:>8.3} {:>10.3} {:>8.3} {:>10.3} {secs:>6.0}",
+            n.p_at_05, n.mean_best_true_conf, c.p_at_05, c.mean_best_true_conf
+        );
+        self.rows.row([
+            short,
+            wname,
+            tname,
+            sname,
+            bname,
+            conds.len().to_string(),
+            format!("{:.4}", n.p_at_05),
+            format!("{:.4}", n.mean_best_true_conf),
+            format!("{:.4}", c.p_at_05),
+            format!("{:.4}", c.mean_best_true_conf),
+            format!("{secs:.1}"),
+        ]);
+        Ok(())
+    }
 }

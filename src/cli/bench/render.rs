@@ -118,31 +118,19 @@ fn embree(python: &str, scene: &Scene, g: &GBuffer, repeats: usize) -> Option<(f
 pub fn run(a: Args) -> Result<()> {
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
-    let mut csv = Table::new([
-        "scene",
-        "triangles",
-        "bvh_build_ms",
-        "threads",
-        "rays",
-        "seconds",
-        "mrays_per_s",
-        "gbuffer_ms",
-        "hits",
-        "embree_build_ms",
-        "embree_mrays_per_s",
-        "embree_hits",
-    ]);
+    rays(&a)?;
+    anti_aliasing(&a)?;
     println!(
-        "{:<11} {:>9} {:>9} {:>7} {:>10} {:>11} {:>13} {:>12}",
-        "scene",
-        "triangles",
-        "build ms",
-        "threads",
-        "Mrays/s",
-        "embree Mr/s",
-        "cac / embree",
-        "G-buffer ms"
+        "\nwrote {} and {}",
+        a.out.join("render_rays.csv").display(),
+        a.out.join("render_aa.csv").display()
     );
+    Ok(())
+}
+
+/// BVH build and ray throughput per scene, 1 and 2 threads, beside Embree: render_rays.csv.
+fn rays(a: &Args) -> Result<()> {
+    let mut csv = rays_header();
     let settings = RenderSettings {
         width: a.size,
         height: a.size,
@@ -165,29 +153,8 @@ pub fn run(a: Args) -> Result<()> {
             .filter(|s| s.surface == cac::render::gbuffer::Surface::Object)
             .count();
         let emb = embree(&a.python, &scene, &g0, a.repeats);
-        let dirs: Vec<glam::Vec3> = g0.data.iter().map(|s| s.dir).collect();
         for threads in [1usize, 2] {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()?;
-            // The same work as Embree's: closest hit (triangle id and distance) for each ray.
-            let (secs, _) = best_of(a.repeats, || {
-                pool.install(|| {
-                    use rayon::prelude::*;
-                    dirs.par_chunks(4096)
-                        .map(|c| {
-                            c.iter()
-                                .filter(|d| {
-                                    accel.closest(cam.eye, **d, 0.0, f32::INFINITY).is_some()
-                                })
-                                .count()
-                        })
-                        .sum::<usize>()
-                })
-            });
-            let (gsecs, _) = best_of(a.repeats, || {
-                pool.install(|| GBuffer::cast(&scene, &accel, &cam, 1, false))
-            });
+            let (secs, gsecs) = cast_times(a.repeats, threads, &scene, &accel, &cam, &g0)?;
             let rays = g0.data.len();
             let mrays = rays as f64 / secs / 1e6;
             let (eb, er, eh) = emb
@@ -222,19 +189,83 @@ pub fn run(a: Args) -> Result<()> {
                 eh,
             ]);
         }
-        if emb.is_none() {
-            println!(
+        match emb {
+            None => println!(
                 "  (Embree comparison skipped: `pip install trimesh embreex numpy` to enable it)"
-            );
-        } else if let Some((_, _, eh)) = emb {
-            if eh != hits {
-                println!("  note: Embree hit {eh} rays, cac {hits} (edge rays may differ)");
+            ),
+            Some((_, _, eh)) if eh != hits => {
+                println!("  note: Embree hit {eh} rays, cac {hits} (edge rays may differ)")
             }
+            Some(_) => {}
         }
     }
-    cac::io::write_atomic(&a.out.join("render_rays.csv"), csv.csv().as_bytes())?;
+    cac::io::write_atomic(&a.out.join("render_rays.csv"), csv.csv().as_bytes())
+}
 
-    // Anti-aliasing: error against time.
+/// Prints the ray table's heading; returns the CSV table.
+fn rays_header() -> Table {
+    let t = Table::new([
+        "scene",
+        "triangles",
+        "bvh_build_ms",
+        "threads",
+        "rays",
+        "seconds",
+        "mrays_per_s",
+        "gbuffer_ms",
+        "hits",
+        "embree_build_ms",
+        "embree_mrays_per_s",
+        "embree_hits",
+    ]);
+    println!(
+        "{:<11} {:>9} {:>9} {:>7} {:>10} {:>11} {:>13} {:>12}",
+        "scene",
+        "triangles",
+        "build ms",
+        "threads",
+        "Mrays/s",
+        "embree Mr/s",
+        "cac / embree",
+        "G-buffer ms"
+    );
+    t
+}
+
+/// Seconds of the fastest closest-hit pass over `g0`'s rays (the same work as Embree's: the
+/// closest hit of each ray) and of the fastest whole G-buffer, on `threads` threads.
+fn cast_times(
+    repeats: usize,
+    threads: usize,
+    scene: &Scene,
+    accel: &Accel,
+    cam: &cac::render::Camera,
+    g0: &GBuffer,
+) -> Result<(f64, f64)> {
+    let dirs: Vec<glam::Vec3> = g0.data.iter().map(|s| s.dir).collect();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()?;
+    let (secs, _) = best_of(repeats, || {
+        pool.install(|| {
+            use rayon::prelude::*;
+            dirs.par_chunks(4096)
+                .map(|c| {
+                    c.iter()
+                        .filter(|d| accel.closest(cam.eye, **d, 0.0, f32::INFINITY).is_some())
+                        .count()
+                })
+                .sum::<usize>()
+        })
+    });
+    let (gsecs, _) = best_of(repeats, || {
+        pool.install(|| GBuffer::cast(scene, accel, cam, 1, false))
+    });
+    Ok((secs, gsecs))
+}
+
+/// Anti-aliasing error against time (PSNR of 1/4/16 samples against 64): render_aa.csv.
+fn anti_aliasing(a: &Args) -> Result<()> {
     let mut jeep = cac::scene::generate::jeep();
     jeep.normalise(0.0, None);
     let env = Environment::new(EnvConfig::default())?;
@@ -251,9 +282,7 @@ pub fn run(a: Args) -> Result<()> {
         )?;
         let atlas = r.scene.initial_atlas(r.settings.atlas_res);
         let (secs, img) = best_of(a.repeats.min(3), || {
-            let plan = r
-                .plan(&cond.viewpoint, &env.lighting(&cond), &env.backdrop(&cond))
-                .expect("plan");
+            let plan = cac::environment::plan(&r, &env, &cond).expect("plan");
             plan.render_cpu(&atlas)
         });
         Ok((secs, img))
@@ -266,17 +295,7 @@ pub fn run(a: Args) -> Result<()> {
     );
     for spp in [1usize, 4, 16, 64] {
         let (secs, img) = render_at(spp)?;
-        let mse: f64 = img
-            .iter()
-            .zip(&reference)
-            .flat_map(|(a, b)| (0..3).map(move |c| ((a[c] - b[c]) as f64).powi(2)))
-            .sum::<f64>()
-            / (img.len() * 3) as f64;
-        let psnr = if mse > 0.0 {
-            10.0 * (1.0 / mse).log10()
-        } else {
-            f64::INFINITY
-        };
+        let psnr = psnr(&img, &reference);
         println!("{:>8} {:>12.1} {:>10.2}", spp, secs * 1e3, psnr);
         aa.row([
             spp.to_string(),
@@ -284,11 +303,20 @@ pub fn run(a: Args) -> Result<()> {
             format!("{psnr:.3}"),
         ]);
     }
-    cac::io::write_atomic(&a.out.join("render_aa.csv"), aa.csv().as_bytes())?;
-    println!(
-        "\nwrote {} and {}",
-        a.out.join("render_rays.csv").display(),
-        a.out.join("render_aa.csv").display()
-    );
-    Ok(())
+    cac::io::write_atomic(&a.out.join("render_aa.csv"), aa.csv().as_bytes())
+}
+
+/// Peak signal-to-noise ratio (dB) of `img` against `reference`, values in [0, 1].
+fn psnr(img: &[[f32; 3]], reference: &[[f32; 3]]) -> f64 {
+    let mse: f64 = img
+        .iter()
+        .zip(reference)
+        .flat_map(|(a, b)| (0..3).map(move |c| ((a[c] - b[c]) as f64).powi(2)))
+        .sum::<f64>()
+        / (img.len() * 3) as f64;
+    if mse > 0.0 {
+        10.0 * (1.0 / mse).log10()
+    } else {
+        f64::INFINITY
+    }
 }

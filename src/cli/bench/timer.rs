@@ -51,9 +51,7 @@ impl Stopwatch {
 }
 
 /// The median of `v` (the upper one of an even count); `v` must not be empty. For the
-/// per-iteration times a training run logs (`cac bench attack` keeps its own copy until it
-/// switches to this one).
-#[allow(dead_code)]
+/// per-iteration times a training run logs.
 pub fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]

@@ -12,7 +12,7 @@ use cac::video::encode::{encode_sequence, H264, HEVC, MJPEG};
 use cac::video::twin::{render_turntable, TwinCalibration};
 use cac::video::{self, Annotations, OpenOptions, ScoreOptions, Tools};
 use clap::Args as ClapArgs;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(ClapArgs, Debug)]
 pub struct Args {
@@ -39,47 +39,8 @@ pub fn run(a: Args) -> Result<()> {
     let tools = Tools::from_env();
     tools.check()?;
     let dir = tempfile::tempdir()?;
-    let mut scene = cac::scene::generate::pickup();
-    scene.normalise(0.0, None);
-    let settings = cac::render::RenderSettings {
-        width: a.width,
-        height: a.height,
-        samples: 2,
-        ..Default::default()
-    };
-    let r = cac::render::Renderer::new(scene, settings)?;
-    let env = cac::environment::Environment::new(Default::default())?;
-    let atlas = r.scene.initial_atlas(r.settings.atlas_res);
     let device = device::inference();
-    let poses: Vec<(f64, f64)> = (0..a.frames)
-        .map(|i| (360.0 * i as f64 / a.frames as f64, 1.6))
-        .collect();
-    let t0 = Stopwatch::start();
-    let frames = render_turntable(
-        &r,
-        &env,
-        &atlas,
-        &TwinCalibration::default(),
-        &poses,
-        &device,
-    )?;
-    let mut csv = Table::new(["frame", "x1", "y1", "x2", "y2"]);
-    for (i, (img, b)) in frames.iter().enumerate() {
-        cac::io::save_png_atomic(&dir.path().join(format!("f{i:04}.png")), img)?;
-        if let Some(b) = b {
-            csv.row([i.to_string()].into_iter().chain(b.map(|v| v.to_string())));
-        }
-    }
-    let gt_path = dir.path().join("gt.csv");
-    cac::io::write_atomic(&gt_path, csv.csv().as_bytes())?;
-    let gt = Annotations::load(&gt_path)?;
-    eprintln!(
-        "rendered {} frames at {}x{} in {:.1} s",
-        a.frames,
-        a.width,
-        a.height,
-        t0.secs()
-    );
+    let gt = render_frames(&a, dir.path(), &device)?;
     let dets = detect::load_all(&a.models, None, &device)?;
     let mut t = Table::new([
         "codec",
@@ -151,4 +112,43 @@ pub fn run(a: Args) -> Result<()> {
     cac::io::write_atomic(&a.csv, t.csv().as_bytes())?;
     println!("wrote {}", a.csv.display());
     Ok(())
+}
+
+/// Renders one turn of the default pickup with the digital twin into `dir` (`f%04d.png`) and
+/// returns its boxes as annotations.
+fn render_frames(a: &Args, dir: &Path, device: &burn::tensor::Device) -> Result<Annotations> {
+    let mut scene = cac::scene::generate::pickup();
+    scene.normalise(0.0, None);
+    let settings = cac::render::RenderSettings {
+        width: a.width,
+        height: a.height,
+        samples: 2,
+        ..Default::default()
+    };
+    let r = cac::render::Renderer::new(scene, settings)?;
+    let env = cac::environment::Environment::new(Default::default())?;
+    let atlas = r.scene.initial_atlas(r.settings.atlas_res);
+    let poses: Vec<(f64, f64)> = (0..a.frames)
+        .map(|i| (360.0 * i as f64 / a.frames as f64, 1.6))
+        .collect();
+    let t0 = Stopwatch::start();
+    let calib = TwinCalibration::default();
+    let frames = render_turntable(&r, &env, &atlas, &calib, &poses, device)?;
+    let mut csv = Table::new(["frame", "x1", "y1", "x2", "y2"]);
+    for (i, (img, b)) in frames.iter().enumerate() {
+        cac::io::save_png_atomic(&dir.join(format!("f{i:04}.png")), img)?;
+        if let Some(b) = b {
+            csv.row([i.to_string()].into_iter().chain(b.map(|v| v.to_string())));
+        }
+    }
+    let gt_path = dir.join("gt.csv");
+    cac::io::write_atomic(&gt_path, csv.csv().as_bytes())?;
+    eprintln!(
+        "rendered {} frames at {}x{} in {:.1} s",
+        a.frames,
+        a.width,
+        a.height,
+        t0.secs()
+    );
+    Annotations::load(&gt_path)
 }

@@ -4,15 +4,18 @@
 //! batch size, n and texture resolution (the demo's scene and street-level views). Prints tables
 //! and writes CSVs. A benchmark, not a test: it asserts nothing.
 
-use super::{demo, device, train};
+use super::timer::{median, Stopwatch};
+use crate::cli::{device, train};
 use anyhow::Result;
-use cac::attack::{loss::Goal, AttackConfig, Trainer};
-use cac::config::SceneConfig;
-use cac::environment::{Brightness, Environment};
+use cac::attack::{loss::Goal, AttackConfig, IterationLog, Trainer};
+use cac::config::{self, SceneConfig};
+use cac::detect::Detector;
+use cac::environment::{street_views, Brightness, Environment};
 use cac::eval::{self, Protocol};
-use cac::render::{RenderSettings, Renderer};
+use cac::render::Renderer;
+use cac::report::Table;
+use cac::scene::{Scene, Texture};
 use std::path::PathBuf;
-use std::time::Instant;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -46,40 +49,54 @@ pub struct Args {
     pub csv: PathBuf,
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
+/// `PREFIX-<what>.csv` beside the `--csv` prefix.
+fn csv_path(a: &Args, what: &str) -> PathBuf {
+    let prefix = a
+        .csv
+        .file_name()
+        .and_then(|n| n.to_str())
+        .unwrap_or("bench-attack");
+    a.csv.with_file_name(format!("{prefix}-{what}.csv"))
 }
 
 pub fn run(a: Args) -> Result<()> {
     if a.runs == 0 || a.eval_every == 0 || a.views == 0 {
         anyhow::bail!("--runs, --eval-every and --views must be positive");
     }
-    parse_settings(&a.settings)?;
+    let settings = parse_settings(&a.settings)?;
     if a.methods {
-        let p = a.csv.with_file_name(format!(
-            "{}-methods.csv",
-            a.csv
-                .file_name()
-                .and_then(|n| n.to_str())
-                .unwrap_or("bench-attack")
-        ));
-        return super::bench::methods::run(a.iterations, a.views, &p);
+        return super::methods::run(a.iterations, a.views, &csv_path(&a, "methods"));
     }
     let dets = train::load_detectors(&["nanodet".into()])?;
     let det = [dets[0].as_ref()];
-    // (1) Time split on the default scene (512², 4 spp, 512² atlas).
+    let scene = time_split(&a, &det)?;
+    if a.split_only {
+        return Ok(());
+    }
+    error_against_time(&a, &det, &scene, settings)
+}
+
+/// (1) The iteration time split on the default scene (512², 4 spp, 512² atlas); returns the scene.
+fn time_split(a: &Args, det: &[&dyn Detector]) -> Result<Scene> {
     let cfg = SceneConfig::default();
-    let renderer = Renderer::new(cfg.object.load()?, cfg.render.clone())?;
-    let env = Environment::new(cfg.environment.clone())?;
-    let init = renderer.scene.initial_atlas(cfg.render.atlas_res);
+    let config::Stage {
+        renderer,
+        env,
+        original: init,
+    } = cfg.stage()?;
     println!("iteration time, nanodet, n = 300, {}x{} renders ({} spp), {}² atlas, CPU (median of {} after 1 warm-up)", cfg.render.width, cfg.render.height, cfg.render.samples, cfg.render.atlas_res, a.runs);
     println!(
         "{:>5} {:>10} {:>11} {:>12} {:>13} {:>9}",
         "batch", "render_ms", "forward_ms", "backward_ms", "optimiser_ms", "total_ms"
     );
-    let mut split =
-        vec!["batch,render_ms,forward_ms,backward_ms,optimiser_ms,total_ms".to_string()];
+    let mut split = Table::new([
+        "batch",
+        "render_ms",
+        "forward_ms",
+        "backward_ms",
+        "optimiser_ms",
+        "total_ms",
+    ]);
     for batch in [1usize, 4] {
         let ac = AttackConfig {
             batch,
@@ -90,7 +107,7 @@ pub fn run(a: Args) -> Result<()> {
         let mut tr = Trainer::new(ac, &renderer, &env, det.to_vec(), device::training(), &init)?;
         tr.step()?;
         let logs: Vec<_> = (0..a.runs).map(|_| tr.step()).collect::<Result<_>>()?;
-        let m = |f: fn(&cac::attack::IterationLog) -> f64| median(logs.iter().map(f).collect());
+        let m = |f: fn(&IterationLog) -> f64| median(logs.iter().map(f).collect());
         let (r, f, b, o) = (
             m(|l| l.ms_render),
             m(|l| l.ms_forward),
@@ -101,57 +118,61 @@ pub fn run(a: Args) -> Result<()> {
             "{batch:>5} {r:>10.0} {f:>11.0} {b:>12.0} {o:>13.1} {:>9.0}",
             r + f + b + o
         );
-        split.push(format!(
-            "{batch},{r:.1},{f:.1},{b:.1},{o:.2},{:.1}",
-            r + f + b + o
-        ));
+        split.row([
+            batch.to_string(),
+            format!("{r:.1}"),
+            format!("{f:.1}"),
+            format!("{b:.1}"),
+            format!("{o:.2}"),
+            format!("{:.1}", r + f + b + o),
+        ]);
     }
-    let p = a.csv.with_file_name(format!(
-        "{}-split.csv",
-        a.csv
-            .file_name()
-            .and_then(|n| n.to_str())
-            .unwrap_or("bench-attack")
-    ));
-    cac::io::write_atomic(&p, (split.join("\n") + "\n").as_bytes())?;
+    let p = csv_path(a, "split");
+    cac::io::write_atomic(&p, split.csv().as_bytes())?;
     println!("wrote {}", p.display());
-    if a.split_only {
-        return Ok(());
-    }
-    // (2) Error against time on the demo's scene and views.
-    let dcfg = demo::demo_scene();
+    Ok(renderer.scene.clone())
+}
+
+/// (2) White-box error against training time on the demo's scene and street-level views.
+fn error_against_time(
+    a: &Args,
+    det: &[&dyn Detector],
+    scene: &Scene,
+    settings: Vec<(usize, usize, usize)>,
+) -> Result<()> {
+    let dcfg = SceneConfig::training();
     let denv = Environment::new(dcfg.environment.clone())?;
-    let mut views = eval::street_views(a.views, 1.5, Brightness::Bright);
-    views.extend(eval::street_views(a.views, 1.5, Brightness::Dark));
+    let mut views = street_views(a.views, 1.5, Brightness::Bright);
+    views.extend(street_views(a.views, 1.5, Brightness::Dark));
     let proto = Protocol {
         target: Some(0),
         ..Default::default()
     };
     let inf = device::inference();
-    let settings = parse_settings(&a.settings)?;
-    println!("\nwhite-box error against training time: nanodet, target \"person\", demo scene (320², 1 spp), {} street-level views (416², 4 spp)", views.len());
-    println!(
-        "{:>5} {:>5} {:>7} {:>10} {:>10} {:>7} {:>14}",
-        "batch", "n", "texture", "iterations", "train_s", "P@0.5", "person_success"
-    );
-    let mut rows =
-        vec!["batch,n,texture_res,iterations,train_s,p_at_05,targeted_success".to_string()];
+    let mut rows = error_header(views.len());
     for (batch, n, res) in settings {
         let mut c = dcfg.clone();
         c.render.atlas_res = res;
-        let r = Renderer::new(renderer.scene.clone(), c.render.clone())?;
-        let eval_r = Renderer::new(
-            renderer.scene.clone(),
-            RenderSettings {
-                width: 416,
-                height: 416,
-                samples: 4,
-                ..c.render.clone()
-            },
-        )?;
-        let score = |atlas: &cac::scene::Texture| -> Result<eval::Summary> {
-            let r = eval::evaluate(&eval_r, &denv, &views, atlas, &det, &proto, &inf)?;
+        let r = Renderer::new(scene.clone(), c.render.clone())?;
+        let eval_r = Renderer::new(scene.clone(), config::eval_render(&c.render))?;
+        let score = |atlas: &Texture| -> Result<eval::Summary> {
+            let r = eval::evaluate(&eval_r, &denv, &views, atlas, det, &proto, &inf)?;
             Ok(eval::summarise(&r.scores[0]))
+        };
+        let mut report = |it: usize, secs: f64, s: &eval::Summary| {
+            println!(
+                "{batch:>5} {n:>5} {res:>7} {it:>10} {secs:>10.1} {:>7.3} {:>14.3}",
+                s.p_at_05, s.targeted_success
+            );
+            rows.row([
+                batch.to_string(),
+                n.to_string(),
+                res.to_string(),
+                it.to_string(),
+                format!("{secs:.2}"),
+                format!("{:.4}", s.p_at_05),
+                format!("{:.4}", s.targeted_success),
+            ]);
         };
         let original = r.scene.initial_atlas(res);
         let ac = AttackConfig {
@@ -166,39 +187,39 @@ pub fn run(a: Args) -> Result<()> {
         }
         let mut tr = Trainer::new(ac, &r, &denv, det.to_vec(), device::training(), &original)?;
         let mut secs = 0.0;
-        let s0 = score(&original)?;
-        let mut report = |it: usize, secs: f64, s: &eval::Summary| {
-            println!(
-                "{batch:>5} {n:>5} {res:>7} {it:>10} {secs:>10.1} {:>7.3} {:>14.3}",
-                s.p_at_05, s.targeted_success
-            );
-            rows.push(format!(
-                "{batch},{n},{res},{it},{secs:.2},{:.4},{:.4}",
-                s.p_at_05, s.targeted_success
-            ));
-        };
-        report(0, 0.0, &s0);
+        report(0, 0.0, &score(&original)?);
         while tr.state.iteration < a.iterations {
-            let t = Instant::now();
+            let t = Stopwatch::start();
             tr.step()?;
-            secs += t.elapsed().as_secs_f64();
+            secs += t.secs();
             let it = tr.state.iteration;
             if it % a.eval_every == 0 || it == a.iterations {
-                let s = score(&tr.atlas())?;
-                report(it, secs, &s);
+                report(it, secs, &score(&tr.atlas())?);
             }
         }
     }
-    let p = a.csv.with_file_name(format!(
-        "{}-error.csv",
-        a.csv
-            .file_name()
-            .and_then(|n| n.to_str())
-            .unwrap_or("bench-attack")
-    ));
-    cac::io::write_atomic(&p, (rows.join("\n") + "\n").as_bytes())?;
+    let p = csv_path(a, "error");
+    cac::io::write_atomic(&p, rows.csv().as_bytes())?;
     println!("wrote {}", p.display());
     Ok(())
+}
+
+/// Prints the error table's heading for `views` views; returns the CSV table.
+fn error_header(views: usize) -> Table {
+    println!("\nwhite-box error against training time: nanodet, target \"person\", demo scene (320², 1 spp), {} street-level views (416², 4 spp)", views);
+    println!(
+        "{:>5} {:>5} {:>7} {:>10} {:>10} {:>7} {:>14}",
+        "batch", "n", "texture", "iterations", "train_s", "P@0.5", "person_success"
+    );
+    Table::new([
+        "batch",
+        "n",
+        "texture_res",
+        "iterations",
+        "train_s",
+        "p_at_05",
+        "targeted_success",
+    ])
 }
 
 /// `BATCHxNxRES,...` → `(batch, n, res)` triples.
