@@ -151,6 +151,7 @@ fn train_runs(a: &TopnArgs, cfg: &SceneConfig) -> Result<Vec<String>> {
             bail!("n = {n}: the run in {} is not finished (iteration {it} of {}); train it first (--task {k})", dir.display(), a.iterations);
         }
         if it >= a.iterations {
+            // Read only: evaluation shards running side by side reuse the same finished runs.
             println!("n = {n}: reusing the finished run in {}", dir.display());
         } else {
             println!(
@@ -158,8 +159,8 @@ fn train_runs(a: &TopnArgs, cfg: &SceneConfig) -> Result<Vec<String>> {
                 a.iterations,
                 dir.display()
             );
+            run.train(&mut tr, true)?;
         }
-        run.train(&mut tr, true)?;
         specs.push(format!("{}={}", study::run_name(n), dir.display()));
     }
     Ok(specs)

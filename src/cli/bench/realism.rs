@@ -79,6 +79,10 @@ pub struct Args {
     /// CSV output file.
     #[arg(long, default_value = "bench-realism.csv")]
     pub csv: PathBuf,
+    /// Target class (a COCO label such as "person"): also report each detector's targeted
+    /// success (a target-class box with IoU >= 0.5 and confidence >= 0.3).
+    #[arg(long)]
+    pub target: Option<String>,
     /// Also write one CSV row per view (viewpoint, hit and best confidence per detector).
     #[arg(long)]
     pub per_view: Option<PathBuf>,
@@ -174,14 +178,15 @@ pub fn run(a: Args) -> Result<()> {
         a.size, a.samples, a.blender_samples, a.views, if a.photometric { "on" } else { "off" }
     );
     println!(
-        "{:<16} {:<8} {:<9} {:<10} {:<6} {:>8} {:>10} {:>8} {:>10} {:>6}",
-        "mesh", "renderer", "texture", "set", "light", "nanodet", "conf", "centernet", "conf", "s"
+        "{:<16} {:<8} {:<9} {:<10} {:<6} {:>8} {:>10} {:>8} {:>8} {:>10} {:>8} {:>6}",
+        "mesh", "renderer", "texture", "set", "light", "nanodet", "conf", "target", "centernet",
+        "conf", "target", "s"
     );
     let mut b = Bench {
         a: &a,
         cfg,
         all: dets.iter().map(|d| d.as_ref()).collect(),
-        proto: Protocol::default(),
+        proto: Protocol::from_labels("car,truck", a.target.as_deref())?,
         bs,
         dev,
         rows: Table::new([
@@ -193,8 +198,10 @@ pub fn run(a: Args) -> Result<()> {
             "views",
             "nanodet_p05",
             "nanodet_mean_conf",
+            "nanodet_targeted",
             "centernet_p05",
             "centernet_mean_conf",
+            "centernet_targeted",
             "seconds",
         ]),
         per_view: Table::new([
@@ -329,8 +336,13 @@ impl Bench<'_> {
         }
         let (n, c) = (eval::summarise(&scores[0]), eval::summarise(&scores[1]));
         println!(
-            "{short:<16} {wname:<8} {tname:<9} {sname:<10} {bname:<6} {:>8.3} {:>10.3} {:>8.3} {:>10.3} {secs:>6.0}",
-            n.p_at_05, n.mean_best_true_conf, c.p_at_05, c.mean_best_true_conf
+            "{short:<16} {wname:<8} {tname:<9} {sname:<10} {bname:<6} {:>8.3} {:>10.3} {:>8.3} {:>8.3} {:>10.3} {:>8.3} {secs:>6.0}",
+            n.p_at_05,
+            n.mean_best_true_conf,
+            n.targeted_success,
+            c.p_at_05,
+            c.mean_best_true_conf,
+            c.targeted_success
         );
         self.rows.row([
             short,
@@ -341,8 +353,10 @@ impl Bench<'_> {
             conds.len().to_string(),
             format!("{:.4}", n.p_at_05),
             format!("{:.4}", n.mean_best_true_conf),
+            format!("{:.4}", n.targeted_success),
             format!("{:.4}", c.p_at_05),
             format!("{:.4}", c.mean_best_true_conf),
+            format!("{:.4}", c.targeted_success),
             format!("{secs:.1}"),
         ]);
         Ok(())
