@@ -733,3 +733,33 @@ mod tests {
         assert!("stl".parse::<Format>().is_err());
     }
 }
+
+/// Meshes the export modules' unit tests share.
+#[cfg(test)]
+pub(crate) mod fixtures {
+    use glam::Vec3;
+
+    /// The unit cube's six faces, outward, as corner indices (see [`corner`]).
+    pub const CUBE_QUADS: [[u32; 4]; 6] = [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+    ];
+
+    /// Corner `i` of the unit cube: `(i & 1, i >> 1 & 1, i >> 2 & 1)`.
+    pub fn corner(i: u32) -> Vec3 {
+        Vec3::new((i & 1) as f32, ((i >> 1) & 1) as f32, ((i >> 2) & 1) as f32)
+    }
+
+    /// A closed, outward cube (12 triangles) of side `s` at `o`.
+    pub fn cube(s: f32, o: Vec3) -> Vec<[Vec3; 3]> {
+        let c = |i: u32| corner(i) * s + o;
+        CUBE_QUADS
+            .iter()
+            .flat_map(|q| [[c(q[0]), c(q[1]), c(q[2])], [c(q[0]), c(q[2]), c(q[3])]])
+            .collect()
+    }
+}

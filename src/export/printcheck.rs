@@ -342,16 +342,8 @@ mod tests {
 
     /// A unit cube (10 mm) with split vertices per face, one face flipped.
     fn cube(flip_one: bool, drop_one: bool) -> (Vec<Vec3>, Vec<PrintTri>) {
-        let c =
-            |i: u32| Vec3::new((i & 1) as f32, ((i >> 1) & 1) as f32, ((i >> 2) & 1) as f32) * 10.0;
-        let quads = [
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-        ];
+        use crate::export::fixtures::{corner, CUBE_QUADS as quads};
+        let c = |i: u32| corner(i) * 10.0;
         let (mut p, mut t) = (vec![], vec![]);
         for q in quads {
             let b = p.len() as u32;

@@ -480,16 +480,8 @@ mod tests {
 
     /// A 10 mm cube of split faces, with face `drop` missing (or none).
     fn cube_mesh(drop: Option<usize>) -> PrintMesh {
-        let c =
-            |i: u32| Vec3::new((i & 1) as f32, ((i >> 1) & 1) as f32, ((i >> 2) & 1) as f32) * 10.0;
-        let quads = [
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-        ];
+        use crate::export::fixtures::{corner, CUBE_QUADS as quads};
+        let c = |i: u32| corner(i) * 10.0;
         let (mut p, mut t) = (vec![], vec![]);
         for (qi, q) in quads.iter().enumerate() {
             if Some(qi) == drop {

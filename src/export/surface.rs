@@ -290,26 +290,7 @@ pub fn closest_on_triangle(p: Vec3, t: &[Vec3; 3]) -> (Vec3, Vec3) {
 mod tests {
     use super::*;
 
-    /// A closed, outward unit cube (12 triangles) scaled by `s`, offset by `o`.
-    pub fn cube(s: f32, o: Vec3) -> Vec<[Vec3; 3]> {
-        let c = |i: u32| {
-            Vec3::new((i & 1) as f32, ((i >> 1) & 1) as f32, ((i >> 2) & 1) as f32) * s + o
-        };
-        let quads = [
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-        ];
-        let mut t = vec![];
-        for q in quads {
-            t.push([c(q[0]), c(q[1]), c(q[2])]);
-            t.push([c(q[0]), c(q[2]), c(q[3])]);
-        }
-        t
-    }
+    use crate::export::fixtures::cube;
 
     #[test]
     fn winding_number_is_one_inside_zero_outside() {

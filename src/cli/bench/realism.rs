@@ -179,8 +179,18 @@ pub fn run(a: Args) -> Result<()> {
     );
     println!(
         "{:<16} {:<8} {:<9} {:<10} {:<6} {:>8} {:>10} {:>8} {:>8} {:>10} {:>8} {:>6}",
-        "mesh", "renderer", "texture", "set", "light", "nanodet", "conf", "target", "centernet",
-        "conf", "target", "s"
+        "mesh",
+        "renderer",
+        "texture",
+        "set",
+        "light",
+        "nanodet",
+        "conf",
+        "target",
+        "centernet",
+        "conf",
+        "target",
+        "s"
     );
     let mut b = Bench {
         a: &a,
