@@ -87,19 +87,7 @@ pub fn run(c: Cmd) -> Result<()> {
                 .into_iter()
                 .chain(a.args.iter().cloned())
                 .collect();
-            let stages = vec![
-                Stage {
-                    name: "eval".into(),
-                    tasks: Some(shards),
-                    argv: with(&base, &["--shard", &format!("{{task}}/{shards}")]),
-                },
-                Stage {
-                    name: "merge".into(),
-                    tasks: None,
-                    argv: with(&base, &["--merge"]),
-                },
-            ];
-            submit(&a, &line.a.out, &stages)
+            submit(&a, &line.a.out, &shards_then_merge(&base, shards))
         }
         Cmd::Study(StudyCmd::Topn(a)) => {
             let line = TopnLine::try_parse_from(
@@ -114,26 +102,31 @@ pub fn run(c: Cmd) -> Result<()> {
                 .into_iter()
                 .chain(a.args.iter().cloned())
                 .collect();
-            let stages = vec![
-                Stage {
-                    name: "train".into(),
-                    tasks: Some(line.a.n.len()),
-                    argv: with(&base, &["--task", "{task}"]),
-                },
-                Stage {
-                    name: "eval".into(),
-                    tasks: Some(shards),
-                    argv: with(&base, &["--shard", &format!("{{task}}/{shards}")]),
-                },
-                Stage {
-                    name: "merge".into(),
-                    tasks: None,
-                    argv: with(&base, &["--merge"]),
-                },
-            ];
+            let mut stages = vec![Stage {
+                name: "train".into(),
+                tasks: Some(line.a.n.len()),
+                argv: with(&base, &["--task", "{task}"]),
+            }];
+            stages.extend(shards_then_merge(&base, shards));
             submit(&a, &line.a.out, &stages)
         }
     }
+}
+
+/// The evaluation as an array of `shards` tasks, then the merge that waits for them.
+fn shards_then_merge(base: &[String], shards: usize) -> Vec<Stage> {
+    vec![
+        Stage {
+            name: "eval".into(),
+            tasks: Some(shards),
+            argv: with(base, &["--shard", &format!("{{task}}/{shards}")]),
+        },
+        Stage {
+            name: "merge".into(),
+            tasks: None,
+            argv: with(base, &["--merge"]),
+        },
+    ]
 }
 
 fn shards(n: usize) -> Result<usize> {

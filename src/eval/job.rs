@@ -6,9 +6,7 @@
 //! files, [`merge`] writes the report from those files without rendering (see [`super::shard`]).
 
 use super::report::{self, EvalInfo};
-use super::run::{
-    all_views, evaluate_texture, evaluate_texture_in, view_groups, ViewGroup, ViewPlan,
-};
+use super::run::{all_views, evaluate_texture_in, view_groups, TextureResult, ViewGroup, ViewPlan};
 use super::shard::{self, Shard};
 use super::{cache, textures, Protocol};
 use crate::config::SceneConfig;
@@ -81,6 +79,39 @@ struct Prepared {
     models: Vec<String>,
     keys: Vec<String>,
     cache_dir: PathBuf,
+}
+
+impl Prepared {
+    /// Renders and scores texture `t` in `views` (building the renderer on first use, so a run
+    /// that only reuses the cache never ray-casts).
+    #[allow(clippy::too_many_arguments)]
+    fn score(
+        &self,
+        job: &EvalJob,
+        renderer: &mut Option<Renderer>,
+        views: &[(usize, usize)],
+        t: &textures::NamedTexture,
+        dets: &[&dyn Detector],
+        device: &Device,
+        progress: &mut dyn FnMut(),
+    ) -> Result<TextureResult> {
+        if renderer.is_none() {
+            *renderer = Some(Renderer::new(self.scene.clone(), job.scene.render.clone())?);
+        }
+        evaluate_texture_in(
+            renderer.as_ref().expect("built above"),
+            &self.env,
+            &self.groups,
+            views,
+            &t.name,
+            &t.atlas,
+            dets,
+            &job.protocol,
+            job.examples_per_group,
+            device,
+            progress,
+        )
+    }
 }
 
 fn prepare(job: &EvalJob, dets: &[&dyn Detector]) -> Result<Prepared> {
@@ -163,25 +194,10 @@ pub fn run_shard(
             progress(done, total);
             continue;
         }
-        if renderer.is_none() {
-            renderer = Some(Renderer::new(p.scene.clone(), job.scene.render.clone())?);
-        }
-        let r = evaluate_texture_in(
-            renderer.as_ref().expect("built above"),
-            &p.env,
-            &p.groups,
-            &mine,
-            &t.name,
-            &t.atlas,
-            dets,
-            &job.protocol,
-            job.examples_per_group,
-            device,
-            &mut || {
-                done += 1;
-                progress(done, total);
-            },
-        )?;
+        let r = p.score(job, &mut renderer, &mine, t, dets, device, &mut || {
+            done += 1;
+            progress(done, total);
+        })?;
         out.images_scored += mine.len();
         let file = cache::store_shard(&p.cache_dir, &t.name, key, (shard.k, shard.n), &mine, &r)?;
         out.written.push((t.name.clone(), file));
@@ -228,24 +244,10 @@ fn report_part(
                 )))
             }
             (_, Err(_)) => {
-                if renderer.is_none() {
-                    renderer = Some(Renderer::new(p.scene.clone(), job.scene.render.clone())?);
-                }
-                let r = evaluate_texture(
-                    renderer.as_ref().expect("built above"),
-                    &p.env,
-                    &p.groups,
-                    &t.name,
-                    &t.atlas,
-                    dets,
-                    &job.protocol,
-                    job.examples_per_group,
-                    device,
-                    &mut || {
-                        done += 1;
-                        progress(done, total);
-                    },
-                )?;
+                let r = p.score(job, &mut renderer, &p.views, t, dets, device, &mut || {
+                    done += 1;
+                    progress(done, total);
+                })?;
                 scored += per_texture;
                 cache::store(&p.cache_dir, &t.name, key, &r)?;
                 results.push((r, false));

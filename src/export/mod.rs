@@ -754,6 +754,24 @@ pub(crate) mod fixtures {
         Vec3::new((i & 1) as f32, ((i >> 1) & 1) as f32, ((i >> 2) & 1) as f32)
     }
 
+    /// A one-part mesh of `tris` over `positions`, welded and checked as the exporter does.
+    pub fn print_mesh(
+        name: &str,
+        positions: &[Vec3],
+        mut tris: Vec<super::PrintTri>,
+    ) -> super::PrintMesh {
+        let (positions, report) = super::printcheck::weld_and_check(positions, &mut tris).unwrap();
+        super::PrintMesh {
+            name: name.into(),
+            positions,
+            tris,
+            textures: vec![],
+            parts: vec!["body".into()],
+            painted: vec![false],
+            report,
+        }
+    }
+
     /// A closed, outward cube (12 triangles) of side `s` at `o`.
     pub fn cube(s: f32, o: Vec3) -> Vec<[Vec3; 3]> {
         let c = |i: u32| corner(i) * s + o;

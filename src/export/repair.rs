@@ -497,16 +497,7 @@ mod tests {
                 });
             }
         }
-        let (positions, report) = weld_and_check(&p, &mut t).unwrap();
-        PrintMesh {
-            name: "cube".into(),
-            positions,
-            tris: t,
-            textures: vec![],
-            parts: vec!["body".into()],
-            painted: vec![false],
-            report,
-        }
+        crate::export::fixtures::print_mesh("cube", &p, t)
     }
 
     #[test]

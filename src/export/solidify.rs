@@ -688,16 +688,7 @@ mod tests {
                 part: 0,
             });
         }
-        let (positions, report) = weld_and_check(&positions, &mut pt).unwrap();
-        PrintMesh {
-            name: "t".into(),
-            positions,
-            tris: pt,
-            textures: vec![],
-            parts: vec!["body".into()],
-            painted: vec![false],
-            report,
-        }
+        crate::export::fixtures::print_mesh("t", &positions, pt)
     }
 
     use crate::export::fixtures::cube;
