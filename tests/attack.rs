@@ -2,7 +2,11 @@
 //! changes only paintable texels, fixes the candidates on the object as its proposals, and stays
 //! finite at the extremes of the environment.
 
-use cac::attack::{self, loss::Goal, AttackConfig, Trainer};
+use cac::attack::{
+    self,
+    loss::{ClassSet, Goal},
+    AttackConfig, Trainer,
+};
 use cac::detect::{self, Detector};
 use cac::environment::{Brightness, Condition, EnvConfig, Environment};
 use cac::render::{RenderSettings, Renderer, Viewpoint};
@@ -237,7 +241,7 @@ fn loss_and_gradients_stay_finite_at_environment_extremes() {
         c.channel_mul = [1.3, 0.7, 1.3];
         c.channel_add = [0.15, -0.15, 0.15];
         let plan = cac::environment::plan(&r, &env, &c).unwrap();
-        for goal in [Goal::Targeted(0), Goal::Hide] {
+        for goal in [Goal::Targeted(0), Goal::Hide(ClassSet::ALL)] {
             // burn has no retain_graph: one forward pass per backward.
             let atlas = cac::render::atlas_tensor(&init, &dev).require_grad();
             let img = cac::environment::form_planned(
@@ -247,7 +251,7 @@ fn loss_and_gradients_stay_finite_at_environment_extremes() {
             );
             let cand = d.candidates(img).unwrap();
             // Both proposal rules, in turn (one forward pass each: no retain_graph).
-            let l = if goal == Goal::Hide {
+            let l = if goal == Goal::Hide(ClassSet::ALL) {
                 let sel = attack::loss::select_proposals(&cand, 300, 0.7).unwrap();
                 attack::loss::proposals_loss(cand.logits.clone(), &sel, goal).unwrap()
             } else {

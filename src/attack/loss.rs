@@ -20,7 +20,7 @@
 //! `ℓ_i = Σ_c [ softplus(z_ic) − y_c · z_ic ]`,  `y = onehot(target)`,
 //!
 //! which is `−log σ(z_it) − Σ_{c≠t} log(1 − σ(z_ic))`. The non-targeted "hide" mode uses `y = 0`
-//! (suppress every class). Under `TopN` the loss is the mean of `ℓ_i` over all fixed proposals of
+//! over a set `H` of classes (every class, or the object's true classes): `ℓ_i = Σ_{c∈H} softplus(z_ic)`. Under `TopN` the loss is the mean of `ℓ_i` over all fixed proposals of
 //! the batch; under `Overlap` it is the mean over images of each image's mean (images with the
 //! object far away, and so few overlapping candidates, weigh as much as close ones):
 //!
@@ -39,8 +39,62 @@ use burn::tensor::{Int, Tensor, TensorData};
 pub enum Goal {
     /// Every fixed proposal classified as this COCO-80 class.
     Targeted(usize),
-    /// Every class suppressed in every fixed proposal.
-    Hide,
+    /// The classes of the set suppressed in every fixed proposal.
+    Hide(ClassSet),
+}
+
+/// A set of COCO-80 class ids (bit `c` set: class `c` is in the set).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct ClassSet(pub u128);
+
+impl ClassSet {
+    /// Every class.
+    pub const ALL: ClassSet = ClassSet(u128::MAX);
+
+    pub fn of(ids: &[usize]) -> ClassSet {
+        ClassSet(
+            ids.iter()
+                .filter(|&&c| c < 128)
+                .fold(0, |m, &c| m | 1u128 << c),
+        )
+    }
+
+    pub fn contains(self, c: usize) -> bool {
+        c < 128 && (self.0 >> c) & 1 == 1
+    }
+
+    /// `[1, classes]` of 1 where the class is in the set, 0 elsewhere; `None` when every one of
+    /// the `classes` is in it (no mask needed).
+    fn mask(self, classes: usize, device: &burn::tensor::Device) -> Option<Tensor<2>> {
+        if (0..classes).all(|c| self.contains(c)) {
+            return None;
+        }
+        let m: Vec<f32> = (0..classes)
+            .map(|c| if self.contains(c) { 1.0 } else { 0.0 })
+            .collect();
+        Some(Tensor::<2>::from_data(
+            TensorData::new(m, [1, classes]),
+            device,
+        ))
+    }
+}
+
+/// `Σ_c softplus(z_ic)` over the classes the goal scores (`[m, 1]`), minus `z_it` when targeted.
+fn per_proposal(z: Tensor<2>, goal: Goal) -> Result<Tensor<2>> {
+    let [m, classes] = z.dims();
+    let sp = softplus(z.clone());
+    match goal {
+        Goal::Targeted(t) => {
+            if t >= classes {
+                bail!("target class {t} is out of range for {classes} classes");
+            }
+            Ok(sp.sum_dim(1) - z.slice([0..m, t..t + 1]))
+        }
+        Goal::Hide(set) => Ok(match set.mask(classes, &z.device()) {
+            Some(w) => (sp * w).sum_dim(1),
+            None => sp.sum_dim(1),
+        }),
+    }
 }
 
 /// Which candidates the loss fixes as proposals (module docs).
@@ -216,16 +270,7 @@ pub fn proposals_loss(logits: Tensor<3>, sel: &[Vec<usize>], goal: Goal) -> Resu
     let m = rows.len();
     let idx = Tensor::<1, Int>::from_data(TensorData::new(rows, [m]), &device);
     let z = logits.reshape([b * n, classes]).select(0, idx);
-    let mut loss = softplus(z.clone());
-    if let Goal::Targeted(t) = goal {
-        if t >= classes {
-            bail!("target class {t} is out of range for {classes} classes");
-        }
-        let zt = z.slice([0..m, t..t + 1]);
-        loss = loss.sum_dim(1) - zt;
-        return Ok(loss.sum() / m as f64);
-    }
-    Ok(loss.sum() / m as f64)
+    Ok(per_proposal(z, goal)?.sum() / m as f64)
 }
 
 /// The per-image-mean loss of [`ProposalRule::Overlap`]: each image's proposals averaged, then
@@ -254,13 +299,7 @@ pub fn proposals_loss_per_image(
     let device = logits.device();
     let idx = Tensor::<1, Int>::from_data(TensorData::new(rows, [m]), &device);
     let z = logits.reshape([b * n, classes]).select(0, idx);
-    let mut per = softplus(z.clone()).sum_dim(1); // [m, 1]
-    if let Goal::Targeted(t) = goal {
-        if t >= classes {
-            bail!("target class {t} is out of range for {classes} classes");
-        }
-        per = per - z.slice([0..m, t..t + 1]);
-    }
+    let per = per_proposal(z, goal)?; // [m, 1]
     let w = Tensor::<2>::from_data(TensorData::new(weights, [m, 1]), (&device, per.dtype()));
     Ok((per * w).sum())
 }
@@ -300,6 +339,41 @@ mod tests {
         assert!(g.iter().all(|v| v.is_finite()));
         // d/dz of the target's term is σ(z) − 1 (< 0: raising z lowers the loss); others σ(z) > 0.
         assert!(g[1] < 0.0 && g[0] > 0.0 && g[2] > 0.0, "{g:?}");
+    }
+
+    #[test]
+    fn hide_over_a_class_set_scores_only_those_classes() {
+        let d = dev();
+        let z = vec![2.0f32, -1.0, 0.5, 3.0, 1e4, -2.0];
+        let t = Tensor::<3>::from_data(TensorData::new(z.clone(), [1, 2, 3]), &d).require_grad();
+        let set = ClassSet::of(&[0, 2]);
+        assert!(set.contains(0) && !set.contains(1) && set.contains(2) && !set.contains(200));
+        let l = proposals_loss(t.clone(), &[vec![0, 1]], Goal::Hide(set)).unwrap();
+        let sp = |x: f64| x.max(0.0) + (-x.abs()).exp().ln_1p();
+        let want = (sp(2.0) + sp(0.5) + sp(3.0) + sp(-2.0)) / 2.0;
+        let got = l
+            .clone()
+            .into_data()
+            .convert::<f64>()
+            .try_to_vec::<f64>()
+            .unwrap()[0];
+        assert!((got - want).abs() / want < 1e-5, "{got} vs {want}");
+        let g = t.grad(&l.backward()).unwrap();
+        let g = g.into_data().convert::<f32>().try_to_vec::<f32>().unwrap();
+        // Class 1 is outside the set: no gradient, even at a logit of 1e4.
+        assert_eq!((g[1], g[4]), (0.0, 0.0), "{g:?}");
+        assert!(
+            g[0] > 0.0 && g[2] > 0.0 && g[3] > 0.0 && g[5] > 0.0,
+            "{g:?}"
+        );
+        // Every class: the plain sum, which does see class 1.
+        let all = proposals_loss(t.clone(), &[vec![0, 1]], Goal::Hide(ClassSet::ALL)).unwrap();
+        let all = all
+            .into_data()
+            .convert::<f64>()
+            .try_to_vec::<f64>()
+            .unwrap()[0];
+        assert!((all - (want + (sp(-1.0) + sp(1e4)) / 2.0)).abs() / all < 1e-5);
     }
 
     #[test]
@@ -361,7 +435,7 @@ mod tests {
             .into_data()
             .convert::<f32>();
         assert!(g.try_to_vec::<f32>().unwrap().iter().all(|v| v.is_finite()));
-        let e = proposals_loss_per_image(t, &[vec![], vec![]], Goal::Hide).unwrap();
+        let e = proposals_loss_per_image(t, &[vec![], vec![]], Goal::Hide(ClassSet::ALL)).unwrap();
         assert_eq!(
             e.into_data().convert::<f32>().try_to_vec::<f32>().unwrap()[0],
             0.0
@@ -373,7 +447,7 @@ mod tests {
         let d = dev();
         let t =
             Tensor::<3>::from_data(TensorData::new(vec![1.0f32; 6], [2, 1, 3]), &d).require_grad();
-        let l = proposals_loss(t.clone(), &[vec![], vec![]], Goal::Hide).unwrap();
+        let l = proposals_loss(t.clone(), &[vec![], vec![]], Goal::Hide(ClassSet::ALL)).unwrap();
         assert_eq!(
             l.clone()
                 .into_data()

@@ -30,7 +30,7 @@ use crate::environment::{Brightness, Condition, Environment, ViewpointSet};
 use anyhow::{bail, Context, Result};
 pub use baselines::Method;
 use burn::tensor::Tensor;
-use loss::{Goal, ProposalRule};
+use loss::{ClassSet, Goal, ProposalRule};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -45,8 +45,12 @@ pub struct AttackConfig {
     pub models: Vec<String>,
     /// COCO class every proposal is pushed towards; ignored with `hide`.
     pub target: String,
-    /// Non-targeted mode: suppress every class.
+    /// Non-targeted mode: suppress the `hide_classes` in the proposals.
     pub hide: bool,
+    /// The classes hide mode suppresses: `all`, or comma-separated COCO labels. Runs written
+    /// before the setting existed suppressed every class.
+    #[serde(default = "all_classes")]
+    pub hide_classes: String,
     /// Which candidates become the fixed proposals (`loss` module docs). Runs written before
     /// the rule existed used top-n, so a run.json without it reads as `topn`.
     #[serde(default = "legacy_rule")]
@@ -79,6 +83,7 @@ impl Default for AttackConfig {
             models: vec!["nanodet".into()],
             target: "person".into(),
             hide: false,
+            hide_classes: "all".into(),
             proposals: ProposalRule::Overlap,
             top_n: 300,
             nms_iou: 0.7,
@@ -101,14 +106,39 @@ fn one_scale() -> usize {
     1
 }
 
+fn all_classes() -> String {
+    "all".into()
+}
+
 fn legacy_rule() -> ProposalRule {
     ProposalRule::TopN
 }
 
+/// `all`, or comma-separated COCO-80 labels, as a class set.
+fn hide_set(labels: &str) -> Result<ClassSet> {
+    if labels.trim().eq_ignore_ascii_case("all") {
+        return Ok(ClassSet::ALL);
+    }
+    let mut ids = Vec::new();
+    for l in labels.split(',').map(str::trim).filter(|l| !l.is_empty()) {
+        match crate::detect::labels::class_id(l) {
+            Some(c) => ids.push(c),
+            None => bail!("--hide-classes: unknown class {l:?} (use `all` or COCO-80 labels such as \"car,bus,truck\")"),
+        }
+    }
+    if ids.is_empty() {
+        bail!("--hide-classes is empty (use `all` or COCO-80 labels such as \"car,bus,truck\")");
+    }
+    Ok(ClassSet::of(&ids))
+}
+
 impl AttackConfig {
     pub fn goal(&self) -> Result<Goal> {
-        if self.hide || !self.method.is_targeted() {
-            return Ok(Goal::Hide);
+        if !self.method.is_targeted() {
+            return Ok(Goal::Hide(ClassSet::ALL));
+        }
+        if self.hide {
+            return Ok(Goal::Hide(hide_set(&self.hide_classes)?));
         }
         match crate::detect::labels::class_id(&self.target) {
             Some(c) => Ok(Goal::Targeted(c)),

@@ -32,9 +32,12 @@ pub struct Args {
     /// Target COCO class.
     #[arg(long, default_value = "person")]
     pub target: String,
-    /// Non-targeted mode: hide the object (suppress every class).
+    /// Non-targeted mode: hide the object (suppress --hide-classes in the proposals).
     #[arg(long)]
     pub hide: bool,
+    /// The classes --hide suppresses: `all`, or comma-separated COCO labels (e.g. car,bus,truck).
+    #[arg(long, default_value = "all")]
+    pub hide_classes: String,
     /// Which candidates the loss fixes: `overlap` (those on the object's box, IoU >=
     /// --overlap-iou) or `topn` (the top n after NMS over the whole image). See docs/attack.md.
     #[arg(long, value_enum, default_value_t = cac::attack::loss::ProposalRule::Overlap)]
@@ -143,6 +146,7 @@ fn attack_config(a: &Args) -> AttackConfig {
         models: a.models.clone(),
         target: a.target.clone(),
         hide: a.hide,
+        hide_classes: a.hide_classes.clone(),
         proposals: a.proposals,
         overlap_iou: a.overlap_iou,
         scales: a.scales,

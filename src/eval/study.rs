@@ -1,9 +1,12 @@
-//! The top-n denseness study's figures (the paper's Figure 5): P@0.5 of textures trained with
-//! different numbers of fixed proposals n, per evaluation model, against the original texture.
-//! The training and the evaluation themselves are `attack::Trainer` and [`super::job`].
+//! The studies' figures: the top-n denseness study (the paper's Figure 5: P@0.5 of textures
+//! trained with different numbers of fixed proposals n, per evaluation model, against the
+//! original texture) and the methods table (every attack of one harness, per model and
+//! viewpoint set). The training and the evaluation themselves are `attack::Trainer` and
+//! [`super::job`].
 
 use super::run::ImageRecord;
 use super::summary::{figures, sel, Figures};
+use crate::environment::ViewpointSet;
 use crate::report::{plot, Plot, Series, Table};
 use anyhow::Result;
 
@@ -100,4 +103,41 @@ pub fn topn_plot(
         .y_range(-0.02, 1.02),
         &series,
     )
+}
+
+/// One row per texture (`(name, training seconds)`, `None` for textures not trained); per model
+/// P@0.5 and targeted success in each viewpoint set, over both brightness levels.
+pub fn methods_table(
+    records: &[ImageRecord],
+    rows: &[(String, Option<f64>)],
+    models: &[String],
+    sources: &[String],
+    sets: &[ViewpointSet],
+) -> Table {
+    let tag = |s: &ViewpointSet| match s {
+        ViewpointSet::Free => "FV",
+        ViewpointSet::Restricted => "RV",
+    };
+    let mut head = vec!["texture".to_string(), "train (s)".to_string()];
+    for m in models {
+        for what in ["P@0.5", "target"] {
+            for s in sets {
+                head.push(format!("{m} ({}) {what} {}", role(m, sources), tag(s)));
+            }
+        }
+    }
+    let mut t = Table::new(head);
+    for (name, secs) in rows {
+        let mut row = vec![name.clone(), secs.map_or("—".into(), |s| format!("{s:.0}"))];
+        for m in models {
+            let f: Vec<Figures> = sets
+                .iter()
+                .map(|&s| figures(records, sel(name, m, Some(s), None)))
+                .collect();
+            row.extend(f.iter().map(|f| format!("{:.3}", f.p_at_05)));
+            row.extend(f.iter().map(|f| format!("{:.3}", f.targeted_success)));
+        }
+        t.row(row);
+    }
+    t
 }

@@ -60,7 +60,7 @@ pub fn objective(
             Ok((loss::proposals_loss_per_image(c.logits, &p, goal)?, n))
         }
         Method::Cac | Method::Shapeshifter => {
-            if method == Method::Shapeshifter && goal == Goal::Hide {
+            if method == Method::Shapeshifter && matches!(goal, Goal::Hide(_)) {
                 bail!("shapeshifter is a targeted attack: it needs a target class");
             }
             let sel = select_proposals(&c, top_n, nms_iou)?;

@@ -37,10 +37,6 @@ pub struct Args {
         default_value = "1x300x256,2x300x256,2x50x256,2x300x128,2x300x512"
     )]
     pub settings: String,
-    /// Instead: compare CAC, the baselines and the simple textures (trains each method for
-    /// --iterations) and write PREFIX-methods.csv.
-    #[arg(long)]
-    pub methods: bool,
     /// Skip the error-against-time part.
     #[arg(long)]
     pub split_only: bool,
@@ -64,9 +60,6 @@ pub fn run(a: Args) -> Result<()> {
         anyhow::bail!("--runs, --eval-every and --views must be positive");
     }
     let settings = parse_settings(&a.settings)?;
-    if a.methods {
-        return super::methods::run(a.iterations, a.views, &csv_path(&a, "methods"));
-    }
     let dets = train::load_detectors(&["nanodet".into()])?;
     let det = [dets[0].as_ref()];
     let scene = time_split(&a, &det)?;

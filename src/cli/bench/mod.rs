@@ -7,7 +7,6 @@ pub mod attack;
 pub mod detect;
 pub mod eval;
 pub mod frcnn;
-pub mod methods;
 pub mod realism;
 pub mod render;
 pub mod timer;

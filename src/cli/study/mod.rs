@@ -8,6 +8,8 @@
 //! many of them are fixed, hence the small default values; `--proposals topn --n 50,100,200,300`
 //! is the paper's Figure 5 (top-n after NMS over the whole image).
 
+mod methods;
+
 use super::{device, eval::parse_sets, train};
 use anyhow::{bail, Context, Result};
 use cac::attack::{run::RunDir, AttackConfig, Trainer};
@@ -17,12 +19,14 @@ use cac::eval::job::{self, EvalJob};
 use cac::eval::run::ViewPlan;
 use cac::eval::{study, Protocol};
 use cac::report::Html;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(clap::Subcommand, Debug)]
 pub enum Cmd {
     /// P@0.5 against the number of fixed proposals n.
     Topn(TopnArgs),
+    /// CAC and the paper's baselines trained alike and judged by the protocol.
+    Methods(methods::Args),
 }
 
 #[derive(clap::Args, Debug)]
@@ -78,6 +82,7 @@ pub struct TopnArgs {
 pub fn run(c: Cmd) -> Result<()> {
     match c {
         Cmd::Topn(a) => topn(a),
+        Cmd::Methods(a) => methods::run(a),
     }
 }
 
@@ -103,11 +108,7 @@ fn topn(a: TopnArgs) -> Result<()> {
 /// Trains (or reuses, or resumes) one run per n in OUT/n<N>/; returns the texture specs for the
 /// evaluation, the original first.
 fn train_runs(a: &TopnArgs, cfg: &SceneConfig) -> Result<Vec<String>> {
-    let Stage {
-        renderer,
-        env,
-        original,
-    } = cfg.stage()?;
+    let stage = cfg.stage()?;
     let sources = train::load_detectors(&a.models)?;
     let src: Vec<&dyn cac::detect::Detector> = sources.iter().map(|d| d.as_ref()).collect();
     let mut specs = vec!["original".to_string()];
@@ -136,34 +137,65 @@ fn train_runs(a: &TopnArgs, cfg: &SceneConfig) -> Result<Vec<String>> {
             viewpoints: ViewpointSet::Free,
             ..Default::default()
         };
-        let run = RunDir::open_or_create(&dir, cfg.clone(), ac.clone())?;
-        let tr = Trainer::new(
+        let read_only = (a.shard.is_some() || a.merge).then(|| format!("--task {k}"));
+        train_one(
+            &dir,
+            cfg,
             ac,
-            &renderer,
-            &env,
-            src.clone(),
-            device::training(),
-            &original,
+            &stage,
+            &src,
+            &format!("n = {n}"),
+            read_only.as_deref(),
         )?;
-        let mut tr = run.resume(tr)?;
-        let it = tr.state.iteration;
-        if (a.shard.is_some() || a.merge) && it < a.iterations {
-            bail!("n = {n}: the run in {} is not finished (iteration {it} of {}); train it first (--task {k})", dir.display(), a.iterations);
-        }
-        if it >= a.iterations {
-            // Read only: evaluation shards running side by side reuse the same finished runs.
-            println!("n = {n}: reusing the finished run in {}", dir.display());
-        } else {
-            println!(
-                "n = {n}: training iterations {it}..{} in {}",
-                a.iterations,
-                dir.display()
-            );
-            run.train(&mut tr, true)?;
-        }
         specs.push(format!("{}={}", study::run_name(n), dir.display()));
     }
     Ok(specs)
+}
+
+/// Trains (resuming a checkpoint) the run in `dir` up to `ac.iterations`, or only reads it when
+/// it is finished; with `read_only` (the hint of the command that trains it) an unfinished run is
+/// an error. Returns the run's logged training seconds (the iterations' own times).
+fn train_one(
+    dir: &Path,
+    cfg: &SceneConfig,
+    ac: AttackConfig,
+    stage: &Stage,
+    src: &[&dyn cac::detect::Detector],
+    label: &str,
+    read_only: Option<&str>,
+) -> Result<f64> {
+    let iterations = ac.iterations;
+    let run = RunDir::open_or_create(dir, cfg.clone(), ac.clone())?;
+    let tr = Trainer::new(
+        ac,
+        &stage.renderer,
+        &stage.env,
+        src.to_vec(),
+        device::training(),
+        &stage.original,
+    )?;
+    let mut tr = run.resume(tr)?;
+    let it = tr.state.iteration;
+    if let Some(hint) = read_only.filter(|_| it < iterations) {
+        bail!("{label}: the run in {} is not finished (iteration {it} of {iterations}); train it first ({hint})", dir.display());
+    }
+    if it >= iterations {
+        // Read only: evaluation shards running side by side reuse the same finished runs.
+        println!("{label}: reusing the finished run in {}", dir.display());
+    } else {
+        println!(
+            "{label}: training iterations {it}..{iterations} in {}",
+            dir.display()
+        );
+        run.train(&mut tr, true)?;
+    }
+    let ms: f64 = tr
+        .state
+        .log
+        .iter()
+        .map(|l| l.ms_render + l.ms_forward + l.ms_backward + l.ms_optimiser)
+        .sum();
+    Ok(ms / 1000.0)
 }
 
 /// Evaluates the textures with the protocol and writes the study's table, plot and pages.
