@@ -119,21 +119,6 @@ pub(crate) fn run_tool(tools: &Tools, tool: &Path, args: &[&std::ffi::OsStr]) ->
     Ok(out.stdout)
 }
 
-/// Mean and sample standard deviation (n − 1, as the capture scorer); `(0, 0)` for no values,
-/// std 0 for one.
-pub fn mean_std(v: &[f64]) -> (f64, f64) {
-    if v.is_empty() {
-        return (0.0, 0.0);
-    }
-    let n = v.len() as f64;
-    let m = v.iter().sum::<f64>() / n;
-    if v.len() == 1 {
-        return (m, 0.0);
-    }
-    let var = v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0);
-    (m, var.sqrt())
-}
-
 /// Is `path` a printf-style image-sequence pattern (`frames/%04d.png`)?
 pub fn is_pattern(path: &Path) -> bool {
     path.to_string_lossy().contains('%')
