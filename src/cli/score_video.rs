@@ -4,10 +4,9 @@
 use anyhow::{bail, Context, Result};
 use cac::detect::{self, Detector};
 use cac::eval::Protocol;
+use cac::physical::rig_camera::{RigCamera, TwinCalibration, TwinCamera};
 use cac::render::{RenderSettings, Renderer};
-use cac::video::log::{LogGroundTruth, LogSegments, Projector, TurntableLog};
-use cac::video::rig::RigProjector;
-use cac::video::twin::{TwinCalibration, TwinProjector};
+use cac::video::log::{LogGroundTruth, LogSegments, TurntableLog};
 use cac::video::{
     annotate, report, Annotations, GroundTruth, OpenOptions, Sampling, ScoreOptions, Segmenting,
     Tools,
@@ -212,7 +211,7 @@ fn ground_truth(
         .then(|| log.samples().iter().map(|s| s.t - offset_s).collect());
     let gt = LogGroundTruth {
         log,
-        projector: projector(a, size)?,
+        camera: rig_camera(a, size)?,
         offset_s,
         segments: match a.segments {
             SegArg::Revolution => LogSegments::Revolution,
@@ -223,11 +222,12 @@ fn ground_truth(
     Ok((Box::new(gt), times))
 }
 
-/// The log's projector: the calibrated rig (`--rig`) or the digital twin of `--mesh`.
-fn projector(a: &Args, (w, h): (u32, u32)) -> Result<Box<dyn Projector>> {
+/// The log's rig camera: the calibrated rig (`--rig`) or the digital twin of `--mesh`.
+fn rig_camera(a: &Args, (w, h): (u32, u32)) -> Result<Box<dyn RigCamera>> {
     if let Some(r) = &a.rig {
         let rig = cac::physical::rig::Rig::load(r)?;
-        return Ok(Box::new(RigProjector::new(rig, (w, h))?));
+        rig.check_frame_size((w, h))?;
+        return Ok(Box::new(rig));
     }
     let calibration = match &a.calib {
         Some(c) => TwinCalibration::load(c)?,
@@ -245,7 +245,7 @@ fn projector(a: &Args, (w, h): (u32, u32)) -> Result<Box<dyn Projector>> {
         atlas_res: 2,
     };
     let r = Renderer::new(object.load()?, settings)?;
-    Ok(Box::new(TwinProjector::new(r, calibration)))
+    Ok(Box::new(TwinCamera::new(r, calibration)))
 }
 
 /// The protocol, with `--target`'s class.

@@ -1,7 +1,9 @@
 //! Offline scoring of recorded videos and image sequences (`cac score-video`): decode with the
 //! ffmpeg command-line tools as a subprocess ([`probe`], [`decode`]), ground truth from
 //! annotation files ([`annotations`]) or a turntable log projected through the digital twin
-//! ([`log`]; projected by the digital twin, [`twin`], or the calibrated rig, [`rig`]), frame sampling and P@0.5 per segment ([`score`]), boxes drawn into an
+//! ([`log`]; projected by the rig camera model, `physical::rig_camera`: the viewpoint twin or the
+//! calibrated rig), frame sampling and P@0.5 per segment ([`score`], an adapter of the scoring
+//! core `eval::score`), rendered turntable sequences ([`twin`]), boxes drawn into an
 //! annotated video or frame folder ([`annotate`]), and the per-frame CSV, plot and HTML report
 //! ([`report`]). [`encode`] holds the encoding presets of the fixtures and the benchmark.
 //!
@@ -15,7 +17,6 @@ pub mod encode;
 pub mod log;
 pub mod probe;
 pub mod report;
-pub mod rig;
 pub mod score;
 pub mod twin;
 
