@@ -1,4 +1,5 @@
-//! The benchmarks' one timer: the fastest of some timed runs after untimed warm-up runs (on a
+//! The benchmarks' one timer (the measuring code of `cac bench …` in the library and the
+//! binary uses only this): the fastest of some timed runs after untimed warm-up runs (on a
 //! shared machine the least disturbed figure, and what the reference runners report too), a
 //! stopwatch for one-off spans, and the median for per-iteration times that a run logs itself.
 
