@@ -11,7 +11,9 @@
 //!
 //! Images go in as `[B, 3, H, W]` floats in [0, 1] on any device; the detector resizes them
 //! inside (differentiably), so gradients of any output reach the input image.
+//! [`bench`] times detectors (and their TFJS and PyTorch references) for `cac bench detect`.
 
+pub mod bench;
 pub mod centernet;
 pub mod fetch;
 pub mod frcnn;

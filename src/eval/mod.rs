@@ -7,12 +7,16 @@
 //! scores textures in them, [`summary`] aggregates the
 //! per-image records, [`report`] writes the tables, plots and HTML, [`textures`] resolves the
 //! texture list, [`cache`] keeps finished textures so an interrupted evaluation resumes, [`shard`]
-//! splits an evaluation into shards and merges them back.
+//! splits an evaluation into shards and merges them back. [`realism`] measures whether the
+//! original object is recognised at all (`cac bench realism`), [`bench`] the images scored per
+//! second (`cac bench eval`).
 
+pub mod bench;
 pub mod blender;
 pub mod cache;
 pub mod gradcam;
 pub mod job;
+pub mod realism;
 pub mod report;
 pub mod run;
 pub mod score;

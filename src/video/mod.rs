@@ -5,15 +5,17 @@
 //! calibrated rig), frame sampling and P@0.5 per segment ([`score`], an adapter of the scoring
 //! core `eval::score`), rendered turntable sequences ([`twin`]), boxes drawn into an
 //! annotated video or frame folder ([`annotate`]), and the per-frame CSV, plot and HTML report
-//! ([`report`]). [`encode`] holds the encoding presets of the fixtures and the benchmark.
+//! ([`report`]); [`job`] runs all of it for `cac score-video`. [`encode`] holds the encoding presets of the fixtures and the benchmark ([`bench`]).
 //!
 //! ffmpeg and ffprobe are found on `PATH`, or where `CAC_FFMPEG` / `CAC_FFPROBE` point
 //! ([`Tools::from_env`]).
 
 pub mod annotate;
 pub mod annotations;
+pub mod bench;
 pub mod decode;
 pub mod encode;
+pub mod job;
 pub mod log;
 pub mod probe;
 pub mod report;

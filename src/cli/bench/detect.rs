@@ -1,17 +1,18 @@
 //! `cac bench detect`: forward and forward+backward time of both detectors at native
 //! resolution, batch 1 and 4, and the TFJS reference runner's wasm backend timed in the same
 //! run; then the Faster R-CNN models against PyTorch ([`super::frcnn`]). Prints tables and writes
-//! CSVs. A benchmark, not a test: it asserts nothing.
+//! CSVs. A benchmark, not a test: it asserts nothing. Measured by `cac::detect::bench`.
 
-use super::timer::time;
 use crate::cli::device;
-use anyhow::{Context, Result};
+use anyhow::Result;
 use burn::tensor::{Distribution, Tensor};
-use cac::detect;
+use cac::detect::{
+    self,
+    bench::{forward_backward_ms, reference_image, tfjs_wasm},
+};
 use cac::report::Table;
 use clap::Args;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 #[derive(Args, Debug)]
 pub struct DetectBench {
@@ -41,22 +42,6 @@ pub struct DetectBench {
     pub frcnn_csv: PathBuf,
 }
 
-/// Fastest ms of the TFJS wasm runner, from its `--time` report; None when it cannot run.
-fn tfjs_wasm(runner: &Path, model: &str, image: &Path, models: &Path, runs: usize) -> Option<f64> {
-    let out = Command::new("node")
-        .arg(runner.join("detect.mjs"))
-        .args([model, &image.display().to_string(), "--backend", "wasm"])
-        .args(["--time", &runs.to_string()])
-        .arg("--models")
-        .arg(models)
-        .output()
-        .ok()?;
-    let err = String::from_utf8_lossy(&out.stderr);
-    let line = err.lines().find(|l| l.contains("\"min_ms\""))?;
-    let v: serde_json::Value = serde_json::from_str(line.trim()).ok()?;
-    v["min_ms"].as_f64()
-}
-
 pub fn run(a: DetectBench) -> Result<()> {
     if !a.frcnn_only {
         bench_tfjs(&a)?;
@@ -67,46 +52,6 @@ pub fn run(a: DetectBench) -> Result<()> {
         println!("wrote {}", a.frcnn_csv.display());
     }
     Ok(())
-}
-
-/// The astronaut from ../shared, or a synthetic 512² image written into `tmp`.
-fn reference_image(root: &Path, tmp: &Path) -> Result<PathBuf> {
-    let shared = root.join("../shared/reference/images/astronaut.png");
-    if shared.exists() {
-        return Ok(shared);
-    }
-    let p = tmp.join("noise.png");
-    let img = image::RgbImage::from_fn(512, 512, |x, y| {
-        image::Rgb([(x * 7 + y) as u8, (y * 13) as u8, (x ^ y) as u8])
-    });
-    cac::io::save_png_atomic(&p, &img)?;
-    Ok(p)
-}
-
-/// Milliseconds of a forward pass on `x` and of a forward and backward pass on a random batch
-/// of its shape on the `training` device.
-fn forward_backward_ms(
-    det: &dyn detect::Detector,
-    runs: usize,
-    x: Tensor<4>,
-    training: &burn::tensor::Device,
-) -> Result<(f64, f64)> {
-    let fwd = time(runs, || {
-        let c = det.candidates(x.clone())?;
-        let _ = c.scores.sum().into_scalar::<f32>();
-        Ok(())
-    })?;
-    let xa = Tensor::<4>::random(x.dims(), Distribution::Uniform(0.0, 1.0), training);
-    let bwd = time(runs, || {
-        let x = xa.clone().require_grad();
-        let c = det.candidates(x.clone())?;
-        let loss = c.logits.max_dim(2).sum();
-        let g = loss.backward();
-        let grad = x.grad(&g).context("no gradient")?;
-        let _ = grad.sum().into_scalar::<f32>();
-        Ok(())
-    })?;
-    Ok((fwd, bwd))
 }
 
 fn bench_tfjs(a: &DetectBench) -> Result<()> {

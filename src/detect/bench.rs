@@ -1,0 +1,137 @@
+//! The detector benchmark's measurements (`cac bench detect`): forward and forward+backward
+//! milliseconds of a detector on a batch ([`forward_backward_ms`]) and of a torchvision Faster
+//! R-CNN with synthetic weights ([`frcnn_forward_backward_ms`]), fastest of some runs after a
+//! warm-up (the one timer, `report::timer`); and the references run as subprocesses: the TFJS
+//! runner's wasm backend ([`tfjs_wasm`]) and PyTorch ([`torch_ms`],
+//! `tools/torchvision_oracle.py --bench`).
+
+use super::frcnn::{synthetic, Arch, FasterRcnn};
+use super::Detector;
+use crate::report::timer::time;
+use anyhow::{Context, Result};
+use burn::tensor::{Device, Distribution, Tensor};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// Fastest ms of the TFJS wasm runner, from its `--time` report; None when it cannot run.
+pub fn tfjs_wasm(
+    runner: &Path,
+    model: &str,
+    image: &Path,
+    models: &Path,
+    runs: usize,
+) -> Option<f64> {
+    let out = Command::new("node")
+        .arg(runner.join("detect.mjs"))
+        .args([model, &image.display().to_string(), "--backend", "wasm"])
+        .args(["--time", &runs.to_string()])
+        .arg("--models")
+        .arg(models)
+        .output()
+        .ok()?;
+    let err = String::from_utf8_lossy(&out.stderr);
+    let line = err.lines().find(|l| l.contains("\"min_ms\""))?;
+    let v: serde_json::Value = serde_json::from_str(line.trim()).ok()?;
+    v["min_ms"].as_f64()
+}
+
+/// The astronaut from ../shared, or a synthetic 512² image written into `tmp`.
+pub fn reference_image(root: &Path, tmp: &Path) -> Result<PathBuf> {
+    let shared = root.join("../shared/reference/images/astronaut.png");
+    if shared.exists() {
+        return Ok(shared);
+    }
+    let p = tmp.join("noise.png");
+    let img = image::RgbImage::from_fn(512, 512, |x, y| {
+        image::Rgb([(x * 7 + y) as u8, (y * 13) as u8, (x ^ y) as u8])
+    });
+    crate::io::save_png_atomic(&p, &img)?;
+    Ok(p)
+}
+
+/// Milliseconds of a forward pass on `x` and of a forward and backward pass on a random batch
+/// of its shape on the `training` device.
+pub fn forward_backward_ms(
+    det: &dyn Detector,
+    runs: usize,
+    x: Tensor<4>,
+    training: &Device,
+) -> Result<(f64, f64)> {
+    let fwd = time(runs, || {
+        let c = det.candidates(x.clone())?;
+        let _ = c.scores.sum().into_scalar::<f32>();
+        Ok(())
+    })?;
+    let xa = Tensor::<4>::random(x.dims(), Distribution::Uniform(0.0, 1.0), training);
+    let bwd = time(runs, || {
+        let x = xa.clone().require_grad();
+        let c = det.candidates(x.clone())?;
+        let loss = c.logits.max_dim(2).sum();
+        let g = loss.backward();
+        let grad = x.grad(&g).context("no gradient")?;
+        let _ = grad.sum().into_scalar::<f32>();
+        Ok(())
+    })?;
+    Ok((fwd, bwd))
+}
+
+/// PyTorch's (forward, forward+backward) ms on `device` (cpu or cuda), or None when torch cannot
+/// run there.
+pub fn torch_ms(
+    python: &str,
+    model: &str,
+    (threads, device): (usize, &str),
+    runs: usize,
+    (h, w): (usize, usize),
+) -> Option<(f64, f64)> {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/torchvision_oracle.py");
+    let out = Command::new(python)
+        .arg(script)
+        .args(["--bench", model, "--threads", &threads.to_string()])
+        .args(["--iters", &runs.to_string(), "--size", &format!("{h}x{w}")])
+        .args(["--device", device])
+        .output()
+        .ok()?;
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = text.lines().find(|l| l.contains("\"forward_ms\""))?;
+    let v: serde_json::Value = serde_json::from_str(line).ok()?;
+    Some((v["forward_ms"].as_f64()?, v["backward_ms"].as_f64()?))
+}
+
+/// The input size of `name` (synthetic weights), and milliseconds of a forward pass on the
+/// `inference` device and of forward and backward (to the input) on `training`.
+pub fn frcnn_forward_backward_ms(
+    name: &str,
+    runs: usize,
+    inference: &Device,
+    training: &Device,
+) -> Result<((usize, usize), f64, f64)> {
+    let arch = Arch::from_name(name)?;
+    let m = FasterRcnn::from_state_dict(
+        arch,
+        &synthetic::state_dict(arch, inference),
+        arch.config(),
+        inference,
+    )?;
+    let (w, h) = m.input_size();
+    let x = Tensor::<4>::random([1, 3, h, w], Distribution::Uniform(0.0, 1.0), inference);
+    let fwd = time(runs, || m.run(x.clone()).map(|_| ()))?;
+    let xa = Tensor::<4>::random([1, 3, h, w], Distribution::Uniform(0.0, 1.0), training);
+    let ma = FasterRcnn::from_state_dict(
+        arch,
+        &synthetic::state_dict(arch, training),
+        arch.config(),
+        training,
+    )?;
+    let bwd = time(runs, || {
+        let x = xa.clone().require_grad();
+        let (f, g, _) = ma.features(x.clone())?;
+        let props = ma.rpn_proposals(&f, g)?;
+        let (logits, _) = ma.box_outputs(&f, g, &props).context("no proposal")?;
+        let grads = logits.sum().backward();
+        let grad = x.grad(&grads).context("no gradient")?;
+        let _ = grad.sum().into_scalar::<f32>();
+        Ok(())
+    })?;
+    Ok(((w, h), fwd, bwd))
+}
