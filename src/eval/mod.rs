@@ -9,11 +9,13 @@
 //! texture list, [`cache`] keeps finished textures so an interrupted evaluation resumes, [`shard`]
 //! splits an evaluation into shards and merges them back. [`realism`] measures whether the
 //! original object is recognised at all (`cac bench realism`), [`bench`] the images scored per
-//! second (`cac bench eval`).
+//! second (`cac bench eval`), [`compare`] one texture against another (the demo's before and
+//! after).
 
 pub mod bench;
 pub mod blender;
 pub mod cache;
+pub mod compare;
 pub mod gradcam;
 pub mod job;
 pub mod realism;
