@@ -6,8 +6,9 @@
 //! `tools/torchvision_oracle.py --bench`).
 
 use super::frcnn::{synthetic, Arch, FasterRcnn};
-use super::Detector;
+use super::{Detector, Weights, MODELS};
 use crate::report::timer::time;
+use crate::report::Table;
 use anyhow::{Context, Result};
 use burn::tensor::{Device, Distribution, Tensor};
 use std::path::{Path, PathBuf};
@@ -134,4 +135,100 @@ pub fn frcnn_forward_backward_ms(
         Ok(())
     })?;
     Ok(((w, h), fwd, bwd))
+}
+
+/// One TFJS detector at one batch size: forward and forward+backward ms, and the TFJS wasm
+/// runner's forward ms (batch 1, when the runner is installed).
+pub struct TfjsRow {
+    pub name: &'static str,
+    pub batch: usize,
+    pub forward_ms: f64,
+    pub backward_ms: f64,
+    pub tfjs_ms: Option<f64>,
+}
+
+impl TfjsRow {
+    /// Forward time over the TFJS runner's.
+    pub fn ratio(&self) -> Option<f64> {
+        self.tfjs_ms.map(|t| self.forward_ms / t)
+    }
+}
+
+/// Times each TFJS detector of the catalogue (their own files, not the parity variants) at
+/// batch 1 and 4, fastest of `runs`, beside the TFJS runner at `runner` (default:
+/// `$CAC_TFJS_RUNNER`, else `target/tfjsref`) on `image` (default: a reference image from
+/// `../shared`, else a synthetic one). `on_row` sees each row as it is measured; returns the
+/// CSV table.
+pub fn tfjs_models(
+    runner: Option<&Path>,
+    image: Option<&Path>,
+    runs: usize,
+    (inference, training): (&Device, &Device),
+    on_row: &mut dyn FnMut(&TfjsRow),
+) -> Result<Table> {
+    let models = super::fetch::ensure_models()?;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let runner = runner
+        .map(Path::to_path_buf)
+        .or_else(|| std::env::var_os("CAC_TFJS_RUNNER").map(PathBuf::from))
+        .unwrap_or_else(|| root.join("target/tfjsref"));
+    let tmp = tempfile::tempdir()?;
+    let image = match image {
+        Some(i) => i.to_path_buf(),
+        None => reference_image(root, tmp.path())?,
+    };
+    let have_runner = runner.join("detect.mjs").exists();
+    if !have_runner {
+        eprintln!(
+            "note: no TFJS reference runner at {} (set --runner or CAC_TFJS_RUNNER): tfjs column is n/a",
+            runner.display()
+        );
+    }
+    let mut rows = Table::new([
+        "model",
+        "batch",
+        "forward_ms",
+        "forward_backward_ms",
+        "tfjs_wasm_ms",
+        "forward_over_tfjs",
+    ]);
+    let tfjs = MODELS
+        .iter()
+        .filter(|m| m.weights == Weights::Folder && m.variant_of.is_none());
+    for name in tfjs.map(|m| m.name) {
+        let det = super::load(name, &models, inference)?;
+        let (w, h) = det.input_size();
+        let tfjs = if have_runner {
+            tfjs_wasm(&runner, name, &image, &models, runs.max(3))
+        } else {
+            None
+        };
+        for batch in [1usize, 4] {
+            let x =
+                Tensor::<4>::random([batch, 3, h, w], Distribution::Uniform(0.0, 1.0), inference);
+            let (fwd, bwd) = forward_backward_ms(det.as_ref(), runs, x, training)?;
+            let row = TfjsRow {
+                name,
+                batch,
+                forward_ms: fwd,
+                backward_ms: bwd,
+                tfjs_ms: if batch == 1 { tfjs } else { None },
+            };
+            on_row(&row);
+            rows.row([
+                name.to_string(),
+                batch.to_string(),
+                format!("{fwd:.2}"),
+                format!("{bwd:.2}"),
+                na(row.tfjs_ms, 2),
+                na(row.ratio(), 4),
+            ]);
+        }
+    }
+    Ok(rows)
+}
+
+/// `v` with `p` decimals, or `n/a`.
+pub fn na(v: Option<f64>, p: usize) -> String {
+    v.map(|v| format!("{v:.p$}")).unwrap_or("n/a".into())
 }

@@ -5,14 +5,9 @@
 
 use crate::cli::device;
 use anyhow::Result;
-use burn::tensor::{Distribution, Tensor};
-use cac::detect::{
-    self,
-    bench::{forward_backward_ms, reference_image, tfjs_wasm},
-};
-use cac::report::Table;
+use cac::detect::bench;
 use clap::Args;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 #[derive(Args, Debug)]
 pub struct DetectBench {
@@ -55,81 +50,27 @@ pub fn run(a: DetectBench) -> Result<()> {
 }
 
 fn bench_tfjs(a: &DetectBench) -> Result<()> {
-    let models = detect::fetch::ensure_models()?;
-    let inference = device::inference();
-    let training = device::training();
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let runner = a
-        .runner
-        .clone()
-        .or_else(|| std::env::var_os("CAC_TFJS_RUNNER").map(PathBuf::from))
-        .unwrap_or_else(|| root.join("target/tfjsref"));
-    let tmp = tempfile::tempdir()?;
-    let image = match &a.image {
-        Some(i) => i.clone(),
-        None => reference_image(root, tmp.path())?,
-    };
-    let have_runner = runner.join("detect.mjs").exists();
-    if !have_runner {
-        eprintln!(
-            "note: no TFJS reference runner at {} (set --runner or CAC_TFJS_RUNNER): tfjs column is n/a",
-            runner.display()
-        );
-    }
-    let mut rows = Table::new([
-        "model",
-        "batch",
-        "forward_ms",
-        "forward_backward_ms",
-        "tfjs_wasm_ms",
-        "forward_over_tfjs",
-    ]);
     println!(
         "{:10} {:>5} {:>12} {:>16} {:>16} {:>14}",
         "model", "batch", "forward_ms", "fwd+bwd_ms", "tfjs_wasm_ms", "fwd/tfjs"
     );
-    // The TFJS detectors (their own files, not the parity variants).
-    let tfjs = detect::MODELS
-        .iter()
-        .filter(|m| m.weights == detect::Weights::Folder && m.variant_of.is_none());
-    for name in tfjs.map(|m| m.name) {
-        let det = detect::load(name, &models, &inference)?;
-        let (w, h) = det.input_size();
-        let tfjs = if have_runner {
-            tfjs_wasm(&runner, name, &image, &models, a.runs.max(3))
-        } else {
-            None
-        };
-        for batch in [1usize, 4] {
-            let x = Tensor::<4>::random(
-                [batch, 3, h, w],
-                Distribution::Uniform(0.0, 1.0),
-                &inference,
-            );
-            let (fwd, bwd) = forward_backward_ms(det.as_ref(), a.runs, x, &training)?;
-            let t = if batch == 1 { tfjs } else { None };
-            let ratio = t.map(|t| fwd / t);
-            let f =
-                |v: Option<f64>, p: usize| v.map(|v| format!("{v:.p$}")).unwrap_or("n/a".into());
+    let rows = bench::tfjs_models(
+        a.runner.as_deref(),
+        a.image.as_deref(),
+        a.runs,
+        (&device::inference(), &device::training()),
+        &mut |r| {
             println!(
                 "{:10} {:>5} {:>12.1} {:>16.1} {:>16} {:>14}",
-                name,
-                batch,
-                fwd,
-                bwd,
-                f(t, 1),
-                f(ratio, 3)
-            );
-            rows.row([
-                name.to_string(),
-                batch.to_string(),
-                format!("{fwd:.2}"),
-                format!("{bwd:.2}"),
-                f(t, 2),
-                f(ratio, 4),
-            ]);
-        }
-    }
+                r.name,
+                r.batch,
+                r.forward_ms,
+                r.backward_ms,
+                bench::na(r.tfjs_ms, 1),
+                bench::na(r.ratio(), 3)
+            )
+        },
+    )?;
     cac::io::write_atomic(&a.csv, rows.csv().as_bytes())?;
     println!("wrote {}", a.csv.display());
     Ok(())

@@ -45,7 +45,7 @@ pub fn bench(runs: usize, python: &str) -> Result<Table> {
     for name in MODELS {
         let ((w, h), fwd, bwd) = frcnn_forward_backward_ms(name, runs, &inference, &training)?;
         let torch = torch_ms(python, name, (threads, torch_device), runs, (h, w));
-        let f = |v: Option<f64>, p: usize| v.map(|v| format!("{v:.p$}")).unwrap_or("n/a".into());
+        let f = cac::detect::bench::na;
         let (tf, tb) = (torch.map(|t| t.0), torch.map(|t| t.1));
         let (rf, rb) = (tf.map(|t| fwd / t), tb.map(|t| bwd / t));
         println!(
