@@ -110,14 +110,19 @@ pub fn run(a: Args) -> Result<()> {
         "sheet_views": sheet_views,
         "seconds": start.elapsed().as_secs_f64(),
     });
+    write_summary(&a.out, &summary, start)
+}
+
+/// Writes summary.json and says what was written.
+fn write_summary(out: &std::path::Path, summary: &serde_json::Value, start: Instant) -> Result<()> {
     cac::io::write_atomic(
-        &a.out.join("summary.json"),
-        serde_json::to_string_pretty(&summary)?.as_bytes(),
+        &out.join("summary.json"),
+        serde_json::to_string_pretty(summary)?.as_bytes(),
     )?;
     println!(
         "\nwrote {} (atlases, before/after view sheets with each detector's boxes, summary.json, \
          run/) in {:.0} s",
-        a.out.display(),
+        out.display(),
         start.elapsed().as_secs_f64()
     );
     Ok(())
