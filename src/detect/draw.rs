@@ -5,30 +5,48 @@ use super::Detection;
 
 /// Draws 2-px boxes, one colour per class.
 pub fn class_boxes(mut img: image::RgbImage, dets: &[Detection]) -> image::RgbImage {
-    let (w, h) = (img.width() as i64, img.height() as i64);
     for d in dets {
         let c = d.class_id as u32;
-        let colour = image::Rgb([
+        let colour = [
             (50 + c * 97 % 206) as u8,
             (255 - c * 53 % 200) as u8,
             (c * 31 % 256) as u8,
-        ]);
-        let [x1, y1, x2, y2] = d.bbox.map(|v| v.round() as i64);
-        let mut put = |x: i64, y: i64| {
-            if x >= 0 && y >= 0 && x < w && y < h {
-                img.put_pixel(x as u32, y as u32, colour);
-            }
-        };
-        for t in 0..2 {
-            for x in x1..=x2 {
-                put(x, y1 + t);
-                put(x, y2 - t);
-            }
-            for y in y1..=y2 {
-                put(x1 + t, y);
-                put(x2 - t, y);
-            }
-        }
+        ];
+        crate::report::draw::labelled_box(&mut img, d.bbox, colour, 2, "");
     }
     img
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn two_pixel_outline_clipped_to_the_image() {
+        let d = |bbox| Detection {
+            class_id: 2,
+            label: "car",
+            score: 0.9,
+            bbox,
+        };
+        let img = class_boxes(
+            image::RgbImage::new(20, 20),
+            &[d([4.0, 5.0, 12.0, 15.0]), d([15.0, 15.0, 40.0, 40.0])],
+        );
+        let c = image::Rgb([(50 + 2 * 97 % 206) as u8, (255 - 2 * 53 % 200) as u8, 62]);
+        for (x, y) in [
+            (4, 5),
+            (5, 6),
+            (12, 15),
+            (11, 14),
+            (8, 5),
+            (4, 10),
+            (15, 19),
+        ] {
+            assert_eq!(*img.get_pixel(x, y), c, "({x}, {y}) on the outline");
+        }
+        for (x, y) in [(6, 7), (8, 10), (10, 13), (3, 5), (13, 15), (0, 0)] {
+            assert_eq!(*img.get_pixel(x, y), image::Rgb([0, 0, 0]), "({x}, {y})");
+        }
+    }
 }
