@@ -21,14 +21,16 @@ use burn::tensor::Device;
 use clap::ValueEnum;
 use std::path::PathBuf;
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// A viewpoint set of the benchmark.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum ViewSet {
     Street,
     Free,
     Hemisphere,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// A renderer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Which {
     Cac,
     Blender,

@@ -11,24 +11,10 @@ use crate::cli::device;
 use anyhow::Result;
 use cac::config::SceneConfig;
 use cac::detect::{self, Detector};
-use cac::eval::realism::{self, RealismJob, Row};
+use cac::eval::realism::{self, RealismJob, Row, ViewSet, Which};
 use cac::eval::{blender, Protocol};
 use cac::render::RenderSettings;
-use clap::ValueEnum;
 use std::path::PathBuf;
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-pub enum ViewSet {
-    Street,
-    Free,
-    Hemisphere,
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-pub enum Which {
-    Cac,
-    Blender,
-}
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -126,26 +112,11 @@ pub fn run(a: Args) -> Result<()> {
     );
     let job = RealismJob {
         meshes: a.meshes.clone(),
-        sets: a
-            .sets
-            .iter()
-            .map(|s| match s {
-                ViewSet::Street => realism::ViewSet::Street,
-                ViewSet::Free => realism::ViewSet::Free,
-                ViewSet::Hemisphere => realism::ViewSet::Hemisphere,
-            })
-            .collect(),
+        sets: a.sets.clone(),
         views: a.views,
         cfg,
         textures: a.textures.clone(),
-        renderers: a
-            .renderers
-            .iter()
-            .map(|w| match w {
-                Which::Cac => realism::Which::Cac,
-                Which::Blender => realism::Which::Blender,
-            })
-            .collect(),
+        renderers: a.renderers.clone(),
         blender: bs,
         photometric: a.photometric,
         seed: a.seed,
