@@ -318,3 +318,64 @@ pub fn write(out: &Path, s: &SessionScore, session: &str) -> Result<()> {
     io(&out.join("report.html"), h.finish().as_bytes())?;
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(ratio: f64, angle: f64, repeat: usize, hits: Option<[bool; 2]>) -> FrameScore {
+        FrameScore {
+            frame: format!("{ratio}-{angle}-{repeat}.png"),
+            ratio,
+            angle,
+            repeat,
+            gt: hits.map(|_| [0.0, 0.0, 1.0, 1.0]),
+            hit: hits.map_or(vec![], |h| h.to_vec()),
+            best_conf: hits.map_or(vec![], |h| h.map(|x| if x { 0.9 } else { 0.1 }).to_vec()),
+        }
+    }
+
+    #[test]
+    fn per_ratio_over_repeats_and_per_angle_skip_unscored_frames() {
+        let models = ["a".to_string(), "b".to_string()];
+        let frames = [
+            frame(2.0, 0.0, 0, Some([true, false])),
+            frame(2.0, 90.0, 0, Some([false, false])),
+            frame(2.0, 0.0, 1, Some([true, true])),
+            frame(2.0, 90.0, 1, Some([true, false])),
+            frame(3.0, 0.0, 0, Some([false, true])),
+            // Out of view: not scored, so ratio 3 has no repeat 1 and angle 180 no frames.
+            frame(3.0, 90.0, 0, None),
+            frame(3.0, 180.0, 1, None),
+        ];
+        let (by_ratio, by_angle) = aggregate(&models, &[2.0, 3.0], &[0.0, 90.0, 180.0], 2, &frames);
+        let r: Vec<(&str, f64, Vec<f64>, f64)> = by_ratio
+            .iter()
+            .map(|r| (r.model.as_str(), r.ratio, r.per_repeat.clone(), r.mean))
+            .collect();
+        assert_eq!(
+            r,
+            vec![
+                ("a", 2.0, vec![0.5, 1.0], 0.75),
+                ("a", 3.0, vec![0.0], 0.0),
+                ("b", 2.0, vec![0.0, 0.5], 0.25),
+                ("b", 3.0, vec![1.0], 1.0),
+            ]
+        );
+        assert!((by_ratio[0].std - 0.125f64.sqrt()).abs() < 1e-12);
+        assert_eq!(by_ratio[1].std, 0.0, "one repeat: no spread");
+        let a: Vec<(&str, f64, f64, usize)> = by_angle
+            .iter()
+            .map(|a| (a.model.as_str(), a.angle, a.p_at_05, a.frames))
+            .collect();
+        assert_eq!(
+            a,
+            vec![
+                ("a", 0.0, 2.0 / 3.0, 3),
+                ("a", 90.0, 0.5, 2),
+                ("b", 0.0, 2.0 / 3.0, 3),
+                ("b", 90.0, 0.0, 2),
+            ]
+        );
+    }
+}

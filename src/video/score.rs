@@ -374,6 +374,54 @@ mod tests {
         (out.iter().map(|f| f.index).collect(), sm.missed)
     }
 
+    fn rec(pts: f64, segment: &str, hit: bool, targeted: bool) -> FrameRecord {
+        FrameRecord {
+            index: (pts * 10.0) as u64,
+            pts,
+            segment: segment.into(),
+            gt: [0.0; 4],
+            angle_deg: None,
+            models: vec![ModelFrame {
+                score: ImageScore {
+                    hit,
+                    targeted,
+                    best_true_conf: if hit { 0.8 } else { 0.2 },
+                },
+                detections: vec![],
+                matched: None,
+                ms: 10.0 * pts,
+            }],
+        }
+    }
+
+    #[test]
+    fn segments_in_order_of_appearance_with_their_time_span() {
+        let frames = [
+            rec(0.4, "ratio 2", true, false),
+            rec(0.1, "ratio 2", false, true),
+            rec(0.2, "ratio 3", true, false),
+            rec(0.9, "ratio 2", true, false),
+        ];
+        let s = summarise(&frames, 0, "m");
+        let segs: Vec<(&str, usize, f64, f64, f64)> = s
+            .segments
+            .iter()
+            .map(|g| (g.name.as_str(), g.frames, g.p_at_05, g.t_start, g.t_end))
+            .collect();
+        assert_eq!(
+            segs,
+            vec![
+                ("ratio 2", 3, 2.0 / 3.0, 0.1, 0.9),
+                ("ratio 3", 1, 1.0, 0.2, 0.2)
+            ]
+        );
+        assert_eq!((s.frames, s.p_at_05, s.targeted_success), (4, 0.75, 0.25));
+        assert!((s.mean_best_true_conf - 0.65).abs() < 1e-6);
+        assert!((s.segment_mean - 5.0 / 6.0).abs() < 1e-12);
+        assert!((s.segment_std - (1.0f64 / 18.0).sqrt()).abs() < 1e-12);
+        assert!((s.ms_per_frame - 4.0).abs() < 1e-12);
+    }
+
     #[test]
     fn every_kth_and_nearest_to_times() {
         let pts = [0.0, 0.1, 0.2, 0.5, 0.6, 1.0];
