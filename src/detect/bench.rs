@@ -228,6 +228,73 @@ pub fn tfjs_models(
     Ok(rows)
 }
 
+/// One Faster R-CNN model: its input size, and forward and forward+backward ms on burn and in
+/// PyTorch (when torch runs).
+pub struct FrcnnRow {
+    pub name: &'static str,
+    pub input: (usize, usize),
+    pub forward_ms: f64,
+    pub backward_ms: f64,
+    pub torch: Option<(f64, f64)>,
+}
+
+impl FrcnnRow {
+    /// burn's times over PyTorch's: forward, forward+backward.
+    pub fn ratios(&self) -> (Option<f64>, Option<f64>) {
+        (
+            self.torch.map(|t| self.forward_ms / t.0),
+            self.torch.map(|t| self.backward_ms / t.1),
+        )
+    }
+}
+
+/// Times the three torchvision Faster R-CNN models (synthetic weights), fastest of `runs`, beside
+/// PyTorch run by `python` on `torch` (`(threads, "cpu" | "cuda")`); `on_row` sees each row as
+/// it is measured; returns the CSV table.
+pub fn frcnn_models(
+    runs: usize,
+    python: &str,
+    torch: (usize, &str),
+    (inference, training): (&Device, &Device),
+    on_row: &mut dyn FnMut(&FrcnnRow),
+) -> Result<Table> {
+    let mut rows = Table::new([
+        "model",
+        "input",
+        "threads",
+        "forward_ms",
+        "forward_backward_ms",
+        "torch_forward_ms",
+        "torch_forward_backward_ms",
+        "forward_over_torch",
+        "backward_over_torch",
+    ]);
+    for name in super::frcnn::MODELS {
+        let ((w, h), fwd, bwd) = frcnn_forward_backward_ms(name, runs, inference, training)?;
+        let row = FrcnnRow {
+            name,
+            input: (w, h),
+            forward_ms: fwd,
+            backward_ms: bwd,
+            torch: torch_ms(python, name, torch, runs, (h, w)),
+        };
+        on_row(&row);
+        let (rf, rb) = row.ratios();
+        rows.row([
+            name.to_string(),
+            format!("{w}x{h}"),
+            torch.0.to_string(),
+            format!("{fwd:.2}"),
+            format!("{bwd:.2}"),
+            na(row.torch.map(|t| t.0), 2),
+            na(row.torch.map(|t| t.1), 2),
+            na(rf, 4),
+            na(rb, 4),
+        ]);
+    }
+    Ok(rows)
+}
+
 /// `v` with `p` decimals, or `n/a`.
 pub fn na(v: Option<f64>, p: usize) -> String {
     v.map(|v| format!("{v:.p$}")).unwrap_or("n/a".into())

@@ -8,8 +8,7 @@
 
 use crate::cli::device;
 use anyhow::Result;
-use cac::detect::bench::{frcnn_forward_backward_ms, torch_ms};
-use cac::detect::frcnn::MODELS;
+use cac::detect::bench;
 use cac::report::Table;
 
 /// Prints the table and returns it (for the CSV).
@@ -20,17 +19,6 @@ pub fn bench(runs: usize, python: &str) -> Result<Table> {
     // Like against like: on the GPU, PyTorch runs on CUDA on the same card.
     let torch_device = if device::is_gpu() { "cuda" } else { "cpu" };
     println!("PyTorch columns: {torch_device}, {threads} threads");
-    let mut rows = Table::new([
-        "model",
-        "input",
-        "threads",
-        "forward_ms",
-        "forward_backward_ms",
-        "torch_forward_ms",
-        "torch_forward_backward_ms",
-        "forward_over_torch",
-        "backward_over_torch",
-    ]);
     println!(
         "{:24} {:>9} {:>11} {:>12} {:>12} {:>14} {:>8} {:>8}",
         "model",
@@ -42,35 +30,26 @@ pub fn bench(runs: usize, python: &str) -> Result<Table> {
         "fwd/pt",
         "bwd/pt"
     );
-    for name in MODELS {
-        let ((w, h), fwd, bwd) = frcnn_forward_backward_ms(name, runs, &inference, &training)?;
-        let torch = torch_ms(python, name, (threads, torch_device), runs, (h, w));
-        let f = cac::detect::bench::na;
-        let (tf, tb) = (torch.map(|t| t.0), torch.map(|t| t.1));
-        let (rf, rb) = (tf.map(|t| fwd / t), tb.map(|t| bwd / t));
-        println!(
-            "{:24} {:>9} {:>11.1} {:>12.1} {:>12} {:>14} {:>8} {:>8}",
-            name,
-            format!("{w}x{h}"),
-            fwd,
-            bwd,
-            f(tf, 1),
-            f(tb, 1),
-            f(rf, 2),
-            f(rb, 2)
-        );
-        rows.row([
-            name.to_string(),
-            format!("{w}x{h}"),
-            threads.to_string(),
-            format!("{fwd:.2}"),
-            format!("{bwd:.2}"),
-            f(tf, 2),
-            f(tb, 2),
-            f(rf, 4),
-            f(rb, 4),
-        ]);
-    }
+    let rows = bench::frcnn_models(
+        runs,
+        python,
+        (threads, torch_device),
+        (&inference, &training),
+        &mut |r| {
+            let ((w, h), (rf, rb)) = (r.input, r.ratios());
+            println!(
+                "{:24} {:>9} {:>11.1} {:>12.1} {:>12} {:>14} {:>8} {:>8}",
+                r.name,
+                format!("{w}x{h}"),
+                r.forward_ms,
+                r.backward_ms,
+                bench::na(r.torch.map(|t| t.0), 1),
+                bench::na(r.torch.map(|t| t.1), 1),
+                bench::na(rf, 2),
+                bench::na(rb, 2)
+            );
+        },
+    )?;
     if rows.rows.iter().flatten().any(|c| c == "n/a") {
         eprintln!(
             "note: PyTorch columns are n/a where `{python} -c 'import torch, torchvision'` fails"
