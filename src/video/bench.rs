@@ -80,7 +80,7 @@ impl VideoBench {
                     &gt,
                     &[*d],
                     &ScoreOptions::default(),
-                    &device,
+                    device,
                     &mut |_, _| Ok(()),
                 )?;
                 let wall = t0.secs();
