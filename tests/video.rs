@@ -10,9 +10,9 @@ mod video_support;
 
 use cac::detect::{preprocess::image_to_tensor, Detector};
 use cac::eval::{score_image, Protocol};
+use cac::physical::rig_camera::{TwinCalibration, TwinCamera};
 use cac::video::encode::{encode_sequence, H264};
 use cac::video::log::{LogGroundTruth, LogSegments, TurntableLog};
-use cac::video::twin::{TwinCalibration, TwinProjector};
 use cac::video::{
     self, annotate, probe, Annotations, GroundTruth, OpenOptions, Sampling, ScoreOptions,
     Segmenting, Tools,
@@ -235,7 +235,7 @@ fn turntable_log_projected_by_the_twin_gives_the_rendered_boxes() {
     let log = TurntableLog::load(&f.path("log.csv")).unwrap();
     let gt = LogGroundTruth {
         log,
-        projector: TwinProjector::new(renderer(), TwinCalibration::default()),
+        camera: TwinCamera::new(renderer(), TwinCalibration::default()),
         offset_s: 0.0,
         segments: LogSegments::Revolution,
         default_ratio: 2.0,
@@ -410,7 +410,6 @@ fn cli_honours_cac_ffmpeg() {
 fn capture_manifest_projected_through_the_calibrated_rig() {
     use cac::physical::rig::{Rig, RigConfig};
     use cac::physical::twin::{DigitalTwin, Pose};
-    use cac::video::rig::RigProjector;
     let t = tools();
     let (cfg, lens) = RigConfig::load(Path::new("calib/rig.toml")).unwrap();
     let lens = lens.scaled(W, H);
@@ -457,14 +456,11 @@ fn capture_manifest_projected_through_the_calibrated_rig() {
     encode_sequence(&t, &dir.path().join("f%03d.png"), 4.0, H264, &[], &video).unwrap();
     let log = TurntableLog::load(&dir.path().join("manifest.jsonl")).unwrap();
     let times: Vec<f64> = log.samples().iter().map(|s| s.t - t0).collect();
-    let projector = RigProjector::new(
-        Rig::new(cfg.clone(), lens.clone()).unwrap(),
-        (W as u32, H as u32),
-    )
-    .unwrap();
+    let camera = Rig::new(cfg.clone(), lens.clone()).unwrap();
+    camera.check_frame_size((W as u32, H as u32)).unwrap();
     let gt = LogGroundTruth {
         log,
-        projector,
+        camera,
         offset_s: t0,
         segments: LogSegments::Ratio,
         default_ratio: 2.0,
@@ -502,9 +498,10 @@ fn capture_manifest_projected_through_the_calibrated_rig() {
         .collect();
     assert_eq!(names, vec!["ratio 2 repeat 0", "ratio 3 repeat 0"]);
     // A lens calibrated at another size is refused.
-    let e = RigProjector::new(Rig::new(cfg, lens).unwrap(), (640, 480))
-        .err()
-        .unwrap();
+    let e = Rig::new(cfg, lens)
+        .unwrap()
+        .check_frame_size((640, 480))
+        .unwrap_err();
     assert!(format!("{e:#}").contains("camera.resolution"), "{e:#}");
 }
 

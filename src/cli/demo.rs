@@ -11,14 +11,12 @@ use cac::attack::{run::RunDir, AttackConfig, Trainer};
 use cac::config::{SceneConfig, Stage};
 use cac::detect::Detector;
 use cac::environment::{Environment, ViewpointSet};
-use cac::eval::run::{
-    evaluate_texture, level_name, set_name, view_groups, TextureResult, ViewPlan,
-};
-use cac::eval::summary::{figures, sel};
-use cac::eval::{report::example_image, Protocol};
+use cac::eval::compare::{before_after, write_sheets, BeforeAfter};
+use cac::eval::run::{evaluate_texture, view_groups, TextureResult, ViewPlan};
+use cac::eval::Protocol;
 use cac::render::{RenderSettings, Renderer};
 use cac::scene::Texture;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 #[derive(clap::Args, Debug)]
@@ -95,7 +93,12 @@ pub fn run(a: Args) -> Result<()> {
     let after = score("learned", &learned)?;
 
     let rows = print_results(&a, &cfg, &before, &after);
-    let (sheets, sheet_views) = write_images(&a.out, &original, &learned, &before, &after)?;
+    let (sheets, sheet_views) = write_sheets(
+        &a.out,
+        (&original, &before),
+        (&learned, &after),
+        &["nanodet", "centernet"],
+    )?;
     let summary = serde_json::json!({
         "protocol": proto,
         "views": plan,
@@ -107,14 +110,19 @@ pub fn run(a: Args) -> Result<()> {
         "sheet_views": sheet_views,
         "seconds": start.elapsed().as_secs_f64(),
     });
+    write_summary(&a.out, &summary, start)
+}
+
+/// Writes summary.json and says what was written.
+fn write_summary(out: &std::path::Path, summary: &serde_json::Value, start: Instant) -> Result<()> {
     cac::io::write_atomic(
-        &a.out.join("summary.json"),
-        serde_json::to_string_pretty(&summary)?.as_bytes(),
+        &out.join("summary.json"),
+        serde_json::to_string_pretty(summary)?.as_bytes(),
     )?;
     println!(
         "\nwrote {} (atlases, before/after view sheets with each detector's boxes, summary.json, \
          run/) in {:.0} s",
-        a.out.display(),
+        out.display(),
         start.elapsed().as_secs_f64()
     );
     Ok(())
@@ -175,7 +183,7 @@ fn print_results(
     cfg: &SceneConfig,
     before: &TextureResult,
     after: &TextureResult,
-) -> Vec<serde_json::Value> {
+) -> Vec<BeforeAfter> {
     println!(
         "\n{} protocol views (cac eval's: FV and RV x bright and dark, {} each; distance ratio \
          {:?}, elevation {:?} deg; view seed {}, training seed {}); 512², 4 spp.\nhit = car/truck \
@@ -192,68 +200,19 @@ fn print_results(
         "{:<22} {:>4} {:>12} {:>12} {:>7} {:>14} {:>14}",
         "model", "set", "P@0.5 before", "P@0.5 after", "drop", "person before", "person after"
     );
-    let mut rows = vec![];
-    for (m, role) in [("nanodet", "white-box"), ("centernet", "transfer")] {
-        for set in [ViewpointSet::Free, ViewpointSet::Restricted] {
-            let b = figures(&before.records, sel("original", m, Some(set), None));
-            let f = figures(&after.records, sel("learned", m, Some(set), None));
-            println!(
-                "{:<22} {:>4} {:>12.3} {:>12.3} {:>7.3} {:>14.3} {:>14.3}",
-                format!("{m} ({role})"),
-                set_name(set),
-                b.p_at_05,
-                f.p_at_05,
-                b.p_at_05 - f.p_at_05,
-                b.targeted_success,
-                f.targeted_success
-            );
-            rows.push(serde_json::json!({
-                "model": m, "role": role, "set": set_name(set), "views": b.images,
-                "p_at_05_before": b.p_at_05, "p_at_05_after": f.p_at_05,
-                "drop": b.p_at_05 - f.p_at_05,
-                "person_before": b.targeted_success, "person_after": f.targeted_success,
-            }));
-        }
+    let models = [("nanodet", "white-box"), ("centernet", "transfer")];
+    let rows = before_after(("original", before), ("learned", after), &models);
+    for r in &rows {
+        println!(
+            "{:<22} {:>4} {:>12.3} {:>12.3} {:>7.3} {:>14.3} {:>14.3}",
+            format!("{} ({})", r.model, r.role),
+            r.set,
+            r.p_at_05_before,
+            r.p_at_05_after,
+            r.drop,
+            r.targeted_before,
+            r.targeted_after
+        );
     }
     rows
-}
-
-/// Writes both atlases and the before/after view sheets per detector; returns the sheets' names
-/// and the views they show.
-fn write_images(
-    out: &Path,
-    original: &Texture,
-    learned: &Texture,
-    before: &TextureResult,
-    after: &TextureResult,
-) -> Result<(Vec<String>, Vec<String>)> {
-    std::fs::create_dir_all(out)?;
-    cac::io::save_png_atomic(&out.join("atlas_original.png"), &original.to_rgb8())?;
-    cac::io::save_png_atomic(&out.join("atlas_learned.png"), &learned.to_rgb8())?;
-    let mut sheets = vec![];
-    for (m, model) in ["nanodet", "centernet"].iter().enumerate() {
-        for (tex, r) in [("original", before), ("learned", after)] {
-            let imgs: Vec<_> = r
-                .examples
-                .iter()
-                .map(|e| example_image(e, m, 320))
-                .collect();
-            let name = format!("views_{tex}_{model}.png");
-            cac::io::save_png_atomic(&out.join(&name), &cac::render::contact_sheet(&imgs))?;
-            sheets.push(name);
-        }
-    }
-    let sheet_views: Vec<String> = before
-        .examples
-        .iter()
-        .map(|e| {
-            format!(
-                "{} {} #{}",
-                set_name(e.set),
-                level_name(e.brightness),
-                e.view
-            )
-        })
-        .collect();
-    Ok((sheets, sheet_views))
 }

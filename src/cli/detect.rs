@@ -5,7 +5,7 @@
 //! state_dict, `.pth` or `.safetensors`).
 
 use anyhow::{bail, Result};
-use cac::detect::{self, Detection, Weights};
+use cac::detect::{self, Detection};
 use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::error::ErrorKind;
 use clap::Args;
@@ -97,18 +97,7 @@ pub fn run(a: DetectArgs) -> Result<()> {
     }
     let device = super::device::inference();
     let info = detect::check_spec(&a.model)?;
-    let spec = match (info.weights, &a.weights) {
-        (Weights::Checkpoint, Some(w)) => format!("{}={}", a.model, w.display()),
-        (Weights::Checkpoint, None) => {
-            bail!(
-                "--model {} needs --weights FILE (a torchvision state_dict)",
-                a.model
-            )
-        }
-        (Weights::Folder, Some(_)) => bail!("--weights only applies to the Faster R-CNN models"),
-        (Weights::Folder, None) if a.human => "nanodet-human".to_string(),
-        (Weights::Folder, None) => a.model.clone(),
-    };
+    let spec = detect::spec_with_weights(info, a.weights.as_deref(), a.human)?;
     let det = detect::load_all(&[spec], a.models.as_deref(), &device)?.remove(0);
     let many = a.images.len() > 1;
     for path in &a.images {
@@ -122,7 +111,10 @@ pub fn run(a: DetectArgs) -> Result<()> {
             dump.write(&per_image(raw, path, many))?;
         }
         if let Some(out) = &a.draw {
-            cac::io::save_png_atomic(&per_image(out, path, many), &draw(img, &dets))?;
+            cac::io::save_png_atomic(
+                &per_image(out, path, many),
+                &detect::draw::class_boxes(img, &dets),
+            )?;
         }
     }
     Ok(())
@@ -156,34 +148,4 @@ fn print_detections(image: &Path, dets: &[Detection], json: bool) {
     if dets.is_empty() && !json {
         println!("{}: no detections", image.display());
     }
-}
-
-/// Draws 2-px boxes, one colour per class.
-fn draw(mut img: image::RgbImage, dets: &[Detection]) -> image::RgbImage {
-    let (w, h) = (img.width() as i64, img.height() as i64);
-    for d in dets {
-        let c = d.class_id as u32;
-        let colour = image::Rgb([
-            (50 + c * 97 % 206) as u8,
-            (255 - c * 53 % 200) as u8,
-            (c * 31 % 256) as u8,
-        ]);
-        let [x1, y1, x2, y2] = d.bbox.map(|v| v.round() as i64);
-        let mut put = |x: i64, y: i64| {
-            if x >= 0 && y >= 0 && x < w && y < h {
-                img.put_pixel(x as u32, y as u32, colour);
-            }
-        };
-        for t in 0..2 {
-            for x in x1..=x2 {
-                put(x, y1 + t);
-                put(x, y2 - t);
-            }
-            for y in y1..=y2 {
-                put(x1 + t, y);
-                put(x2 - t, y);
-            }
-        }
-    }
-    img
 }

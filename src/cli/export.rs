@@ -183,62 +183,45 @@ pub struct BenchArgs {
 }
 
 pub fn bench(a: BenchArgs) -> Result<()> {
-    let load = Default::default();
-    let scene = export::load_mesh(&a.mesh, &load)?;
-    let camo = match &a.texture {
-        Some(p) => export::load_texture(p)?,
-        None => benchmark::synthetic_camouflage(a.res, 11),
-    };
-    let mesh = export::prepare(&scene, &camo, a.scale)
-        .with_context(|| format!("mesh {}", a.mesh.display()))?;
-    let limits: Vec<BakeLimits> = a
-        .texels
-        .iter()
-        .map(|&t| BakeLimits {
-            max_edge_texels: t,
-            ..Default::default()
-        })
-        .chain(a.mm.iter().map(|&mm| BakeLimits {
-            max_edge_texels: f32::INFINITY,
-            max_edge_mm: mm,
-            ..Default::default()
-        }))
-        .collect();
-    if !a.solid_voxels.is_empty() {
-        let input = if a.solid_input_triangles > mesh.tris.len() {
-            benchmark::refine(&mesh, a.solid_input_triangles)?
-        } else {
-            mesh.clone()
-        };
-        let rows = benchmark::run_solid(&input, &a.solid_voxels, 0.8, a.samples.min(50_000))?;
+    let o = benchmark::ExportBench {
+        mesh: a.mesh.clone(),
+        texture: a.texture.clone(),
+        res: a.res,
+        scale: a.scale,
+        texels: a.texels.clone(),
+        mm: a.mm.clone(),
+        samples: a.samples,
+        solid_voxels: a.solid_voxels.clone(),
+        solid_input_triangles: a.solid_input_triangles,
+    }
+    .run()?;
+    let mesh = &o.mesh;
+    if let Some(s) = &o.solid {
         println!(
             "solidify {} at 1:{} ({} triangles, {:.1} x {:.1} x {:.1} mm)",
             mesh.name,
             a.scale.denominator,
-            input.tris.len(),
-            input.report.size_mm[0],
-            input.report.size_mm[1],
-            input.report.size_mm[2]
+            s.input.tris.len(),
+            s.input.report.size_mm[0],
+            s.input.report.size_mm[1],
+            s.input.report.size_mm[2]
         );
-        print!("{}", benchmark::solid_markdown(&rows));
-        cac::io::write_atomic(&a.solid_csv, benchmark::solid_csv(&rows).as_bytes())?;
+        print!("{}", benchmark::solid_markdown(&s.rows));
+        cac::io::write_atomic(&a.solid_csv, benchmark::solid_csv(&s.rows).as_bytes())?;
         println!("wrote {}", a.solid_csv.display());
-        if a.texels.is_empty() && a.mm.is_empty() {
-            return Ok(());
-        }
     }
-    let rows = benchmark::run(&mesh, &limits, a.samples, 3)?;
+    let Some(rows) = &o.bake else { return Ok(()) };
     println!(
         "object {} at {} ({} triangles), texture {}x{}, {} samples",
         mesh.name,
         a.scale.denominator,
         mesh.tris.len(),
-        camo.width,
-        camo.height,
+        o.texture.0,
+        o.texture.1,
         a.samples
     );
-    print!("{}", benchmark::markdown(&rows));
-    cac::io::write_atomic(&a.csv, benchmark::csv(&rows).as_bytes())?;
+    print!("{}", benchmark::markdown(rows));
+    cac::io::write_atomic(&a.csv, benchmark::csv(rows).as_bytes())?;
     println!("wrote {}", a.csv.display());
     Ok(())
 }

@@ -3,8 +3,8 @@
 use super::device;
 use anyhow::{bail, Result};
 use cac::config::{SceneConfig, Stage};
-use cac::environment::{self, Brightness, Condition, Environment, ViewpointSet};
-use cac::render::{self, Renderer, Viewpoint};
+use cac::environment::{self, Brightness, Condition, ViewpointSet};
+use cac::render::Viewpoint;
 use clap::Args as ClapArgs;
 use std::path::PathBuf;
 
@@ -104,7 +104,7 @@ pub fn run(a: Args) -> Result<()> {
         )],
     };
     let dev = device::inference();
-    let images = render_conditions(&renderer, &env, &conds, &atlas, &dev)?;
+    let images = environment::form_images(&renderer, &env, &conds, &atlas, &dev)?;
     let img = if images.len() == 1 {
         images.into_iter().next().unwrap()
     } else {
@@ -118,21 +118,4 @@ pub fn run(a: Args) -> Result<()> {
         if conds.len() == 1 { "" } else { "s" }
     );
     Ok(())
-}
-
-/// Renders conditions with the environment's transforms applied, as 8-bit images.
-pub fn render_conditions(
-    r: &Renderer,
-    env: &Environment,
-    conds: &[Condition],
-    atlas: &cac::scene::Texture,
-    dev: &burn::tensor::Device,
-) -> Result<Vec<image::RgbImage>> {
-    let mut out = Vec::new();
-    for c in conds {
-        let t = render::atlas_tensor(atlas, dev);
-        let (img, _) = environment::form(r, env, std::slice::from_ref(c), t)?;
-        out.extend(render::to_images(&img));
-    }
-    Ok(out)
 }

@@ -4,14 +4,9 @@
 use anyhow::{bail, Context, Result};
 use cac::detect::{self, Detector};
 use cac::eval::Protocol;
-use cac::render::{RenderSettings, Renderer};
-use cac::video::log::{LogGroundTruth, LogSegments, Projector, TurntableLog};
-use cac::video::rig::RigProjector;
-use cac::video::twin::{TwinCalibration, TwinProjector};
-use cac::video::{
-    annotate, report, Annotations, GroundTruth, OpenOptions, Sampling, ScoreOptions, Segmenting,
-    Tools,
-};
+use cac::video::job::{LogCamera, LogTruth, Truth, VideoJob};
+use cac::video::log::LogSegments;
+use cac::video::{report, OpenOptions, Tools};
 use clap::{Args as ClapArgs, ValueEnum};
 use std::path::PathBuf;
 
@@ -97,155 +92,58 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    if a.rotate.is_some_and(|r| r % 90 != 0) {
-        bail!("--rotate must be 0, 90, 180 or 270");
-    }
-    let tools = Tools::from_env();
-    let opts = OpenOptions {
-        rotate_ccw: a.rotate,
-        fps: a.fps,
-        allow_any_codec: a.any_codec,
-    };
-    let mut stream = cac::video::open(&tools, &a.input, &opts)?;
-    let (w, h) = stream.size();
-    let (gt, log_times) = ground_truth(&a, stream.creation_time(), (w, h))?;
-    let sampling = match log_times.or_else(|| a.at.clone()) {
-        Some(t) => Sampling::At(t),
-        None => Sampling::Every(a.every),
-    };
-    let out_fps = match &sampling {
-        Sampling::Every(k) => stream.fps() / *k as f64,
-        Sampling::At(_) => 2.0,
-    };
-    let so = ScoreOptions {
-        sampling,
-        segmenting: a
-            .window
-            .map_or(Segmenting::FromGroundTruth, Segmenting::Window),
-        protocol: protocol(a.target.as_deref())?,
-        max_frames: a.max_frames,
-    };
+    let job = job(&a)?;
+    let opened = job.open()?;
     let device = super::device::inference();
     let dets = detect::load_all(&a.models, a.models_dir.as_deref(), &device)?;
     let refs: Vec<&dyn Detector> = dets.iter().map(|d| d.as_ref()).collect();
-    let names: Vec<String> = a.models.clone();
-    println!("scoring {}", stream.describe());
-    println!("ground truth: {}", gt.describe());
-    let mut writer = match &a.annotated {
-        Some(p) => Some(annotate::AnnotatedWriter::create(
-            &tools,
-            p,
-            (w * names.len() as u32, h),
-            out_fps,
-        )?),
-        None => None,
-    };
-    let conf = so.protocol.confidence;
-    let mut examples = report::Examples::new(8);
-    let scores = cac::video::score_stream(
-        stream.as_mut(),
-        gt.as_ref(),
-        &refs,
-        &so,
-        &device,
-        &mut |f, rec| {
-            examples.offer(&f.image, rec, &names, conf);
-            if let Some(wr) = writer.as_mut() {
-                wr.write(&annotate::draw(&f.image, rec, &names, conf), f.index)?;
-            }
-            Ok(())
-        },
-    )?;
-    let mut notes = vec![format!(
-        "decode {:.1} s, detection {:.1} s ({:.2} scored frames/s)",
-        scores.decode_s,
-        scores.detect_s,
-        scores.frames.len() as f64 / (scores.decode_s + scores.detect_s).max(1e-9)
-    )];
-    if let Some(wr) = writer {
-        let p = wr.finish()?;
-        notes.push(format!("annotated output: {}", p.display()));
-    }
-    report::write_all(&a.out, &scores, &notes, &examples.frames)?;
-    print_scores(&a, &scores, &notes)
+    println!("scoring {}", opened.source());
+    println!("ground truth: {}", opened.truth());
+    let o = opened.run(&refs, &a.models, &device)?;
+    print_scores(&a, &o.scores, &o.notes)
 }
 
-/// Video times in seconds.
-type Times = Vec<f64>;
-
-/// The ground truth the flags name, and with `--at-log` the times to score (video seconds).
-/// `creation` is the video's creation time (Unix seconds) where it records one.
-fn ground_truth(
-    a: &Args,
-    creation: Option<f64>,
-    size: (u32, u32),
-) -> Result<(Box<dyn GroundTruth>, Option<Times>)> {
-    let p = match (&a.annotations, &a.log) {
-        (Some(p), None) => return Ok((Box::new(Annotations::load(p)?), None)),
-        (None, Some(p)) => p,
+/// The library job the flags describe.
+fn job(a: &Args) -> Result<VideoJob> {
+    let truth = match (&a.annotations, &a.log) {
+        (Some(p), None) => Truth::Annotations(p.clone()),
+        (None, Some(p)) => Truth::Log(LogTruth {
+            path: p.clone(),
+            offset: a.log_offset.parse()?,
+            camera: match &a.rig {
+                Some(r) => LogCamera::Rig(r.clone()),
+                None => LogCamera::Twin {
+                    mesh: a.mesh.clone(),
+                    vfov_deg: a.vfov,
+                    calibration: a.calib.clone(),
+                },
+            },
+            segments: match a.segments {
+                SegArg::Revolution => LogSegments::Revolution,
+                SegArg::Ratio => LogSegments::Ratio,
+            },
+            default_ratio: a.ratio,
+            at_samples: a.at_log,
+        }),
         _ => bail!("give the ground truth: --annotations FILE or --log FILE"),
     };
-    let log = TurntableLog::load(p)?;
-    let offset_s = match a.log_offset.as_str() {
-        "creation" => creation.with_context(|| {
-            format!(
-                "{} has no creation_time: give --log-offset in seconds",
-                a.input.display()
-            )
-        })?,
-        s => s
-            .parse::<f64>()
-            .ok()
-            .filter(|v| v.is_finite())
-            .with_context(|| format!("--log-offset {s:?}: seconds or `creation`"))?,
-    };
-    let t0 = log.samples()[0].t;
-    if t0 > 1e8 && offset_s.abs() < 1e8 {
-        bail!(
-            "{}: times look like Unix seconds ({t0}) but the video starts at 0 s: give \
-             --log-offset creation or the Unix time of the video's first frame",
-            p.display()
-        );
-    }
-    let times = a
-        .at_log
-        .then(|| log.samples().iter().map(|s| s.t - offset_s).collect());
-    let gt = LogGroundTruth {
-        log,
-        projector: projector(a, size)?,
-        offset_s,
-        segments: match a.segments {
-            SegArg::Revolution => LogSegments::Revolution,
-            SegArg::Ratio => LogSegments::Ratio,
+    Ok(VideoJob {
+        input: a.input.clone(),
+        out: a.out.clone(),
+        truth,
+        open: OpenOptions {
+            rotate_ccw: a.rotate,
+            fps: a.fps,
+            allow_any_codec: a.any_codec,
         },
-        default_ratio: a.ratio,
-    };
-    Ok((Box::new(gt), times))
-}
-
-/// The log's projector: the calibrated rig (`--rig`) or the digital twin of `--mesh`.
-fn projector(a: &Args, (w, h): (u32, u32)) -> Result<Box<dyn Projector>> {
-    if let Some(r) = &a.rig {
-        let rig = cac::physical::rig::Rig::load(r)?;
-        return Ok(Box::new(RigProjector::new(rig, (w, h))?));
-    }
-    let calibration = match &a.calib {
-        Some(c) => TwinCalibration::load(c)?,
-        None => TwinCalibration::default(),
-    };
-    let object = cac::config::ObjectConfig {
-        mesh: a.mesh.clone(),
-        ..Default::default()
-    };
-    let settings = RenderSettings {
-        width: w as usize,
-        height: h as usize,
-        samples: 1,
-        vfov_deg: a.vfov,
-        atlas_res: 2,
-    };
-    let r = Renderer::new(object.load()?, settings)?;
-    Ok(Box::new(TwinProjector::new(r, calibration)))
+        every: a.every,
+        at: a.at.clone(),
+        window: a.window,
+        max_frames: a.max_frames,
+        protocol: protocol(a.target.as_deref())?,
+        annotated: a.annotated.clone(),
+        tools: Tools::from_env(),
+    })
 }
 
 /// The protocol, with `--target`'s class.

@@ -11,8 +11,12 @@
 //!
 //! Images go in as `[B, 3, H, W]` floats in [0, 1] on any device; the detector resizes them
 //! inside (differentiably), so gradients of any output reach the input image.
+//! [`bench`] times detectors (and their TFJS and PyTorch references) for `cac bench detect`;
+//! [`draw`] draws detections into an image.
 
+pub mod bench;
 pub mod centernet;
+pub mod draw;
 pub mod fetch;
 pub mod frcnn;
 pub mod labels;
@@ -192,6 +196,30 @@ pub fn check_spec(spec: &str) -> Result<&'static ModelInfo> {
         ),
         (None, None) => anyhow::bail!("unknown detector {spec:?}: expected {}", expected()),
     }
+}
+
+/// The loading spec of catalogue model `info` with an optional weights file: `MODEL=FILE` for
+/// a Faster R-CNN (which needs one), the name for a TFJS model (which takes none;
+/// `nanodet-human` with `human`).
+pub fn spec_with_weights(
+    info: &ModelInfo,
+    weights: Option<&std::path::Path>,
+    human: bool,
+) -> Result<String> {
+    Ok(match (info.weights, weights) {
+        (Weights::Checkpoint, Some(w)) => format!("{}={}", info.name, w.display()),
+        (Weights::Checkpoint, None) => {
+            anyhow::bail!(
+                "--model {} needs --weights FILE (a torchvision state_dict)",
+                info.name
+            )
+        }
+        (Weights::Folder, Some(_)) => {
+            anyhow::bail!("--weights only applies to the Faster R-CNN models")
+        }
+        (Weights::Folder, None) if human => "nanodet-human".to_string(),
+        (Weights::Folder, None) => info.name.to_string(),
+    })
 }
 
 /// Loads a detector by catalogue name ([`MODELS`]) from `dir`, the folder holding the TFJS model

@@ -38,3 +38,21 @@ pub fn form(
     let plans = plans(r, env, conds)?;
     Ok((form_planned(&plans, atlas, conds), plans))
 }
+
+/// The 8-bit images of `atlas` under each of `conds`, formed one view at a time (`cac render`'s
+/// single views and contact sheets).
+pub fn form_images(
+    r: &Renderer,
+    env: &Environment,
+    conds: &[Condition],
+    atlas: &crate::scene::Texture,
+    dev: &burn::tensor::Device,
+) -> Result<Vec<image::RgbImage>> {
+    let mut out = Vec::new();
+    for c in conds {
+        let t = render::atlas_tensor(atlas, dev);
+        let (img, _) = form(r, env, std::slice::from_ref(c), t)?;
+        out.extend(render::to_images(&img));
+    }
+    Ok(out)
+}

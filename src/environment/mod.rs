@@ -5,12 +5,14 @@
 //! ground) goes to the renderer; its photometric part is applied as tensor ops so gradients pass:
 //! print error on the atlas ([`print_error`]), and lighten/darken plus sensor noise on the image
 //! ([`photometric`]). [`form`] is the one image-formation call that chains them with the renderer.
-//! See `docs/environment.md` for every parameter and its default.
+//! See `docs/environment.md` for every parameter and its default. [`bench`] measures
+//! anti-aliasing error against time for `cac bench render`.
 
+pub mod bench;
 mod formation;
 mod transforms;
 
-pub use formation::{form, form_planned, plan, plans};
+pub use formation::{form, form_images, form_planned, plan, plans};
 pub use transforms::{photometric, print_error};
 
 use crate::render::skyline::Skyline;

@@ -23,7 +23,7 @@
 //! seed. The object mask comes from a second view layer in which the ground is a holdout: its
 //! alpha is the object's coverage, from which the ground-truth box is taken as in cac.
 
-use super::{score_image, ImageScore, Protocol};
+use super::{ImageScore, Protocol, Scorer};
 use crate::detect::Detector;
 use crate::environment::{self, Condition, Environment};
 use crate::render::{self, shade, Camera, Renderer};
@@ -405,14 +405,14 @@ pub fn score_views(
     device: &Device,
 ) -> Result<Vec<Vec<ImageScore>>> {
     let mut out = vec![vec![]; dets.len()];
+    let scorer = Scorer::new(dets, p);
     for (i, v) in views.iter().enumerate() {
         let gt = v
             .object_box
             .with_context(|| format!("Blender view {i}: the object is not visible"))?;
         let t = crate::detect::preprocess::image_to_tensor(&v.image, device);
-        for (m, d) in dets.iter().enumerate() {
-            let found = d.detect(t.clone())?.into_iter().next().unwrap_or_default();
-            out[m].push(score_image(&found, &gt, p));
+        for (m, o) in scorer.frame(t, &gt, None)?.into_iter().enumerate() {
+            out[m].push(o.score);
         }
     }
     Ok(out)

@@ -2,17 +2,26 @@
 //! against the ground-truth box at confidence >= 0.3; P@0.5 = hits / images. Targeted success is
 //! the same test for the target class. Drop = P@0.5(original) − P@0.5(texture).
 //!
-//! [`run`] draws the protocol's views and scores textures in them, [`summary`] aggregates the
+//! [`score`] is the one scoring core (detect, score against the box, tally by key) that the
+//! rendered, Blender, capture and video evaluations share. [`run`] draws the protocol's views and
+//! scores textures in them, [`summary`] aggregates the
 //! per-image records, [`report`] writes the tables, plots and HTML, [`textures`] resolves the
 //! texture list, [`cache`] keeps finished textures so an interrupted evaluation resumes, [`shard`]
-//! splits an evaluation into shards and merges them back.
+//! splits an evaluation into shards and merges them back. [`realism`] measures whether the
+//! original object is recognised at all (`cac bench realism`), [`bench`] the images scored per
+//! second (`cac bench eval`), [`compare`] one texture against another (the demo's before and
+//! after).
 
+pub mod bench;
 pub mod blender;
 pub mod cache;
+pub mod compare;
 pub mod gradcam;
 pub mod job;
+pub mod realism;
 pub mod report;
 pub mod run;
+pub mod score;
 pub mod shard;
 pub mod slurm;
 pub mod study;
@@ -23,7 +32,7 @@ mod views;
 pub use crate::environment::street_views;
 pub use views::{evaluate, ViewResults};
 
-use crate::detect::{nms::iou, Detection};
+pub use score::{score_image, Figures, ImageScore, ModelOutcome, Scorer};
 use serde::{Deserialize, Serialize};
 
 /// The protocol's thresholds and classes (stated in every report).
@@ -75,45 +84,6 @@ impl Protocol {
     }
 }
 
-/// One image's outcome for one model.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct ImageScore {
-    pub hit: bool,
-    pub targeted: bool,
-    /// Highest true-class confidence among detections with IoU >= the threshold (0 if none).
-    pub best_true_conf: f32,
-}
-
-fn iou_xyxy(a: &[f32; 4], b: &[f32; 4]) -> f64 {
-    // nms::iou takes [y1, x1, y2, x2]; IoU is symmetric in the axes, so xyxy works as well.
-    iou(a, b)
-}
-
-/// Scores one image's detections against its ground-truth box.
-pub fn score_image(dets: &[Detection], gt: &[f32; 4], p: &Protocol) -> ImageScore {
-    let mut s = ImageScore {
-        hit: false,
-        targeted: false,
-        best_true_conf: 0.0,
-    };
-    for d in dets {
-        let o = iou_xyxy(&d.bbox, gt);
-        if o < p.iou {
-            continue;
-        }
-        if p.true_classes.contains(&d.class_id) {
-            s.best_true_conf = s.best_true_conf.max(d.score);
-            if d.score >= p.confidence {
-                s.hit = true;
-            }
-        }
-        if Some(d.class_id) == p.target && d.score >= p.confidence {
-            s.targeted = true;
-        }
-    }
-    s
-}
-
 /// P@0.5, targeted success and mean best true-class confidence over images.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
@@ -124,18 +94,19 @@ pub struct Summary {
 }
 
 pub fn summarise(scores: &[ImageScore]) -> Summary {
-    let n = scores.len().max(1) as f64;
+    let f = Figures::of_scores(scores);
     Summary {
-        images: scores.len(),
-        p_at_05: scores.iter().filter(|s| s.hit).count() as f64 / n,
-        targeted_success: scores.iter().filter(|s| s.targeted).count() as f64 / n,
-        mean_best_true_conf: scores.iter().map(|s| s.best_true_conf as f64).sum::<f64>() / n,
+        images: f.images,
+        p_at_05: f.p_at_05,
+        targeted_success: f.targeted_success,
+        mean_best_true_conf: f.mean_best_true_conf,
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::detect::Detection;
 
     fn det(c: usize, s: f32, b: [f32; 4]) -> Detection {
         Detection {

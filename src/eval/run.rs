@@ -4,9 +4,9 @@
 //! (bright L_b, dark L_d): `views_per_level` conditions per group drawn from the environment with
 //! a seed derived from the run seed and the group, so every texture is seen in exactly the same
 //! views (a paired comparison) and a rerun reproduces them. Each image is rendered once and scored
-//! by every model ([`score_image`]); the result is one [`ImageRecord`] per image and model.
+//! by every model (the scoring core, [`super::score`]); the result is one [`ImageRecord`] per image and model.
 
-use super::{score_image, ImageScore, Protocol};
+use super::{ImageScore, Protocol, Scorer};
 use crate::detect::{Detection, Detector};
 use crate::environment::{self, Brightness, Condition, Environment, ViewpointSet};
 use crate::render::{self, Renderer};
@@ -180,6 +180,7 @@ pub fn evaluate_texture_in(
         examples: vec![],
     };
     let a = render::atlas_tensor(atlas, device);
+    let scorer = Scorer::new(dets, p);
     for &(gi, i) in views {
         let g = &groups[gi];
         let c = &g.conditions[i];
@@ -191,14 +192,9 @@ pub fn evaluate_texture_in(
                 continue;
             };
             let img = environment::form_planned(&[plan], a.clone(), std::slice::from_ref(c));
+            let v = &c.viewpoint;
             let mut per_model = vec![];
-            for d in dets {
-                let found = d
-                    .detect(img.clone())?
-                    .into_iter()
-                    .next()
-                    .unwrap_or_default();
-                let v = &c.viewpoint;
+            for (d, o) in dets.iter().zip(scorer.frame(img.clone(), &gt, None)?) {
                 out.records.push(ImageRecord {
                     texture: texture.to_string(),
                     model: d.name().to_string(),
@@ -209,9 +205,9 @@ pub fn evaluate_texture_in(
                     elevation_deg: v.elevation_deg,
                     distance_ratio: v.distance_ratio,
                     gt,
-                    score: score_image(&found, &gt, p),
+                    score: o.score,
                 });
-                per_model.push(found);
+                per_model.push(o.detections);
             }
             if i < examples_per_group {
                 out.examples.push(Example {

@@ -1,8 +1,13 @@
 //! Slurm batch scripts for sweeps: a pipeline of stages (a job array of training tasks, a job
 //! array of evaluation shards, one merge), each stage a plain `cac` command line in which
-//! `{task}` stands for the array index. Only text is made here; `cac slurm` submits it with
-//! `sbatch --array=... --dependency=afterok:...`. Not a scheduler: the same commands run under
-//! any scheduler or by hand (docs/sweeps.md).
+//! `{task}` stands for the array index ([`script`]). A [`Sweep`] writes the scripts into
+//! `OUT/slurm/` and submits them with `sbatch --array=... --dependency=afterok:...` (refusing while
+//! a sweep into the same folder is queued or running); `cac slurm` builds the stages and prints.
+//! Not a scheduler: the same commands run under any scheduler or by hand (docs/sweeps.md).
+
+use anyhow::{bail, Context, Result};
+use std::path::{Path, PathBuf};
+use std::process::Command;
 
 /// `#SBATCH` settings shared by every stage.
 #[derive(Clone, Debug, Default)]
@@ -103,6 +108,149 @@ pub fn script(
         .collect();
     s.push_str(&format!("exec {}\n", words.join(" ")));
     s
+}
+
+/// `base` followed by `extra`.
+pub fn with(base: &[String], extra: &[&str]) -> Vec<String> {
+    base.iter()
+        .cloned()
+        .chain(extra.iter().map(|s| s.to_string()))
+        .collect()
+}
+
+/// The evaluation `base` as an array of `shards` tasks, then the merge that waits for them.
+pub fn shards_then_merge(base: &[String], shards: usize) -> Result<Vec<Stage>> {
+    if shards == 0 {
+        bail!("--shards must be at least 1");
+    }
+    Ok(vec![
+        Stage {
+            name: "eval".into(),
+            tasks: Some(shards),
+            argv: with(base, &["--shard", &format!("{{task}}/{shards}")]),
+        },
+        Stage {
+            name: "merge".into(),
+            tasks: None,
+            argv: with(base, &["--merge"]),
+        },
+    ])
+}
+
+/// The name shared by every job of the sweep writing into `out`.
+pub fn job_name(out: &Path) -> String {
+    use sha2::{Digest, Sha256};
+    let h = Sha256::digest(out.display().to_string().as_bytes());
+    let tag: String = h.iter().take(4).map(|b| format!("{b:02x}")).collect();
+    let base = out
+        .file_name()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let base: String = base
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c } else { '-' })
+        .take(24)
+        .collect();
+    format!("cac-{base}-{tag}")
+}
+
+/// The stages of a sweep into one output folder, with their scripts.
+pub struct Sweep {
+    /// The output folder (absolute) and its `slurm/` folder of scripts and logs.
+    pub out: PathBuf,
+    pub dir: PathBuf,
+    pub stages: Vec<Stage>,
+    /// Per stage: the script's path and text.
+    pub scripts: Vec<(PathBuf, String)>,
+    name: String,
+}
+
+impl Sweep {
+    /// The scripts of `stages` for a sweep into `out` (relative to the current folder).
+    pub fn new(out: &Path, stages: Vec<Stage>, batch: &Batch) -> Result<Sweep> {
+        let cwd = std::env::current_dir().context("no current folder")?;
+        let out = if out.is_absolute() {
+            out.to_path_buf()
+        } else {
+            cwd.join(out)
+        };
+        let dir = out.join("slurm");
+        let name = job_name(&out);
+        let scripts = stages
+            .iter()
+            .map(|s| {
+                (
+                    dir.join(format!("{}.sbatch", s.name)),
+                    script(s, &name, batch, &cwd, &dir),
+                )
+            })
+            .collect();
+        Ok(Sweep {
+            out,
+            dir,
+            stages,
+            scripts,
+            name,
+        })
+    }
+
+    /// The sbatch arguments of stage `k`, after the job `prev`.
+    pub fn command(&self, k: usize, prev: Option<&str>) -> Vec<String> {
+        let s = &self.stages[k];
+        let mut c = vec!["--parsable".to_string()];
+        if let Some(n) = s.tasks {
+            c.push(format!("--array={}", array(n)));
+        }
+        if let Some(p) = prev {
+            c.push(format!("--dependency=afterok:{p}"));
+        }
+        c.push(self.scripts[k].0.display().to_string());
+        c
+    }
+
+    /// Writes the scripts and submits the stages in order, each after the previous; returns the
+    /// job ids. Refuses while jobs of a sweep into the same folder are queued or running.
+    pub fn submit(&self) -> Result<Vec<String>> {
+        if let Ok(o) = Command::new("squeue")
+            .args(["-h", "-n", &self.name, "-o", "%i %T"])
+            .output()
+        {
+            let active = String::from_utf8_lossy(&o.stdout).trim().to_string();
+            if o.status.success() && !active.is_empty() {
+                bail!(
+                    "jobs of a sweep into {} are still queued or running ({}): wait for them or scancel them, then rerun",
+                    self.out.display(),
+                    active.replace('\n', ", ")
+                );
+            }
+        }
+        for (path, text) in &self.scripts {
+            crate::io::write_atomic(path, text.as_bytes())?;
+        }
+        let mut ids: Vec<String> = vec![];
+        for k in 0..self.stages.len() {
+            let id = sbatch(&self.command(k, ids.last().map(String::as_str)))?;
+            ids.push(id);
+        }
+        Ok(ids)
+    }
+}
+
+fn sbatch(args: &[String]) -> Result<String> {
+    let o = Command::new("sbatch")
+        .args(args)
+        .output()
+        .context("cannot run sbatch (is Slurm installed and on PATH?)")?;
+    if !o.status.success() {
+        bail!(
+            "sbatch {} failed: {}",
+            args.join(" "),
+            String::from_utf8_lossy(&o.stderr).trim()
+        );
+    }
+    let id = String::from_utf8_lossy(&o.stdout).trim().to_string();
+    // --parsable prints "ID" or "ID;CLUSTER".
+    Ok(id.split(';').next().unwrap_or_default().to_string())
 }
 
 #[cfg(test)]

@@ -3,41 +3,11 @@
 //! and the paper-shaped tables (textures as rows, models as column groups).
 
 use super::run::{level_name, set_name, ImageRecord};
+use super::score::group_by;
+pub use super::score::Figures;
 use crate::environment::{Brightness, ViewpointSet};
 use crate::report::Table;
 use serde::{Deserialize, Serialize};
-
-/// The figures of a set of images.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct Figures {
-    pub images: usize,
-    pub p_at_05: f64,
-    /// Standard error of P@0.5 as a binomial proportion, `sqrt(p (1 - p) / images)`.
-    pub p_stderr: f64,
-    pub targeted_success: f64,
-    pub mean_best_true_conf: f64,
-}
-
-impl Figures {
-    pub fn of<'a>(records: impl IntoIterator<Item = &'a ImageRecord>) -> Figures {
-        let (mut n, mut hits, mut tg, mut conf) = (0usize, 0usize, 0usize, 0.0f64);
-        for r in records {
-            n += 1;
-            hits += r.score.hit as usize;
-            tg += r.score.targeted as usize;
-            conf += r.score.best_true_conf as f64;
-        }
-        let d = n.max(1) as f64;
-        let p = hits as f64 / d;
-        Figures {
-            images: n,
-            p_at_05: p,
-            p_stderr: (p * (1.0 - p) / d).sqrt(),
-            targeted_success: tg as f64 / d,
-            mean_best_true_conf: conf / d,
-        }
-    }
-}
 
 /// Which records: `None` in a field matches any value.
 #[derive(Clone, Copy, Debug, Default)]
@@ -73,7 +43,7 @@ pub fn sel<'a>(
 }
 
 pub fn figures(records: &[ImageRecord], s: Select) -> Figures {
-    Figures::of(records.iter().filter(|r| s.matches(r)))
+    Figures::of_scores(records.iter().filter(|r| s.matches(r)).map(|r| &r.score))
 }
 
 /// A viewing factor a breakdown is taken against.
@@ -133,17 +103,13 @@ pub fn breakdown<'a>(
     factor: Factor,
 ) -> Vec<Bin> {
     let w = factor.width();
-    let mut bins: std::collections::BTreeMap<i64, Vec<&ImageRecord>> = Default::default();
-    for r in records {
-        bins.entry((factor.value(r) / w).floor() as i64)
-            .or_default()
-            .push(r);
-    }
+    let mut bins = group_by(records, |r| (factor.value(r) / w).floor() as i64);
+    bins.sort_by_key(|(k, _)| *k);
     bins.into_iter()
         .map(|(k, rs)| Bin {
             lo: k as f64 * w,
             hi: (k + 1) as f64 * w,
-            figures: Figures::of(rs),
+            figures: Figures::of_scores(rs.into_iter().map(|r| &r.score)),
         })
         .collect()
 }

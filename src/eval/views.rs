@@ -1,7 +1,7 @@
 //! Scores a texture in a set of rendered views: render (with the views' environment), detect with
 //! each model, compare with the ground-truth boxes from the object mask.
 
-use super::{score_image, ImageScore, Protocol};
+use super::{ImageScore, Protocol, Scorer};
 use crate::detect::{Detection, Detector};
 use crate::environment::{self, Condition, Environment};
 use crate::render::{self, Renderer};
@@ -40,14 +40,13 @@ pub fn evaluate(
             .with_context(|| format!("view {i}: the object is not visible"))?;
         let a = render::atlas_tensor(atlas, device);
         let img = environment::form_planned(&[plan], a, std::slice::from_ref(c));
-        for (m, d) in dets.iter().enumerate() {
-            let found = d
-                .detect(img.clone())?
-                .into_iter()
-                .next()
-                .unwrap_or_default();
-            out.scores[m].push(score_image(&found, &gt, p));
-            out.detections[m].push(found);
+        for (m, o) in Scorer::new(dets, p)
+            .frame(img.clone(), &gt, None)?
+            .into_iter()
+            .enumerate()
+        {
+            out.scores[m].push(o.score);
+            out.detections[m].push(o.detections);
         }
         out.images.extend(render::to_images(&img));
     }

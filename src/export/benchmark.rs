@@ -1,13 +1,15 @@
 //! The bake's error against run time: for several subdivision limits, the triangle count, the
-//! seconds taken and the colour error against the texture (`cac bench export`).
+//! seconds taken and the colour error against the texture; optionally the solidifier's error
+//! against time at several grid spacings (`cac bench export`, run by [`ExportBench::run`]).
 
 use super::bake::{bake, colour_error, BakeLimits};
-use super::PrintMesh;
+use super::{PrintMesh, Scale};
 use crate::scene::generate::value_noise;
 use crate::scene::Texture;
-use anyhow::Result;
+use anyhow::{Context, Result};
 use serde::Serialize;
 use std::fmt::Write as _;
+use std::path::PathBuf;
 use std::time::Instant;
 
 /// A camouflage-like test texture: four-colour blotches with sharp borders (as learned
@@ -273,4 +275,87 @@ pub fn solid_csv(rows: &[SolidRow]) -> String {
         );
     }
     s
+}
+
+/// What `cac bench export` measures.
+#[derive(Clone, Debug)]
+pub struct ExportBench {
+    /// The object (file or default name).
+    pub mesh: PathBuf,
+    /// The texture; default: [`synthetic_camouflage`] at `res`.
+    pub texture: Option<PathBuf>,
+    pub res: usize,
+    pub scale: Scale,
+    /// Edge limits in texels, then in mm (texel limit off).
+    pub texels: Vec<f32>,
+    pub mm: Vec<f32>,
+    /// Random surface samples for the error.
+    pub samples: usize,
+    /// Solidify at these grid spacings (mm); none: no solidify table.
+    pub solid_voxels: Vec<f32>,
+    /// Subdivide to at least this many triangles before solidifying (0: as loaded).
+    pub solid_input_triangles: usize,
+}
+
+/// The solidify table and the mesh it was measured on.
+pub struct SolidPart {
+    pub input: PrintMesh,
+    pub rows: Vec<SolidRow>,
+}
+
+/// What [`ExportBench::run`] measured.
+pub struct ExportBenchOutcome {
+    pub mesh: PrintMesh,
+    /// Texture width and height.
+    pub texture: (usize, usize),
+    pub solid: Option<SolidPart>,
+    /// The bake table (none when no edge limit was asked for and the solidifier was).
+    pub bake: Option<Vec<BenchRow>>,
+}
+
+impl ExportBench {
+    pub fn run(&self) -> Result<ExportBenchOutcome> {
+        let scene = super::load_mesh(&self.mesh, &Default::default())?;
+        let camo = match &self.texture {
+            Some(p) => super::load_texture(p)?,
+            None => synthetic_camouflage(self.res, 11),
+        };
+        let mesh = super::prepare(&scene, &camo, self.scale)
+            .with_context(|| format!("mesh {}", self.mesh.display()))?;
+        let limits: Vec<BakeLimits> = self
+            .texels
+            .iter()
+            .map(|&t| BakeLimits {
+                max_edge_texels: t,
+                ..Default::default()
+            })
+            .chain(self.mm.iter().map(|&mm| BakeLimits {
+                max_edge_texels: f32::INFINITY,
+                max_edge_mm: mm,
+                ..Default::default()
+            }))
+            .collect();
+        let solid = if self.solid_voxels.is_empty() {
+            None
+        } else {
+            let input = if self.solid_input_triangles > mesh.tris.len() {
+                refine(&mesh, self.solid_input_triangles)?
+            } else {
+                mesh.clone()
+            };
+            let rows = run_solid(&input, &self.solid_voxels, 0.8, self.samples.min(50_000))?;
+            Some(SolidPart { input, rows })
+        };
+        let bake = if solid.is_some() && limits.is_empty() {
+            None
+        } else {
+            Some(run(&mesh, &limits, self.samples, 3)?)
+        };
+        Ok(ExportBenchOutcome {
+            texture: (camo.width, camo.height),
+            mesh,
+            solid,
+            bake,
+        })
+    }
 }

@@ -1,12 +1,15 @@
 //! The physical test rig, host side: the turntable driver speaking `firmware-protocol` over any
 //! [`Transport`] — a real serial port ([`SerialTransport`]), the simulator's pseudo-terminal, or its
 //! in-memory link (`crate::sim`) — camera frame sources, the calibrated lens, the rig file, the
-//! digital twin, ground-truth boxes, and capture sessions with their manifest.
+//! one camera model of the rig ([`rig_camera`]), the digital twin, ground-truth boxes, capture sessions with their manifest, and
+//! the whole capture run ([`capture`]).
 
 pub mod calib;
 pub mod camera;
+pub mod capture;
 pub mod manifest;
 pub mod rig;
+pub mod rig_camera;
 pub mod score;
 pub mod serial;
 pub mod session;

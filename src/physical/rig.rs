@@ -250,7 +250,7 @@ impl Rig {
 
     /// The camera pose in the object's frame with the table at `angle_deg` and the camera
     /// `horizontal_m` from the axis (its intrinsics are the lens's pinhole part).
-    pub fn camera(&self, angle_deg: f64, horizontal_m: f64) -> Result<Camera> {
+    pub fn camera_at(&self, angle_deg: f64, horizontal_m: f64) -> Result<Camera> {
         let e = self.config.camera.elevation_deg.to_radians() as f32;
         let eye = Vec3::new(horizontal_m as f32, self.config.camera.height_m as f32, 0.0);
         let world = Camera::look_at(
@@ -290,7 +290,7 @@ mod tests {
         let rig = Rig::new(cfg, lens).unwrap();
         let d = rig.horizontal_distance(2.0).unwrap();
         for a in [0.0f64, 90.0, 200.0] {
-            let cam = rig.camera(a, d).unwrap();
+            let cam = rig.camera_at(a, d).unwrap();
             let az = f64::from(cam.eye.z.atan2(cam.eye.x))
                 .to_degrees()
                 .rem_euclid(360.0);

@@ -1,4 +1,5 @@
-//! Scores a capture session: every frame of the manifest through each detector, against the
+//! Scores a capture session (an adapter of the scoring core, `eval::score`): every frame of the
+//! manifest through each detector, against the
 //! ground-truth box projected through the calibrated lens at the planned angle and distance
 //! ([`super::truth`]); P@0.5 per distance ratio as mean ± standard deviation over the repeats
 //! (the paper's Figure 6), and per table angle (a polar plot). [`write`] saves JSON, CSV, the
@@ -9,7 +10,8 @@ use super::rig::Rig;
 use super::session::SessionInfo;
 use super::truth::ground_truth_box;
 use crate::detect::{preprocess::image_to_tensor, Detector};
-use crate::eval::{score_image, Protocol};
+use crate::eval::score::{figures_by, mean_std, ImageScore, Scorer};
+use crate::eval::Protocol;
 use crate::report::{plot, Html, Plot, Series, Table};
 use anyhow::{Context, Result};
 use burn::tensor::Device;
@@ -75,6 +77,7 @@ pub fn score(
     let entries = manifest::read(&dir.join("manifest.jsonl"))?;
     let rig = Rig::new(info.rig.clone(), info.lens.clone())
         .with_context(|| format!("the rig of session {}", dir.display()))?;
+    let scorer = Scorer::new(detectors, protocol);
     let mut frames = Vec::with_capacity(entries.len());
     let bar = if progress {
         indicatif::ProgressBar::new(entries.len() as u64)
@@ -96,22 +99,15 @@ pub fn score(
         if let Some(gt) = gt {
             let img = crate::io::load_rgb(&dir.join(&e.frame))?;
             let x = image_to_tensor(&img, device);
-            for d in detectors {
-                let dets = d
-                    .detect(x.clone())
-                    .with_context(|| format!("{} on {}", d.name(), e.frame))?
-                    .into_iter()
-                    .next()
-                    .unwrap_or_default();
-                let s = score_image(&dets, &gt, protocol);
-                f.hit.push(s.hit);
-                f.best_conf.push(s.best_true_conf);
+            for o in scorer.frame(x, &gt, Some(&|| e.frame.clone()))? {
+                f.hit.push(o.score.hit);
+                f.best_conf.push(o.score.best_true_conf);
             }
         }
         frames.push(f);
     }
     bar.finish_and_clear();
-    let models: Vec<String> = detectors.iter().map(|d| d.name().to_string()).collect();
+    let models = scorer.models();
     let (by_ratio, by_angle) = aggregate(
         &models,
         &info.plan.ratios,
@@ -128,21 +124,9 @@ pub fn score(
     })
 }
 
-fn mean_std(v: &[f64]) -> (f64, f64) {
-    if v.is_empty() {
-        return (0.0, 0.0);
-    }
-    let n = v.len() as f64;
-    let m = v.iter().sum::<f64>() / n;
-    let var = if v.len() > 1 {
-        v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0)
-    } else {
-        0.0
-    };
-    (m, var.sqrt())
-}
-
-/// Per-ratio (mean ± std over repeats) and per-angle P@0.5 from frame scores.
+/// Per-ratio (mean ± std over repeats) and per-angle P@0.5 from frame scores (frames without a
+/// ground-truth box are not scored; a ratio and repeat, or an angle, without scored frames is
+/// left out).
 pub fn aggregate(
     models: &[String],
     ratios: &[f64],
@@ -150,20 +134,22 @@ pub fn aggregate(
     repeats: usize,
     frames: &[FrameScore],
 ) -> (Vec<RatioScore>, Vec<AngleScore>) {
-    let scored: Vec<_> = frames.iter().filter(|f| f.gt.is_some()).collect();
-    let p = |m: usize, sel: &dyn Fn(&FrameScore) -> bool| -> Option<(f64, usize)> {
-        let v: Vec<_> = scored.iter().filter(|f| sel(f)).collect();
-        (!v.is_empty()).then(|| {
-            let hits = v.iter().filter(|f| f.hit[m]).count();
-            (hits as f64 / v.len() as f64, v.len())
-        })
-    };
+    let scored: Vec<&FrameScore> = frames.iter().filter(|f| f.gt.is_some()).collect();
     let mut by_ratio = Vec::new();
     let mut by_angle = Vec::new();
     for (m, name) in models.iter().enumerate() {
+        let scores: Vec<(&FrameScore, ImageScore)> =
+            scored.iter().map(|f| (*f, f.image_score(m))).collect();
+        let per_run = figures_by(&scores, |x| (x.0.ratio, x.0.repeat), |x| &x.1);
+        let per_angle = figures_by(&scores, |x| x.0.angle, |x| &x.1);
         for &r in ratios {
             let per_repeat: Vec<f64> = (0..repeats)
-                .filter_map(|k| p(m, &|f| f.ratio == r && f.repeat == k).map(|x| x.0))
+                .filter_map(|k| {
+                    per_run
+                        .iter()
+                        .find(|(key, _)| *key == (r, k))
+                        .map(|(_, f)| f.p_at_05)
+                })
                 .collect();
             let (mean, std) = mean_std(&per_repeat);
             by_ratio.push(RatioScore {
@@ -175,17 +161,28 @@ pub fn aggregate(
             });
         }
         for &a in angles {
-            if let Some((pa, n)) = p(m, &|f| f.angle == a) {
+            if let Some((_, f)) = per_angle.iter().find(|(key, _)| *key == a) {
                 by_angle.push(AngleScore {
                     model: name.clone(),
                     angle: a,
-                    p_at_05: pa,
-                    frames: n,
+                    p_at_05: f.p_at_05,
+                    frames: f.images,
                 });
             }
         }
     }
     (by_ratio, by_angle)
+}
+
+impl FrameScore {
+    /// Model `m`'s score on this frame (the capture scorer keeps no targeted outcome).
+    fn image_score(&self, m: usize) -> ImageScore {
+        ImageScore {
+            hit: self.hit[m],
+            targeted: false,
+            best_true_conf: self.best_conf[m],
+        }
+    }
 }
 
 /// Writes `scores.json`, `frames.csv`, `by_ratio.csv`, `by_angle.csv`, `p_vs_ratio.png`,
@@ -320,4 +317,65 @@ pub fn write(out: &Path, s: &SessionScore, session: &str) -> Result<()> {
     h.heading(2, "By table angle").table(&angle_t);
     io(&out.join("report.html"), h.finish().as_bytes())?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(ratio: f64, angle: f64, repeat: usize, hits: Option<[bool; 2]>) -> FrameScore {
+        FrameScore {
+            frame: format!("{ratio}-{angle}-{repeat}.png"),
+            ratio,
+            angle,
+            repeat,
+            gt: hits.map(|_| [0.0, 0.0, 1.0, 1.0]),
+            hit: hits.map_or(vec![], |h| h.to_vec()),
+            best_conf: hits.map_or(vec![], |h| h.map(|x| if x { 0.9 } else { 0.1 }).to_vec()),
+        }
+    }
+
+    #[test]
+    fn per_ratio_over_repeats_and_per_angle_skip_unscored_frames() {
+        let models = ["a".to_string(), "b".to_string()];
+        let frames = [
+            frame(2.0, 0.0, 0, Some([true, false])),
+            frame(2.0, 90.0, 0, Some([false, false])),
+            frame(2.0, 0.0, 1, Some([true, true])),
+            frame(2.0, 90.0, 1, Some([true, false])),
+            frame(3.0, 0.0, 0, Some([false, true])),
+            // Out of view: not scored, so ratio 3 has no repeat 1 and angle 180 no frames.
+            frame(3.0, 90.0, 0, None),
+            frame(3.0, 180.0, 1, None),
+        ];
+        let (by_ratio, by_angle) = aggregate(&models, &[2.0, 3.0], &[0.0, 90.0, 180.0], 2, &frames);
+        let r: Vec<(&str, f64, Vec<f64>, f64)> = by_ratio
+            .iter()
+            .map(|r| (r.model.as_str(), r.ratio, r.per_repeat.clone(), r.mean))
+            .collect();
+        assert_eq!(
+            r,
+            vec![
+                ("a", 2.0, vec![0.5, 1.0], 0.75),
+                ("a", 3.0, vec![0.0], 0.0),
+                ("b", 2.0, vec![0.0, 0.5], 0.25),
+                ("b", 3.0, vec![1.0], 1.0),
+            ]
+        );
+        assert!((by_ratio[0].std - 0.125f64.sqrt()).abs() < 1e-12);
+        assert_eq!(by_ratio[1].std, 0.0, "one repeat: no spread");
+        let a: Vec<(&str, f64, f64, usize)> = by_angle
+            .iter()
+            .map(|a| (a.model.as_str(), a.angle, a.p_at_05, a.frames))
+            .collect();
+        assert_eq!(
+            a,
+            vec![
+                ("a", 0.0, 2.0 / 3.0, 3),
+                ("a", 90.0, 0.5, 2),
+                ("b", 0.0, 2.0 / 3.0, 3),
+                ("b", 90.0, 0.0, 2),
+            ]
+        );
+    }
 }

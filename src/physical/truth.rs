@@ -15,7 +15,7 @@ const EDGE_SAMPLES: usize = 6;
 /// The ground-truth box `[x1, y1, x2, y2]` (pixels, cac convention) of the object with the table
 /// at `angle_deg` and the camera `horizontal_m` from the axis; `None` when it is out of view.
 pub fn ground_truth_box(rig: &Rig, angle_deg: f64, horizontal_m: f64) -> Result<Option<[f32; 4]>> {
-    let cam = rig.camera(angle_deg, horizontal_m)?;
+    let cam = rig.camera_at(angle_deg, horizontal_m)?;
     let lens = &rig.lens;
     let r_max = fold_radius(lens);
     let scene = &rig.renderer.scene;

@@ -65,7 +65,7 @@ impl DigitalTwin {
     pub fn render(&self, pose: Pose, frame: u64) -> anyhow::Result<TwinFrame> {
         let rig = &*self.rig;
         let t = &rig.config.twin;
-        let cam = rig.camera(pose.angle_deg, pose.horizontal_m)?;
+        let cam = rig.camera_at(pose.angle_deg, pose.horizontal_m)?;
         let lens = &rig.lens;
         let ray = |x: f32, y: f32| lens.ray(&cam, x, y);
         let light = Lighting {

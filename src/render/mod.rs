@@ -8,9 +8,10 @@
 //! 4. [`composite`]: plan + atlas tensor → image tensor, differentiable with respect to the atlas.
 //!
 //! Geometry is fixed during an attack, so steps 1–3 run once per view on the CPU and only step 4
-//! is in the autodiff graph.
+//! is in the autodiff graph. [`bench`] measures ray casting for `cac bench render`.
 
 pub mod accel;
+pub mod bench;
 pub mod camera;
 pub mod composite;
 pub mod gbuffer;

@@ -2,7 +2,8 @@
 //! Markdown and CSV from the same rows ([`table`]), plots drawn to images with `plotters`
 //! ([`plot`]: xy lines with error bars, polar plots against azimuth), and a self-contained HTML
 //! page with its images embedded ([`html`]), boxes and labels drawn into images ([`draw`]) with a
-//! small bitmap font (`font`). Nothing here writes files; callers do, atomically
+//! small bitmap font (`font`), and the benchmarks' one timer ([`timer`]). Nothing here writes
+//! files; callers do, atomically
 //! (`cac::io`).
 
 pub mod draw;
@@ -10,6 +11,7 @@ pub(crate) mod font;
 pub mod html;
 pub mod plot;
 pub mod table;
+pub mod timer;
 
 pub use html::Html;
 pub use plot::{Plot, Series};

@@ -5,7 +5,8 @@
 //! puts every object into the same frame (see `docs/conventions.md`): metres, **+Y up**, ground
 //! contact at `y = 0`, the object's length along **+X** (its front facing +X), centred on the
 //! origin in X and Z. The [`generate`] module builds the project's default meshes, [`textures`] the
-//! simple baseline textures (Natural, Naive, Random).
+//! simple baseline textures (Natural, Naive, Random), [`paint`] the paintable-texel mask and the
+//! painting of a whole-atlas texture onto it.
 //!
 //! This module does not render and knows nothing about tensors.
 
@@ -13,6 +14,7 @@ pub mod generate;
 mod gltf_load;
 mod obj_load;
 pub mod obj_write;
+pub mod paint;
 pub mod textures;
 
 use anyhow::{bail, Context, Result};

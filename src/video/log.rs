@@ -6,10 +6,11 @@
 //! The angle between samples is interpolated linearly along the shorter way round (the log may
 //! wrap at 360 or count up; consecutive samples must be less than half a turn apart); the ratio and repeat hold from one sample to the next. Each frame
 //! gets a segment: its ratio (and repeat), and with [`LogSegments::Revolution`] also the whole
-//! revolution it is in since the ratio began. The ground-truth box comes from a [`Projector`]
-//! (the digital twin in [`super::twin`], or a calibrated camera model).
+//! revolution it is in since the ratio began. The ground-truth box comes from the rig camera model
+//! (`physical::rig_camera::RigCamera`: the viewpoint twin, or the calibrated rig).
 
 use super::annotations::{GroundTruth, GtBox};
+use crate::physical::rig_camera::RigCamera;
 use anyhow::{bail, Context, Result};
 use std::path::Path;
 
@@ -207,39 +208,23 @@ pub enum LogSegments {
     Revolution,
 }
 
-/// The ground-truth box of the object at a turntable angle and distance ratio.
-pub trait Projector {
-    /// Box `x1, y1, x2, y2` in display pixels; `None` when the object is out of view.
-    fn project(&self, angle_deg: f64, ratio: f64) -> Result<Option<[f32; 4]>>;
-    fn describe(&self) -> String;
-}
-
-/// Ground truth from a log and a projector. Video time `t` is log time `t + offset_s`.
-pub struct LogGroundTruth<P: Projector> {
+/// Ground truth from a log and a rig camera. Video time `t` is log time `t + offset_s`.
+pub struct LogGroundTruth<C: RigCamera> {
     pub log: TurntableLog,
-    pub projector: P,
+    pub camera: C,
     pub offset_s: f64,
     pub segments: LogSegments,
     /// The ratio of logs without one.
     pub default_ratio: f64,
 }
 
-impl<P: Projector + ?Sized> Projector for Box<P> {
-    fn project(&self, angle_deg: f64, ratio: f64) -> Result<Option<[f32; 4]>> {
-        (**self).project(angle_deg, ratio)
-    }
-    fn describe(&self) -> String {
-        (**self).describe()
-    }
-}
-
-impl<P: Projector> GroundTruth for LogGroundTruth<P> {
+impl<C: RigCamera> GroundTruth for LogGroundTruth<C> {
     fn at(&self, _index: u64, pts: f64) -> Result<Option<GtBox>> {
         let Some(p) = self.log.pose(pts + self.offset_s) else {
             return Ok(None);
         };
         let ratio = p.ratio.unwrap_or(self.default_ratio);
-        let Some(bbox) = self.projector.project(p.angle_deg, ratio)? else {
+        let Some(bbox) = self.camera.object_box(p.angle_deg, ratio)? else {
             return Ok(None);
         };
         let mut seg = format!("ratio {ratio}");
@@ -261,7 +246,7 @@ impl<P: Projector> GroundTruth for LogGroundTruth<P> {
             self.log.source,
             self.log.samples.len(),
             self.offset_s,
-            self.projector.describe()
+            self.camera.describe()
         )
     }
 }

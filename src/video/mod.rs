@@ -1,21 +1,24 @@
 //! Offline scoring of recorded videos and image sequences (`cac score-video`): decode with the
 //! ffmpeg command-line tools as a subprocess ([`probe`], [`decode`]), ground truth from
 //! annotation files ([`annotations`]) or a turntable log projected through the digital twin
-//! ([`log`]; projected by the digital twin, [`twin`], or the calibrated rig, [`rig`]), frame sampling and P@0.5 per segment ([`score`]), boxes drawn into an
+//! ([`log`]; projected by the rig camera model, `physical::rig_camera`: the viewpoint twin or the
+//! calibrated rig), frame sampling and P@0.5 per segment ([`score`], an adapter of the scoring
+//! core `eval::score`), rendered turntable sequences ([`twin`]), boxes drawn into an
 //! annotated video or frame folder ([`annotate`]), and the per-frame CSV, plot and HTML report
-//! ([`report`]). [`encode`] holds the encoding presets of the fixtures and the benchmark.
+//! ([`report`]); [`job`] runs all of it for `cac score-video`. [`encode`] holds the encoding presets of the fixtures and the benchmark ([`bench`]).
 //!
 //! ffmpeg and ffprobe are found on `PATH`, or where `CAC_FFMPEG` / `CAC_FFPROBE` point
 //! ([`Tools::from_env`]).
 
 pub mod annotate;
 pub mod annotations;
+pub mod bench;
 pub mod decode;
 pub mod encode;
+pub mod job;
 pub mod log;
 pub mod probe;
 pub mod report;
-pub mod rig;
 pub mod score;
 pub mod twin;
 
@@ -117,21 +120,6 @@ pub(crate) fn run_tool(tools: &Tools, tool: &Path, args: &[&std::ffi::OsStr]) ->
         );
     }
     Ok(out.stdout)
-}
-
-/// Mean and sample standard deviation (n − 1, as the capture scorer); `(0, 0)` for no values,
-/// std 0 for one.
-pub fn mean_std(v: &[f64]) -> (f64, f64) {
-    if v.is_empty() {
-        return (0.0, 0.0);
-    }
-    let n = v.len() as f64;
-    let m = v.iter().sum::<f64>() / n;
-    if v.len() == 1 {
-        return (m, 0.0);
-    }
-    let var = v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0);
-    (m, var.sqrt())
 }
 
 /// Is `path` a printf-style image-sequence pattern (`frames/%04d.png`)?

@@ -1,15 +1,15 @@
-//! Scores a frame stream: sample frames (every k-th, or the nearest frame to given times), look
+//! Scores a frame stream (an adapter of the scoring core, `eval::score`): sample frames (every k-th, or the nearest frame to given times), look
 //! up each frame's ground-truth box, detect with each model, score with the evaluation protocol
-//! (`eval::score_image`), and summarise P@0.5 over all frames and as mean ± std over segments
+//! (`eval::score::Scorer`), and summarise P@0.5 over all frames and as mean ± std over segments
 //! (the ground truth's segments — revolutions, distance ratios, annotated ranges — or fixed time
 //! windows).
 
 use super::annotations::GroundTruth;
 use super::decode::{FrameStream, VideoFrame};
-use super::mean_std;
 use crate::detect::{nms::iou, preprocess::image_to_tensor, Detection, Detector};
-use crate::eval::{score_image, ImageScore, Protocol};
-use anyhow::{bail, Context, Result};
+use crate::eval::score::{group_by, mean_std, Figures, ImageScore, Scorer};
+use crate::eval::Protocol;
+use anyhow::{bail, Result};
 use burn::tensor::Device;
 use serde::Serialize;
 use std::time::Instant;
@@ -235,6 +235,7 @@ pub fn score_stream(
         }
     }
     let mut sampler = Sampler::new(opts.sampling.clone())?;
+    let scorer = Scorer::new(detectors, &opts.protocol);
     let mut res = VideoScores {
         source: stream.describe(),
         ground_truth: gt.describe(),
@@ -288,24 +289,20 @@ pub fn score_stream(
                 Segmenting::FromGroundTruth => g.segment.clone().unwrap_or_else(|| "all".into()),
             };
             let x = image_to_tensor(&f.image, device);
-            let mut models = Vec::with_capacity(detectors.len());
-            for d in detectors {
-                let t0 = Instant::now();
-                let dets = d
-                    .detect(x.clone())
-                    .with_context(|| format!("{} on frame {}", d.name(), f.index))?
-                    .into_iter()
-                    .next()
-                    .unwrap_or_default();
-                let ms = t0.elapsed().as_secs_f64() * 1e3;
-                res.detect_s += ms / 1e3;
-                models.push(ModelFrame {
-                    score: score_image(&dets, &b, &opts.protocol),
-                    matched: matched(&dets, &b, &opts.protocol),
-                    detections: dets,
-                    ms,
-                });
-            }
+            let label = || format!("frame {}", f.index);
+            let models: Vec<ModelFrame> = scorer
+                .frame(x, &b, Some(&label))?
+                .into_iter()
+                .map(|o| {
+                    res.detect_s += o.ms / 1e3;
+                    ModelFrame {
+                        matched: matched(&o.detections, &b, &opts.protocol),
+                        score: o.score,
+                        detections: o.detections,
+                        ms: o.ms,
+                    }
+                })
+                .collect();
             let rec = FrameRecord {
                 index: f.index,
                 pts: f.pts,
@@ -329,33 +326,17 @@ pub fn score_stream(
 
 /// One model's summary over the records.
 pub fn summarise(frames: &[FrameRecord], m: usize, name: &str) -> ModelSummary {
-    let scores: Vec<ImageScore> = frames.iter().map(|f| f.models[m].score.clone()).collect();
-    let s = crate::eval::summarise(&scores);
-    let mut segs: Vec<SegmentStat> = vec![];
-    let mut hits: Vec<usize> = vec![];
-    for f in frames {
-        let k = match segs.iter().position(|s| s.name == f.segment) {
-            Some(k) => k,
-            None => {
-                segs.push(SegmentStat {
-                    name: f.segment.clone(),
-                    frames: 0,
-                    p_at_05: 0.0,
-                    t_start: f.pts,
-                    t_end: f.pts,
-                });
-                hits.push(0);
-                segs.len() - 1
-            }
-        };
-        segs[k].frames += 1;
-        segs[k].t_start = segs[k].t_start.min(f.pts);
-        segs[k].t_end = segs[k].t_end.max(f.pts);
-        hits[k] += f.models[m].score.hit as usize;
-    }
-    for (s, h) in segs.iter_mut().zip(&hits) {
-        s.p_at_05 = *h as f64 / s.frames as f64;
-    }
+    let s = Figures::of_scores(frames.iter().map(|f| &f.models[m].score));
+    let segs: Vec<SegmentStat> = group_by(frames, |f| f.segment.clone())
+        .into_iter()
+        .map(|(name, fs)| SegmentStat {
+            name,
+            frames: fs.len(),
+            p_at_05: Figures::of_scores(fs.iter().map(|f| &f.models[m].score)).p_at_05,
+            t_start: fs.iter().map(|f| f.pts).fold(f64::INFINITY, f64::min),
+            t_end: fs.iter().map(|f| f.pts).fold(f64::NEG_INFINITY, f64::max),
+        })
+        .collect();
     let (segment_mean, segment_std) = mean_std(&segs.iter().map(|s| s.p_at_05).collect::<Vec<_>>());
     let n = frames.len().max(1) as f64;
     ModelSummary {
@@ -391,6 +372,54 @@ mod tests {
         }
         sm.finish(&mut out);
         (out.iter().map(|f| f.index).collect(), sm.missed)
+    }
+
+    fn rec(pts: f64, segment: &str, hit: bool, targeted: bool) -> FrameRecord {
+        FrameRecord {
+            index: (pts * 10.0) as u64,
+            pts,
+            segment: segment.into(),
+            gt: [0.0; 4],
+            angle_deg: None,
+            models: vec![ModelFrame {
+                score: ImageScore {
+                    hit,
+                    targeted,
+                    best_true_conf: if hit { 0.8 } else { 0.2 },
+                },
+                detections: vec![],
+                matched: None,
+                ms: 10.0 * pts,
+            }],
+        }
+    }
+
+    #[test]
+    fn segments_in_order_of_appearance_with_their_time_span() {
+        let frames = [
+            rec(0.4, "ratio 2", true, false),
+            rec(0.1, "ratio 2", false, true),
+            rec(0.2, "ratio 3", true, false),
+            rec(0.9, "ratio 2", true, false),
+        ];
+        let s = summarise(&frames, 0, "m");
+        let segs: Vec<(&str, usize, f64, f64, f64)> = s
+            .segments
+            .iter()
+            .map(|g| (g.name.as_str(), g.frames, g.p_at_05, g.t_start, g.t_end))
+            .collect();
+        assert_eq!(
+            segs,
+            vec![
+                ("ratio 2", 3, 2.0 / 3.0, 0.1, 0.9),
+                ("ratio 3", 1, 1.0, 0.2, 0.2)
+            ]
+        );
+        assert_eq!((s.frames, s.p_at_05, s.targeted_success), (4, 0.75, 0.25));
+        assert!((s.mean_best_true_conf - 0.65).abs() < 1e-6);
+        assert!((s.segment_mean - 5.0 / 6.0).abs() < 1e-12);
+        assert!((s.segment_std - (1.0f64 / 18.0).sqrt()).abs() < 1e-12);
+        assert!((s.ms_per_frame - 4.0).abs() < 1e-12);
     }
 
     #[test]

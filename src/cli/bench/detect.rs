@@ -1,17 +1,13 @@
 //! `cac bench detect`: forward and forward+backward time of both detectors at native
 //! resolution, batch 1 and 4, and the TFJS reference runner's wasm backend timed in the same
 //! run; then the Faster R-CNN models against PyTorch ([`super::frcnn`]). Prints tables and writes
-//! CSVs. A benchmark, not a test: it asserts nothing.
+//! CSVs. A benchmark, not a test: it asserts nothing. Measured by `cac::detect::bench`.
 
-use super::timer::time;
 use crate::cli::device;
-use anyhow::{Context, Result};
-use burn::tensor::{Distribution, Tensor};
-use cac::detect;
-use cac::report::Table;
+use anyhow::Result;
+use cac::detect::bench;
 use clap::Args;
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::PathBuf;
 
 #[derive(Args, Debug)]
 pub struct DetectBench {
@@ -41,22 +37,6 @@ pub struct DetectBench {
     pub frcnn_csv: PathBuf,
 }
 
-/// Fastest ms of the TFJS wasm runner, from its `--time` report; None when it cannot run.
-fn tfjs_wasm(runner: &Path, model: &str, image: &Path, models: &Path, runs: usize) -> Option<f64> {
-    let out = Command::new("node")
-        .arg(runner.join("detect.mjs"))
-        .args([model, &image.display().to_string(), "--backend", "wasm"])
-        .args(["--time", &runs.to_string()])
-        .arg("--models")
-        .arg(models)
-        .output()
-        .ok()?;
-    let err = String::from_utf8_lossy(&out.stderr);
-    let line = err.lines().find(|l| l.contains("\"min_ms\""))?;
-    let v: serde_json::Value = serde_json::from_str(line.trim()).ok()?;
-    v["min_ms"].as_f64()
-}
-
 pub fn run(a: DetectBench) -> Result<()> {
     if !a.frcnn_only {
         bench_tfjs(&a)?;
@@ -69,122 +49,28 @@ pub fn run(a: DetectBench) -> Result<()> {
     Ok(())
 }
 
-/// The astronaut from ../shared, or a synthetic 512² image written into `tmp`.
-fn reference_image(root: &Path, tmp: &Path) -> Result<PathBuf> {
-    let shared = root.join("../shared/reference/images/astronaut.png");
-    if shared.exists() {
-        return Ok(shared);
-    }
-    let p = tmp.join("noise.png");
-    let img = image::RgbImage::from_fn(512, 512, |x, y| {
-        image::Rgb([(x * 7 + y) as u8, (y * 13) as u8, (x ^ y) as u8])
-    });
-    cac::io::save_png_atomic(&p, &img)?;
-    Ok(p)
-}
-
-/// Milliseconds of a forward pass on `x` and of a forward and backward pass on a random batch
-/// of its shape on the `training` device.
-fn forward_backward_ms(
-    det: &dyn detect::Detector,
-    runs: usize,
-    x: Tensor<4>,
-    training: &burn::tensor::Device,
-) -> Result<(f64, f64)> {
-    let fwd = time(runs, || {
-        let c = det.candidates(x.clone())?;
-        let _ = c.scores.sum().into_scalar::<f32>();
-        Ok(())
-    })?;
-    let xa = Tensor::<4>::random(x.dims(), Distribution::Uniform(0.0, 1.0), training);
-    let bwd = time(runs, || {
-        let x = xa.clone().require_grad();
-        let c = det.candidates(x.clone())?;
-        let loss = c.logits.max_dim(2).sum();
-        let g = loss.backward();
-        let grad = x.grad(&g).context("no gradient")?;
-        let _ = grad.sum().into_scalar::<f32>();
-        Ok(())
-    })?;
-    Ok((fwd, bwd))
-}
-
 fn bench_tfjs(a: &DetectBench) -> Result<()> {
-    let models = detect::fetch::ensure_models()?;
-    let inference = device::inference();
-    let training = device::training();
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let runner = a
-        .runner
-        .clone()
-        .or_else(|| std::env::var_os("CAC_TFJS_RUNNER").map(PathBuf::from))
-        .unwrap_or_else(|| root.join("target/tfjsref"));
-    let tmp = tempfile::tempdir()?;
-    let image = match &a.image {
-        Some(i) => i.clone(),
-        None => reference_image(root, tmp.path())?,
-    };
-    let have_runner = runner.join("detect.mjs").exists();
-    if !have_runner {
-        eprintln!(
-            "note: no TFJS reference runner at {} (set --runner or CAC_TFJS_RUNNER): tfjs column is n/a",
-            runner.display()
-        );
-    }
-    let mut rows = Table::new([
-        "model",
-        "batch",
-        "forward_ms",
-        "forward_backward_ms",
-        "tfjs_wasm_ms",
-        "forward_over_tfjs",
-    ]);
     println!(
         "{:10} {:>5} {:>12} {:>16} {:>16} {:>14}",
         "model", "batch", "forward_ms", "fwd+bwd_ms", "tfjs_wasm_ms", "fwd/tfjs"
     );
-    // The TFJS detectors (their own files, not the parity variants).
-    let tfjs = detect::MODELS
-        .iter()
-        .filter(|m| m.weights == detect::Weights::Folder && m.variant_of.is_none());
-    for name in tfjs.map(|m| m.name) {
-        let det = detect::load(name, &models, &inference)?;
-        let (w, h) = det.input_size();
-        let tfjs = if have_runner {
-            tfjs_wasm(&runner, name, &image, &models, a.runs.max(3))
-        } else {
-            None
-        };
-        for batch in [1usize, 4] {
-            let x = Tensor::<4>::random(
-                [batch, 3, h, w],
-                Distribution::Uniform(0.0, 1.0),
-                &inference,
-            );
-            let (fwd, bwd) = forward_backward_ms(det.as_ref(), a.runs, x, &training)?;
-            let t = if batch == 1 { tfjs } else { None };
-            let ratio = t.map(|t| fwd / t);
-            let f =
-                |v: Option<f64>, p: usize| v.map(|v| format!("{v:.p$}")).unwrap_or("n/a".into());
+    let rows = bench::tfjs_models(
+        a.runner.as_deref(),
+        a.image.as_deref(),
+        a.runs,
+        (&device::inference(), &device::training()),
+        &mut |r| {
             println!(
                 "{:10} {:>5} {:>12.1} {:>16.1} {:>16} {:>14}",
-                name,
-                batch,
-                fwd,
-                bwd,
-                f(t, 1),
-                f(ratio, 3)
-            );
-            rows.row([
-                name.to_string(),
-                batch.to_string(),
-                format!("{fwd:.2}"),
-                format!("{bwd:.2}"),
-                f(t, 2),
-                f(ratio, 4),
-            ]);
-        }
-    }
+                r.name,
+                r.batch,
+                r.forward_ms,
+                r.backward_ms,
+                bench::na(r.tfjs_ms, 1),
+                bench::na(r.ratio(), 3)
+            )
+        },
+    )?;
     cac::io::write_atomic(&a.csv, rows.csv().as_bytes())?;
     println!("wrote {}", a.csv.display());
     Ok(())

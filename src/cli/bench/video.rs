@@ -1,18 +1,16 @@
 //! `cac bench video`: throughput of offline video scoring. A turntable sequence of the default
 //! pickup is rendered by the digital twin, encoded with each codec, then timed: decoding alone
 //! (frames/s) and scoring with each detector (frames scored per second, decode included).
-//! Prints a table and writes a CSV. A benchmark, not a test: it asserts nothing.
+//! Prints a table and writes a CSV. A benchmark, not a test: it asserts nothing. Measured by
+//! `cac::video::bench`.
 
-use super::timer::Stopwatch;
 use crate::cli::device;
 use anyhow::Result;
-use cac::detect;
-use cac::report::Table;
-use cac::video::encode::{encode_sequence, H264, HEVC, MJPEG};
-use cac::video::twin::{render_turntable, TwinCalibration};
-use cac::video::{self, Annotations, OpenOptions, ScoreOptions, Tools};
+use cac::detect::{self, Detector};
+use cac::video::bench::VideoBench;
+use cac::video::Tools;
 use clap::Args as ClapArgs;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 #[derive(ClapArgs, Debug)]
 pub struct Args {
@@ -38,117 +36,23 @@ pub struct Args {
 pub fn run(a: Args) -> Result<()> {
     let tools = Tools::from_env();
     tools.check()?;
-    let dir = tempfile::tempdir()?;
     let device = device::inference();
-    let gt = render_frames(&a, dir.path(), &device)?;
     let dets = detect::load_all(&a.models, None, &device)?;
-    let mut t = Table::new([
-        "codec",
-        "size",
-        "model",
-        "frames",
-        "decode frames/s",
-        "detect ms/frame",
-        "scored frames/s",
-    ]);
-    let size = format!("{}x{}", a.width, a.height);
-    for codec in &a.codecs {
-        let (args, name): (&[&str], &str) = match codec.as_str() {
-            "h264" => (H264, "v.mp4"),
-            "hevc" => (HEVC, "v-hevc.mp4"),
-            "mjpeg" => (MJPEG, "v.avi"),
-            other => anyhow::bail!("unknown codec {other:?}: expected h264, hevc or mjpeg"),
-        };
-        let path = dir.path().join(name);
-        encode_sequence(
-            &tools,
-            &dir.path().join("f%04d.png"),
-            24.0,
-            args,
-            &[],
-            &path,
-        )?;
-        // Decoding alone.
-        let t0 = Stopwatch::start();
-        let mut s = video::open(&tools, &path, &OpenOptions::default())?;
-        let mut n = 0;
-        while s.next_frame()?.is_some() {
-            n += 1;
-        }
-        let decode_fps = n as f64 / t0.secs();
-        t.row([
-            codec.clone(),
-            size.clone(),
-            "(decode only)".into(),
-            n.to_string(),
-            format!("{decode_fps:.1}"),
-            "".into(),
-            "".into(),
-        ]);
-        for (m, d) in a.models.iter().zip(&dets) {
-            let mut s = video::open(&tools, &path, &OpenOptions::default())?;
-            let t0 = Stopwatch::start();
-            let r = video::score_stream(
-                s.as_mut(),
-                &gt,
-                &[d.as_ref()],
-                &ScoreOptions::default(),
-                &device,
-                &mut |_, _| Ok(()),
-            )?;
-            let wall = t0.secs();
-            t.row([
-                codec.clone(),
-                size.clone(),
-                m.clone(),
-                r.frames.len().to_string(),
-                format!("{decode_fps:.1}"),
-                format!("{:.1}", r.summary[0].ms_per_frame),
-                format!("{:.2}", r.frames.len() as f64 / wall),
-            ]);
-        }
-    }
+    let named: Vec<(&str, &dyn Detector)> = a
+        .models
+        .iter()
+        .zip(&dets)
+        .map(|(m, d)| (m.as_str(), d.as_ref()))
+        .collect();
+    let bench = VideoBench {
+        width: a.width,
+        height: a.height,
+        frames: a.frames,
+        codecs: a.codecs.clone(),
+    };
+    let t = bench.run(&tools, &named, &device)?;
     print!("{}", t.markdown());
     cac::io::write_atomic(&a.csv, t.csv().as_bytes())?;
     println!("wrote {}", a.csv.display());
     Ok(())
-}
-
-/// Renders one turn of the default pickup with the digital twin into `dir` (`f%04d.png`) and
-/// returns its boxes as annotations.
-fn render_frames(a: &Args, dir: &Path, device: &burn::tensor::Device) -> Result<Annotations> {
-    let mut scene = cac::scene::generate::pickup();
-    scene.normalise(0.0, None);
-    let settings = cac::render::RenderSettings {
-        width: a.width,
-        height: a.height,
-        samples: 2,
-        ..Default::default()
-    };
-    let r = cac::render::Renderer::new(scene, settings)?;
-    let env = cac::environment::Environment::new(Default::default())?;
-    let atlas = r.scene.initial_atlas(r.settings.atlas_res);
-    let poses: Vec<(f64, f64)> = (0..a.frames)
-        .map(|i| (360.0 * i as f64 / a.frames as f64, 1.6))
-        .collect();
-    let t0 = Stopwatch::start();
-    let calib = TwinCalibration::default();
-    let frames = render_turntable(&r, &env, &atlas, &calib, &poses, device)?;
-    let mut csv = Table::new(["frame", "x1", "y1", "x2", "y2"]);
-    for (i, (img, b)) in frames.iter().enumerate() {
-        cac::io::save_png_atomic(&dir.join(format!("f{i:04}.png")), img)?;
-        if let Some(b) = b {
-            csv.row([i.to_string()].into_iter().chain(b.map(|v| v.to_string())));
-        }
-    }
-    let gt_path = dir.join("gt.csv");
-    cac::io::write_atomic(&gt_path, csv.csv().as_bytes())?;
-    eprintln!(
-        "rendered {} frames at {}x{} in {:.1} s",
-        a.frames,
-        a.width,
-        a.height,
-        t0.secs()
-    );
-    Annotations::load(&gt_path)
 }

@@ -1,0 +1,301 @@
+//! The detector benchmark's measurements (`cac bench detect`): forward and forward+backward
+//! milliseconds of a detector on a batch ([`forward_backward_ms`]) and of a torchvision Faster
+//! R-CNN with synthetic weights ([`frcnn_forward_backward_ms`]), fastest of some runs after a
+//! warm-up (the one timer, `report::timer`); and the references run as subprocesses: the TFJS
+//! runner's wasm backend ([`tfjs_wasm`]) and PyTorch ([`torch_ms`],
+//! `tools/torchvision_oracle.py --bench`).
+
+use super::frcnn::{synthetic, Arch, FasterRcnn};
+use super::{Detector, Weights, MODELS};
+use crate::report::timer::time;
+use crate::report::Table;
+use anyhow::{Context, Result};
+use burn::tensor::{Device, Distribution, Tensor};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// Fastest ms of the TFJS wasm runner, from its `--time` report; None when it cannot run.
+pub fn tfjs_wasm(
+    runner: &Path,
+    model: &str,
+    image: &Path,
+    models: &Path,
+    runs: usize,
+) -> Option<f64> {
+    let out = Command::new("node")
+        .arg(runner.join("detect.mjs"))
+        .args([model, &image.display().to_string(), "--backend", "wasm"])
+        .args(["--time", &runs.to_string()])
+        .arg("--models")
+        .arg(models)
+        .output()
+        .ok()?;
+    let err = String::from_utf8_lossy(&out.stderr);
+    let line = err.lines().find(|l| l.contains("\"min_ms\""))?;
+    let v: serde_json::Value = serde_json::from_str(line.trim()).ok()?;
+    v["min_ms"].as_f64()
+}
+
+/// The astronaut from ../shared, or a synthetic 512² image written into `tmp`.
+pub fn reference_image(root: &Path, tmp: &Path) -> Result<PathBuf> {
+    let shared = root.join("../shared/reference/images/astronaut.png");
+    if shared.exists() {
+        return Ok(shared);
+    }
+    let p = tmp.join("noise.png");
+    let img = image::RgbImage::from_fn(512, 512, |x, y| {
+        image::Rgb([(x * 7 + y) as u8, (y * 13) as u8, (x ^ y) as u8])
+    });
+    crate::io::save_png_atomic(&p, &img)?;
+    Ok(p)
+}
+
+/// Milliseconds of a forward pass on `x` and of a forward and backward pass on a random batch
+/// of its shape on the `training` device.
+pub fn forward_backward_ms(
+    det: &dyn Detector,
+    runs: usize,
+    x: Tensor<4>,
+    training: &Device,
+) -> Result<(f64, f64)> {
+    let fwd = time(runs, || {
+        let c = det.candidates(x.clone())?;
+        let _ = c.scores.sum().into_scalar::<f32>();
+        Ok(())
+    })?;
+    let xa = Tensor::<4>::random(x.dims(), Distribution::Uniform(0.0, 1.0), training);
+    let bwd = time(runs, || {
+        let x = xa.clone().require_grad();
+        let c = det.candidates(x.clone())?;
+        let loss = c.logits.max_dim(2).sum();
+        let g = loss.backward();
+        let grad = x.grad(&g).context("no gradient")?;
+        let _ = grad.sum().into_scalar::<f32>();
+        Ok(())
+    })?;
+    Ok((fwd, bwd))
+}
+
+/// PyTorch's (forward, forward+backward) ms on `device` (cpu or cuda), or None when torch cannot
+/// run there.
+pub fn torch_ms(
+    python: &str,
+    model: &str,
+    (threads, device): (usize, &str),
+    runs: usize,
+    (h, w): (usize, usize),
+) -> Option<(f64, f64)> {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/torchvision_oracle.py");
+    let out = Command::new(python)
+        .arg(script)
+        .args(["--bench", model, "--threads", &threads.to_string()])
+        .args(["--iters", &runs.to_string(), "--size", &format!("{h}x{w}")])
+        .args(["--device", device])
+        .output()
+        .ok()?;
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = text.lines().find(|l| l.contains("\"forward_ms\""))?;
+    let v: serde_json::Value = serde_json::from_str(line).ok()?;
+    Some((v["forward_ms"].as_f64()?, v["backward_ms"].as_f64()?))
+}
+
+/// The input size of `name` (synthetic weights), and milliseconds of a forward pass on the
+/// `inference` device and of forward and backward (to the input) on `training`.
+pub fn frcnn_forward_backward_ms(
+    name: &str,
+    runs: usize,
+    inference: &Device,
+    training: &Device,
+) -> Result<((usize, usize), f64, f64)> {
+    let arch = Arch::from_name(name)?;
+    let m = FasterRcnn::from_state_dict(
+        arch,
+        &synthetic::state_dict(arch, inference),
+        arch.config(),
+        inference,
+    )?;
+    let (w, h) = m.input_size();
+    let x = Tensor::<4>::random([1, 3, h, w], Distribution::Uniform(0.0, 1.0), inference);
+    let fwd = time(runs, || m.run(x.clone()).map(|_| ()))?;
+    let xa = Tensor::<4>::random([1, 3, h, w], Distribution::Uniform(0.0, 1.0), training);
+    let ma = FasterRcnn::from_state_dict(
+        arch,
+        &synthetic::state_dict(arch, training),
+        arch.config(),
+        training,
+    )?;
+    let bwd = time(runs, || {
+        let x = xa.clone().require_grad();
+        let (f, g, _) = ma.features(x.clone())?;
+        let props = ma.rpn_proposals(&f, g)?;
+        let (logits, _) = ma.box_outputs(&f, g, &props).context("no proposal")?;
+        let grads = logits.sum().backward();
+        let grad = x.grad(&grads).context("no gradient")?;
+        let _ = grad.sum().into_scalar::<f32>();
+        Ok(())
+    })?;
+    Ok(((w, h), fwd, bwd))
+}
+
+/// One TFJS detector at one batch size: forward and forward+backward ms, and the TFJS wasm
+/// runner's forward ms (batch 1, when the runner is installed).
+pub struct TfjsRow {
+    pub name: &'static str,
+    pub batch: usize,
+    pub forward_ms: f64,
+    pub backward_ms: f64,
+    pub tfjs_ms: Option<f64>,
+}
+
+impl TfjsRow {
+    /// Forward time over the TFJS runner's.
+    pub fn ratio(&self) -> Option<f64> {
+        self.tfjs_ms.map(|t| self.forward_ms / t)
+    }
+}
+
+/// Times each TFJS detector of the catalogue (their own files, not the parity variants) at
+/// batch 1 and 4, fastest of `runs`, beside the TFJS runner at `runner` (default:
+/// `$CAC_TFJS_RUNNER`, else `target/tfjsref`) on `image` (default: a reference image from
+/// `../shared`, else a synthetic one). `on_row` sees each row as it is measured; returns the
+/// CSV table.
+pub fn tfjs_models(
+    runner: Option<&Path>,
+    image: Option<&Path>,
+    runs: usize,
+    (inference, training): (&Device, &Device),
+    on_row: &mut dyn FnMut(&TfjsRow),
+) -> Result<Table> {
+    let models = super::fetch::ensure_models()?;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let runner = runner
+        .map(Path::to_path_buf)
+        .or_else(|| std::env::var_os("CAC_TFJS_RUNNER").map(PathBuf::from))
+        .unwrap_or_else(|| root.join("target/tfjsref"));
+    let tmp = tempfile::tempdir()?;
+    let image = match image {
+        Some(i) => i.to_path_buf(),
+        None => reference_image(root, tmp.path())?,
+    };
+    let have_runner = runner.join("detect.mjs").exists();
+    if !have_runner {
+        eprintln!(
+            "note: no TFJS reference runner at {} (set --runner or CAC_TFJS_RUNNER): tfjs column is n/a",
+            runner.display()
+        );
+    }
+    let mut rows = Table::new([
+        "model",
+        "batch",
+        "forward_ms",
+        "forward_backward_ms",
+        "tfjs_wasm_ms",
+        "forward_over_tfjs",
+    ]);
+    let tfjs = MODELS
+        .iter()
+        .filter(|m| m.weights == Weights::Folder && m.variant_of.is_none());
+    for name in tfjs.map(|m| m.name) {
+        let det = super::load(name, &models, inference)?;
+        let (w, h) = det.input_size();
+        let tfjs = if have_runner {
+            tfjs_wasm(&runner, name, &image, &models, runs.max(3))
+        } else {
+            None
+        };
+        for batch in [1usize, 4] {
+            let x =
+                Tensor::<4>::random([batch, 3, h, w], Distribution::Uniform(0.0, 1.0), inference);
+            let (fwd, bwd) = forward_backward_ms(det.as_ref(), runs, x, training)?;
+            let row = TfjsRow {
+                name,
+                batch,
+                forward_ms: fwd,
+                backward_ms: bwd,
+                tfjs_ms: if batch == 1 { tfjs } else { None },
+            };
+            on_row(&row);
+            rows.row([
+                name.to_string(),
+                batch.to_string(),
+                format!("{fwd:.2}"),
+                format!("{bwd:.2}"),
+                na(row.tfjs_ms, 2),
+                na(row.ratio(), 4),
+            ]);
+        }
+    }
+    Ok(rows)
+}
+
+/// One Faster R-CNN model: its input size, and forward and forward+backward ms on burn and in
+/// PyTorch (when torch runs).
+pub struct FrcnnRow {
+    pub name: &'static str,
+    pub input: (usize, usize),
+    pub forward_ms: f64,
+    pub backward_ms: f64,
+    pub torch: Option<(f64, f64)>,
+}
+
+impl FrcnnRow {
+    /// burn's times over PyTorch's: forward, forward+backward.
+    pub fn ratios(&self) -> (Option<f64>, Option<f64>) {
+        (
+            self.torch.map(|t| self.forward_ms / t.0),
+            self.torch.map(|t| self.backward_ms / t.1),
+        )
+    }
+}
+
+/// Times the three torchvision Faster R-CNN models (synthetic weights), fastest of `runs`, beside
+/// PyTorch run by `python` on `torch` (`(threads, "cpu" | "cuda")`); `on_row` sees each row as
+/// it is measured; returns the CSV table.
+pub fn frcnn_models(
+    runs: usize,
+    python: &str,
+    torch: (usize, &str),
+    (inference, training): (&Device, &Device),
+    on_row: &mut dyn FnMut(&FrcnnRow),
+) -> Result<Table> {
+    let mut rows = Table::new([
+        "model",
+        "input",
+        "threads",
+        "forward_ms",
+        "forward_backward_ms",
+        "torch_forward_ms",
+        "torch_forward_backward_ms",
+        "forward_over_torch",
+        "backward_over_torch",
+    ]);
+    for name in super::frcnn::MODELS {
+        let ((w, h), fwd, bwd) = frcnn_forward_backward_ms(name, runs, inference, training)?;
+        let row = FrcnnRow {
+            name,
+            input: (w, h),
+            forward_ms: fwd,
+            backward_ms: bwd,
+            torch: torch_ms(python, name, torch, runs, (h, w)),
+        };
+        on_row(&row);
+        let (rf, rb) = row.ratios();
+        rows.row([
+            name.to_string(),
+            format!("{w}x{h}"),
+            torch.0.to_string(),
+            format!("{fwd:.2}"),
+            format!("{bwd:.2}"),
+            na(row.torch.map(|t| t.0), 2),
+            na(row.torch.map(|t| t.1), 2),
+            na(rf, 4),
+            na(rb, 4),
+        ]);
+    }
+    Ok(rows)
+}
+
+/// `v` with `p` decimals, or `n/a`.
+pub fn na(v: Option<f64>, p: usize) -> String {
+    v.map(|v| format!("{v:.p$}")).unwrap_or("n/a".into())
+}

@@ -1,0 +1,215 @@
+//! One capture session run end to end (`cac capture`): load the rig, plan the session, set up the
+//! stage and the camera — the simulated firmware on a pseudo-terminal with the digital twin
+//! camera, or a real turntable on a serial port with a V4L2 camera or the twin posed from what
+//! the driver reports — prepare (or resume) the session folder and capture
+//! ([`super::session::capture`]). [`CaptureJob::run`] returns what the caller prints.
+
+use super::camera::FrameSource;
+use super::rig::Rig;
+use super::session::{self, CaptureOptions, CaptureSummary, SessionInfo, SessionPlan};
+use super::stage::{terminal_operator, TurntableStage};
+use super::twin::DigitalTwin;
+use super::{Axis, SerialTransport, Turntable, TurntableConfig};
+use crate::scene::Texture;
+use anyhow::{bail, Context, Result};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+/// Where the frames and the table moves come from.
+#[derive(Clone, Debug)]
+pub enum Device {
+    /// The simulated firmware (pseudo-terminal) with faults by name, and the digital twin camera.
+    Simulated { faults: String, speedup: f64 },
+    /// A turntable on a serial port, with a V4L2 camera device or (`None`) the digital twin posed
+    /// from the angle and rail position the driver reports.
+    Serial {
+        port: String,
+        camera: Option<PathBuf>,
+    },
+}
+
+/// Everything a capture needs.
+#[derive(Clone, Debug)]
+pub struct CaptureJob {
+    pub rig: PathBuf,
+    /// The atlas painted on the object (default: the mesh's own look).
+    pub texture: Option<PathBuf>,
+    /// Distance ratios, comma separated (default: the rig file's).
+    pub ratios: Option<String>,
+    /// `START:END:STEP` or a comma list (degrees).
+    pub angles: String,
+    pub repeats: usize,
+    pub out: PathBuf,
+    pub resume: bool,
+    pub device: Device,
+    /// Seed of the simulated faults and of the twin's sensor noise.
+    pub seed: u64,
+}
+
+/// What a capture did.
+pub struct CaptureOutcome {
+    pub summary: CaptureSummary,
+    /// The device's own account (simulated faults and boots, driver statistics).
+    pub device: String,
+}
+
+impl CaptureJob {
+    /// Captures the session (a progress bar on stderr; an operator prompt on the terminal when
+    /// no rail moves the camera).
+    pub fn run(&self) -> Result<CaptureOutcome> {
+        let rig = Arc::new(Rig::load(&self.rig)?);
+        let ratios = match &self.ratios {
+            Some(s) => SessionPlan::parse_ratios(s)?,
+            None => rig.config.ratios.clone(),
+        };
+        let plan = SessionPlan::new(
+            ratios,
+            SessionPlan::parse_angles(&self.angles)?,
+            self.repeats,
+        )?;
+        let atlas = match &self.texture {
+            Some(p) => Texture::from_rgb8(&crate::io::load_rgb(p)?),
+            None => rig
+                .renderer
+                .scene
+                .initial_atlas(rig.renderer.settings.atlas_res),
+        };
+        match &self.device {
+            Device::Simulated { faults, speedup } => {
+                self.simulated(&rig, plan, &atlas, faults, *speedup)
+            }
+            Device::Serial { port, camera } => {
+                self.serial(&rig, plan, &atlas, port, camera.as_deref())
+            }
+        }
+    }
+
+    #[cfg(unix)]
+    fn simulated(
+        &self,
+        rig: &Arc<Rig>,
+        plan: SessionPlan,
+        atlas: &Texture,
+        faults: &str,
+        speedup: f64,
+    ) -> Result<CaptureOutcome> {
+        use super::simrig::{faults_by_name, SimRig};
+        let settle = Duration::from_millis(rig.config.turntable.settle_ms);
+        let sim = SimRig::spawn(rig, faults_by_name(faults, self.seed)?, speedup)?;
+        let mut stage = sim.stage(rig)?;
+        let mut cam = DigitalTwin::new(rig.clone(), atlas, sim.pose_source(), self.seed);
+        let info = self.info(plan, rig, cam.describe(), true)?;
+        let sim = Arc::new(sim);
+        let s2 = sim.clone();
+        let opts = CaptureOptions {
+            settle: Box::new(move || s2.settle(settle)),
+            progress: true,
+        };
+        let summary = session::capture(&self.out, &info, rig, &mut stage, &mut cam, &opts)?;
+        let w = sim.world().lock();
+        let device = format!(
+            "simulated device: {}; {} boots; driver {:?}",
+            w.fault_counts(),
+            w.device().boots(),
+            stage.turntable().stats()
+        );
+        Ok(CaptureOutcome { summary, device })
+    }
+
+    #[cfg(not(unix))]
+    fn simulated(
+        &self,
+        _: &Arc<Rig>,
+        _: SessionPlan,
+        _: &Texture,
+        _: &str,
+        _: f64,
+    ) -> Result<CaptureOutcome> {
+        bail!("the simulated rig needs a pseudo-terminal (Unix)")
+    }
+
+    fn serial(
+        &self,
+        rig: &Arc<Rig>,
+        plan: SessionPlan,
+        atlas: &Texture,
+        port: &str,
+        camera: Option<&std::path::Path>,
+    ) -> Result<CaptureOutcome> {
+        // A real camera is opened before the port, so a wrong camera fails before anything moves.
+        let real_cam = match camera {
+            None => None,
+            Some(dev) => Some(open_camera(dev, rig.lens.width, rig.lens.height)?),
+        };
+        let t = SerialTransport::open(port, 115_200)
+            .with_context(|| format!("cannot open --port {port}"))?;
+        let mut tt = Turntable::open(t, TurntableConfig::default())
+            .with_context(|| format!("no turntable answers on {port}"))?;
+        if let Some(v) = rig.config.turntable.speed_deg_s {
+            tt.set_speed(Axis::Turntable, (v * 1000.0).round() as u32)?;
+        }
+        let mut stage = TurntableStage::new(tt, terminal_operator());
+        let twin = real_cam.is_none();
+        let mut cam: Box<dyn FrameSource> = match real_cam {
+            Some(c) => c,
+            None => Box::new(DigitalTwin::new(
+                rig.clone(),
+                atlas,
+                stage.reported_pose(),
+                self.seed,
+            )),
+        };
+        let info = self.info(plan, rig, cam.describe(), twin)?;
+        let settle = Duration::from_millis(rig.config.turntable.settle_ms);
+        let opts = CaptureOptions {
+            settle: Box::new(move || std::thread::sleep(settle)),
+            progress: true,
+        };
+        let summary = session::capture(&self.out, &info, rig, &mut stage, cam.as_mut(), &opts)?;
+        let device = format!("driver {:?}", stage.turntable().stats());
+        Ok(CaptureOutcome { summary, device })
+    }
+
+    /// The session's `session.json`, written (or checked against the folder on resume).
+    fn info(
+        &self,
+        plan: SessionPlan,
+        rig: &Rig,
+        camera: String,
+        simulated: bool,
+    ) -> Result<SessionInfo> {
+        let texture = self
+            .texture
+            .as_ref()
+            .map(|p| std::path::absolute(p).unwrap_or(p.clone()));
+        SessionInfo {
+            plan,
+            rig: rig.config.clone(),
+            lens: rig.lens.clone(),
+            texture,
+            camera,
+            simulated,
+        }
+        .prepare(&self.out, self.resume)
+    }
+}
+
+#[cfg(all(feature = "v4l2", target_os = "linux"))]
+fn open_camera(dev: &std::path::Path, w: usize, h: usize) -> Result<Box<dyn FrameSource>> {
+    use super::camera::v4l2::{V4l2Config, V4l2Source};
+    let cfg = V4l2Config {
+        path: dev.to_path_buf(),
+        width: w as u32,
+        height: h as u32,
+        ..V4l2Config::default()
+    };
+    Ok(Box::new(
+        V4l2Source::open(&cfg).with_context(|| format!("--camera {}", dev.display()))?,
+    ))
+}
+
+#[cfg(not(all(feature = "v4l2", target_os = "linux")))]
+fn open_camera(dev: &std::path::Path, _w: usize, _h: usize) -> Result<Box<dyn FrameSource>> {
+    bail!("--camera {}: this cac was built without the v4l2 feature (cargo build --release --features v4l2)", dev.display())
+}
