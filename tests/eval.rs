@@ -240,3 +240,98 @@ fn eval_config_runs_barrel_and_container_with_the_stop_sign_target_and_resumes()
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("\"tank\""));
 }
+
+/// `cac study methods`: one run per method (and per hide class set), then one evaluation; the
+/// table's figures are the evaluation's own records, and a rerun reuses the finished runs.
+#[test]
+fn study_methods_trains_each_method_and_tables_the_protocols_records() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("small.toml");
+    std::fs::write(
+        &cfg,
+        "[object]\nmesh = \"pickup\"\n[render]\nwidth = 128\nheight = 128\nsamples = 1\n\
+         atlas_res = 64\n[environment]\ndistance_ratio = [1.5, 3.0]\n",
+    )
+    .unwrap();
+    let out = dir.path().join("methods");
+    let args = [
+        "study",
+        "methods",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--methods",
+        "cac,camou",
+        "--hide",
+        "car+bus+truck",
+        "--textures",
+        "original",
+        "--iterations",
+        "2",
+        "--batch",
+        "1",
+        "--views",
+        "2",
+        "--sets",
+        "fv",
+        "--eval-models",
+        "nanodet",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    cac(&args);
+    let run: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(out.join("cac-hide-car+bus+truck/run.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(run["finished"], true);
+    assert_eq!(run["attack"]["hide"], true);
+    assert_eq!(run["attack"]["hide_classes"], "car,bus,truck");
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("eval/results.json")).unwrap()).unwrap();
+    let records = json["records"].as_array().unwrap();
+    let csv = std::fs::read_to_string(out.join("methods.csv")).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(
+        lines.next().unwrap(),
+        "texture,train (s),nanodet (white-box) P@0.5 FV,nanodet (white-box) target FV"
+    );
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    let names: Vec<&str> = rows.iter().map(|r| r[0]).collect();
+    assert_eq!(
+        names,
+        ["Original", "CAC", "CAMOU", "CAC hide (car+bus+truck)"]
+    );
+    for r in &rows {
+        let of = |key: &str| {
+            let mine: Vec<_> = records.iter().filter(|x| x["texture"] == r[0]).collect();
+            assert!(!mine.is_empty(), "{}", r[0]);
+            mine.iter().filter(|x| x[key] == true).count() as f64 / mine.len() as f64
+        };
+        assert_eq!(r[2], format!("{:.3}", of("hit")), "{csv}");
+        assert_eq!(r[3], format!("{:.3}", of("targeted")), "{csv}");
+        // Trained rows carry their logged training time; the original none.
+        assert_eq!(r[1] == "—", r[0] == "Original", "{csv}");
+    }
+    let text = cac(&args);
+    assert!(text.contains("CAMOU: reusing the finished run"), "{text}");
+    assert_eq!(
+        std::fs::read_to_string(out.join("methods.csv")).unwrap(),
+        csv
+    );
+    // A hide class that is not a COCO label is refused before anything is trained.
+    let bad = support::cac(&[
+        "study",
+        "methods",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--methods",
+        "cac",
+        "--hide",
+        "tank",
+        "--out",
+        dir.path().join("bad").to_str().unwrap(),
+    ]);
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("unknown class \"tank\""));
+    assert!(!dir.path().join("bad").exists());
+}

@@ -240,3 +240,51 @@ fn class_logit_gradient_matches_torch_and_finite_differences() {
         "autodiff {analytic} vs finite difference {numeric}"
     );
 }
+
+// ---- the command line ----
+
+/// `cac detect --model frcnn-… --weights FILE` (the README's command) loads the checkpoint and
+/// prints the library's detections; without `--weights` it says what is missing.
+#[test]
+fn cac_detect_takes_the_checkpoint_from_weights() {
+    use cac::detect::Detector;
+    let arch = Arch::MobileNetV3Large320;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("frcnn.safetensors");
+    frcnn_common::write_safetensors(&oracle_weights(arch), "", &[], &path);
+    let img = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/reference/images/chelsea.png");
+    let run = |extra: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_cac"))
+            .args([
+                "detect",
+                img.to_str().unwrap(),
+                "--model",
+                arch.name(),
+                "--json",
+            ])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let out = run(&["--weights", path.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let printed: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let m = FasterRcnn::load(arch.name(), &path, &dev()).unwrap();
+    let want = m.detect(image("chelsea")).unwrap().remove(0);
+    assert_eq!(printed.len(), want.len(), "{printed:?}");
+    for (p, d) in printed.iter().zip(&want) {
+        assert_eq!(p["label"], d.label);
+        assert!((p["score"].as_f64().unwrap() - d.score as f64).abs() < 1e-4);
+    }
+    let out = run(&[]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("needs --weights"),
+        "{stderr}"
+    );
+}

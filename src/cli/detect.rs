@@ -96,7 +96,9 @@ pub fn run(a: DetectArgs) -> Result<()> {
         bail!("--human only applies to --model nanodet");
     }
     let device = super::device::inference();
-    let info = detect::check_spec(&a.model)?;
+    // A bare name: the weights come from --weights (spec_with_weights says when one is missing).
+    let info = detect::model_info(&a.model)
+        .ok_or_else(|| anyhow::anyhow!("unknown detector {:?}", a.model))?;
     let spec = detect::spec_with_weights(info, a.weights.as_deref(), a.human)?;
     let det = detect::load_all(&[spec], a.models.as_deref(), &device)?.remove(0);
     let many = a.images.len() > 1;
