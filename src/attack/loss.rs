@@ -308,6 +308,25 @@ pub fn proposals_loss_per_image(
 mod tests {
     use super::*;
 
+    /// Softplus in f64, the formula's reference.
+    fn sp(x: f64) -> f64 {
+        x.max(0.0) + (-x.abs()).exp().ln_1p()
+    }
+
+    fn scalar(l: &Tensor<1>) -> f64 {
+        l.clone()
+            .into_data()
+            .convert::<f64>()
+            .try_to_vec::<f64>()
+            .unwrap()[0]
+    }
+
+    /// d`l`/d`t`, read back.
+    fn grad(t: &Tensor<3>, l: Tensor<1>) -> Vec<f32> {
+        let g = t.grad(&l.backward()).unwrap();
+        g.into_data().convert::<f32>().try_to_vec::<f32>().unwrap()
+    }
+
     fn dev() -> burn::tensor::Device {
         burn::tensor::Device::autodiff(burn::tensor::Device::from(burn::backend::FlexDevice))
     }
@@ -318,24 +337,12 @@ mod tests {
         let z = vec![2.0f32, -1.0, 0.5, 1e4, -1e4, 3.0];
         let t = Tensor::<3>::from_data(TensorData::new(z.clone(), [1, 2, 3]), &d).require_grad();
         let l = proposals_loss(t.clone(), &[vec![0, 1]], Goal::Targeted(1)).unwrap();
-        let sp = |x: f64| x.max(0.0) + (-x.abs()).exp().ln_1p();
         let want = ((sp(2.0) + sp(-1.0) + sp(0.5) - (-1.0))
             + (sp(1e4) + sp(-1e4) + sp(3.0) - (-1e4)))
             / 2.0;
-        let got = l
-            .clone()
-            .into_data()
-            .convert::<f64>()
-            .try_to_vec::<f64>()
-            .unwrap()[0];
+        let got = scalar(&l);
         assert!((got - want).abs() / want < 1e-5, "{got} vs {want}");
-        let g = t
-            .grad(&l.backward())
-            .unwrap()
-            .into_data()
-            .convert::<f32>()
-            .try_to_vec::<f32>()
-            .unwrap();
+        let g = grad(&t, l);
         assert!(g.iter().all(|v| v.is_finite()));
         // d/dz of the target's term is σ(z) − 1 (< 0: raising z lowers the loss); others σ(z) > 0.
         assert!(g[1] < 0.0 && g[0] > 0.0 && g[2] > 0.0, "{g:?}");
@@ -349,17 +356,10 @@ mod tests {
         let set = ClassSet::of(&[0, 2]);
         assert!(set.contains(0) && !set.contains(1) && set.contains(2) && !set.contains(200));
         let l = proposals_loss(t.clone(), &[vec![0, 1]], Goal::Hide(set)).unwrap();
-        let sp = |x: f64| x.max(0.0) + (-x.abs()).exp().ln_1p();
         let want = (sp(2.0) + sp(0.5) + sp(3.0) + sp(-2.0)) / 2.0;
-        let got = l
-            .clone()
-            .into_data()
-            .convert::<f64>()
-            .try_to_vec::<f64>()
-            .unwrap()[0];
+        let got = scalar(&l);
         assert!((got - want).abs() / want < 1e-5, "{got} vs {want}");
-        let g = t.grad(&l.backward()).unwrap();
-        let g = g.into_data().convert::<f32>().try_to_vec::<f32>().unwrap();
+        let g = grad(&t, l);
         // Class 1 is outside the set: no gradient, even at a logit of 1e4.
         assert_eq!((g[1], g[4]), (0.0, 0.0), "{g:?}");
         assert!(
@@ -416,9 +416,9 @@ mod tests {
         let d = dev();
         let z = vec![2.0f32, -1.0, 0.5, 8.0, -1e4, 3.0, -2.0, 1.0];
         let t = Tensor::<3>::from_data(TensorData::new(z, [2, 2, 2]), &d).require_grad();
-        let sp = |x: f64| x.max(0.0) + (-x.abs()).exp().ln_1p();
-        let l = |a: f64, b: f64| sp(a) + sp(b) - b; // target class 1
-                                                    // Image 0 has two proposals, image 1 one: each image's mean, then the mean of images.
+        let l = |a: f64, b: f64| sp(a) + sp(b) - b;
+        // Target class 1. Image 0 has two proposals, image 1 one: each image's mean, then the
+        // mean of images.
         let got =
             proposals_loss_per_image(t.clone(), &[vec![0, 1], vec![1]], Goal::Targeted(1)).unwrap();
         let want = ((l(2.0, -1.0) + l(0.5, 8.0)) / 2.0 + l(-2.0, 1.0)) / 2.0;
