@@ -47,8 +47,9 @@ pub struct AttackConfig {
     pub target: String,
     /// Non-targeted mode: suppress the `hide_classes` in the proposals.
     pub hide: bool,
-    /// The classes hide mode suppresses: `all`, or comma-separated COCO labels. Runs written
-    /// before the setting existed suppressed every class.
+    /// The classes hide mode suppresses: comma-separated COCO labels (default the vehicle
+    /// classes P@0.5 counts, `car,bus,truck`), or `all`. Runs written before the setting existed
+    /// suppressed every class, so a run.json without it reads as `all`.
     #[serde(default = "all_classes")]
     pub hide_classes: String,
     /// Which candidates become the fixed proposals (`loss` module docs). Runs written before
@@ -83,7 +84,7 @@ impl Default for AttackConfig {
             models: vec!["nanodet".into()],
             target: "person".into(),
             hide: false,
-            hide_classes: "all".into(),
+            hide_classes: "car,bus,truck".into(),
             proposals: ProposalRule::Overlap,
             top_n: 300,
             nms_iou: 0.7,

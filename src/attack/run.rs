@@ -105,8 +105,16 @@ impl RunDir {
             return RunDir::create(path, scene, attack);
         }
         let run = RunFile::read(path)?;
+        // Iterations may grow; the hide classes matter only in hide mode (runs written before
+        // the setting read as `all`, whatever today's default).
+        let hide_classes = if run.attack.hide || attack.hide {
+            run.attack.hide_classes.clone()
+        } else {
+            attack.hide_classes.clone()
+        };
         let was = AttackConfig {
             iterations: attack.iterations,
+            hide_classes,
             ..run.attack
         };
         let mut diff = differences(
@@ -292,5 +300,36 @@ mod tests {
         assert_eq!((run.scene, run.attack), (scene, attack));
         let e = RunDir::open(dir.path()).unwrap_err();
         assert!(e.to_string().contains("not a run folder"), "{e}");
+    }
+
+    #[test]
+    fn hide_classes_count_only_in_hide_mode_and_old_runs_read_as_all() {
+        let dir = tempfile::tempdir().unwrap();
+        let (scene, attack) = (SceneConfig::training(), AttackConfig::default());
+        // A run.json written before the setting existed: no hide_classes.
+        let old = dir.path().join("old");
+        write_run(&old, &scene, &attack);
+        let text = std::fs::read_to_string(old.join("run.json")).unwrap();
+        let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
+        json["attack"]
+            .as_object_mut()
+            .unwrap()
+            .remove("hide_classes");
+        std::fs::write(old.join("run.json"), json.to_string()).unwrap();
+        assert_eq!(RunDir::open(&old).unwrap().attack.hide_classes, "all");
+        // Not hiding: today's default opens it.
+        assert_ne!(attack.hide_classes, "all");
+        RunDir::open_or_create(&old, scene.clone(), attack.clone()).unwrap();
+        // Hiding: the classes must match.
+        let hide = |classes: &str| AttackConfig {
+            hide: true,
+            hide_classes: classes.into(),
+            ..attack.clone()
+        };
+        let h = dir.path().join("hide");
+        write_run(&h, &scene, &hide("all"));
+        RunDir::open_or_create(&h, scene.clone(), hide("all")).unwrap();
+        let e = RunDir::open_or_create(&h, scene.clone(), hide("car,bus,truck")).unwrap_err();
+        assert!(e.to_string().contains("attack.hide_classes"), "{e}");
     }
 }

@@ -35,8 +35,9 @@ pub struct Args {
     /// Non-targeted mode: hide the object (suppress --hide-classes in the proposals).
     #[arg(long)]
     pub hide: bool,
-    /// The classes --hide suppresses: `all`, or comma-separated COCO labels (e.g. car,bus,truck).
-    #[arg(long, default_value = "all")]
+    /// The classes --hide suppresses: comma-separated COCO labels, or `all` (every class; it
+    /// does not hide the pickup: docs/attack.md).
+    #[arg(long, default_value = "car,bus,truck")]
     pub hide_classes: String,
     /// Which candidates the loss fixes: `overlap` (those on the object's box, IoU >=
     /// --overlap-iou) or `topn` (the top n after NMS over the whole image). See docs/attack.md.
