@@ -12,7 +12,7 @@ use cac::config::{SceneConfig, Stage};
 use cac::detect::Detector;
 use cac::environment::{Environment, ViewpointSet};
 use cac::eval::compare::{before_after, write_sheets, BeforeAfter};
-use cac::eval::run::{evaluate_texture, view_groups, TextureResult, ViewPlan};
+use cac::eval::run::{all_views, evaluate_texture_in, view_groups, TextureResult, ViewPlan};
 use cac::eval::Protocol;
 use cac::render::{RenderSettings, Renderer};
 use cac::scene::Texture;
@@ -67,12 +67,14 @@ pub fn run(a: Args) -> Result<()> {
         ..Default::default()
     };
     let groups = view_groups(&env, &plan);
+    let views = all_views(&groups);
     let dev = device::inference();
     let score = |name: &str, atlas: &Texture| {
-        evaluate_texture(
+        evaluate_texture_in(
             &eval_renderer,
             &env,
             &groups,
+            &views,
             name,
             atlas,
             &all,

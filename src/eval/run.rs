@@ -127,39 +127,10 @@ pub fn all_views(groups: &[ViewGroup]) -> Vec<(usize, usize)> {
         .collect()
 }
 
-/// Renders `atlas` in every view of every group, scores it with each detector, and keeps the
-/// first `examples_per_group` images of each group. `progress` is called once per image.
-#[allow(clippy::too_many_arguments)]
-pub fn evaluate_texture(
-    r: &Renderer,
-    env: &Environment,
-    groups: &[ViewGroup],
-    texture: &str,
-    atlas: &Texture,
-    dets: &[&dyn Detector],
-    p: &Protocol,
-    examples_per_group: usize,
-    device: &Device,
-    progress: &mut dyn FnMut(),
-) -> Result<TextureResult> {
-    let views = all_views(groups);
-    evaluate_texture_in(
-        r,
-        env,
-        groups,
-        &views,
-        texture,
-        atlas,
-        dets,
-        p,
-        examples_per_group,
-        device,
-        progress,
-    )
-}
-
-/// [`evaluate_texture`] restricted to `views` (`(group index, view index)`, in that order): the
-/// records and examples are those a whole run has for these views.
+/// Renders `atlas` in `views` (`(group index, view index)`, in that order; [`all_views`] for a
+/// whole run), scores it with each detector, and keeps the first `examples_per_group` images of
+/// each group. The records and examples of a part of the views are those a whole run has for
+/// them. `progress` is called once per image.
 #[allow(clippy::too_many_arguments)]
 pub fn evaluate_texture_in(
     r: &Renderer,
