@@ -1,4 +1,4 @@
-//! `cac detect IMAGE... --model centernet|nanodet|frcnn-*`: run a COCO detector on images, print
+//! `cac detect IMAGE... --model centernet|nanodet|frcnn-*|onnx:MODEL.onnx`: run a COCO detector on images, print
 //! the detections (text or one JSON object per line), optionally dump raw tensors (the TFJS
 //! reference runner's schema; Faster R-CNN: proposals, class logits, box regression,
 //! detections) and draw the boxes. Faster R-CNN models need `--weights` (a torchvision
@@ -6,7 +6,7 @@
 
 use anyhow::{bail, Result};
 use cac::detect::{self, Detection};
-use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
+use clap::builder::{PossibleValue, TypedValueParser};
 use clap::error::ErrorKind;
 use clap::Args;
 use std::path::{Path, PathBuf};
@@ -18,9 +18,32 @@ fn catalogue() -> impl Iterator<Item = PossibleValue> {
         .map(|m| PossibleValue::new(m.name).help(m.about))
 }
 
-/// A model name of the catalogue (`--model`).
-pub fn model_names() -> PossibleValuesParser {
-    PossibleValuesParser::new(catalogue())
+/// A model name of the catalogue, bare (`--model`, weights from `--weights`), or an ONNX
+/// detector's spec `onnx:MODEL.onnx[:CONFIG.toml]`.
+#[derive(Clone, Copy, Debug)]
+pub struct ModelName;
+
+impl TypedValueParser for ModelName {
+    type Value = String;
+
+    fn parse_ref(
+        &self,
+        _cmd: &clap::Command,
+        _arg: Option<&clap::Arg>,
+        value: &std::ffi::OsStr,
+    ) -> std::result::Result<String, clap::Error> {
+        let s = value.to_string_lossy();
+        let ok = match detect::model_info(&s) {
+            Some(m) if m.weights != detect::Weights::Onnx => Ok(()),
+            _ => detect::check_spec(&s).map(|_| ()),
+        };
+        ok.map_err(|e| clap::Error::raw(ErrorKind::InvalidValue, format!("{e}\n")))?;
+        Ok(s.into_owned())
+    }
+
+    fn possible_values(&self) -> Option<Box<dyn Iterator<Item = PossibleValue> + '_>> {
+        Some(Box::new(catalogue()))
+    }
 }
 
 /// A detector spec of the catalogue, `NAME` or `MODEL=FILE` for a checkpoint model (`--models`):
@@ -53,7 +76,8 @@ pub struct DetectArgs {
     /// Input images (PNG or JPEG).
     #[arg(required = true)]
     pub images: Vec<PathBuf>,
-    #[arg(long, default_value = "centernet", value_parser = model_names())]
+    /// A catalogue name, or your ONNX detector as onnx:MODEL.onnx[:CONFIG.toml].
+    #[arg(long, default_value = "centernet", value_parser = ModelName)]
     pub model: String,
     /// NanoDet only: @vladmandic/human's pre-/post-processing (RGB/255 input, argmax boxes),
     /// for parity checks; the default is the model's real BGR mean/std input and DFL decoding.
@@ -96,10 +120,19 @@ pub fn run(a: DetectArgs) -> Result<()> {
         bail!("--human only applies to --model nanodet");
     }
     let device = super::device::inference();
-    // A bare name: the weights come from --weights (spec_with_weights says when one is missing).
-    let info = detect::model_info(&a.model)
-        .ok_or_else(|| anyhow::anyhow!("unknown detector {:?}", a.model))?;
-    let spec = detect::spec_with_weights(info, a.weights.as_deref(), a.human)?;
+    // A bare name: the weights come from --weights (spec_with_weights says when one is missing);
+    // an ONNX detector names its own file.
+    let info = match detect::check_spec(&a.model) {
+        Ok(i) => i,
+        Err(e) => detect::model_info(&a.model).ok_or(e)?,
+    };
+    let spec = match info.weights {
+        detect::Weights::Onnx if a.weights.is_some() => {
+            bail!("--weights does not apply to an ONNX detector (its weights are in the file)")
+        }
+        detect::Weights::Onnx => a.model.clone(),
+        _ => detect::spec_with_weights(info, a.weights.as_deref(), a.human)?,
+    };
     let det = detect::load_all(&[spec], a.models.as_deref(), &device)?.remove(0);
     let many = a.images.len() > 1;
     for path in &a.images {

@@ -1,7 +1,8 @@
-//! `cac models ...`: fetch and locate the detector model files (see `detect::fetch`).
+//! `cac models ...`: fetch and locate the detector model files (see `detect::fetch`), and
+//! inspect a user's ONNX file (`detect::onnx`).
 
 use anyhow::Result;
-use cac::detect::fetch;
+use cac::detect::{fetch, onnx};
 use clap::Subcommand;
 
 #[derive(Subcommand, Debug)]
@@ -14,6 +15,12 @@ pub enum ModelsCmd {
     },
     /// Print the models folder (after verifying it).
     Path,
+    /// What an ONNX file holds: producer, opsets, inputs and outputs with their shapes, op types
+    /// (unsupported ones marked), metadata; then whether cac can run it as a detector.
+    Inspect {
+        /// The model, `MODEL.onnx` (or `onnx:MODEL.onnx[:CONFIG.toml]`).
+        model: String,
+    },
 }
 
 pub fn run(cmd: ModelsCmd) -> Result<()> {
@@ -28,6 +35,30 @@ pub fn run(cmd: ModelsCmd) -> Result<()> {
             println!("{}", dir.display());
         }
         ModelsCmd::Path => println!("{}", fetch::ensure_models()?.display()),
+        ModelsCmd::Inspect { model } => {
+            let spec = if model.starts_with("onnx:") {
+                model
+            } else {
+                format!("onnx:{model}")
+            };
+            let (path, config) = onnx::parse_spec(&spec)
+                .ok_or_else(|| anyhow::anyhow!("{spec:?}: write MODEL.onnx"))?;
+            print!("{}", onnx::Model::load(&path)?.describe());
+            let device = super::device::inference();
+            match onnx::OnnxDetector::load(&path, config.as_deref(), &device) {
+                Ok(d) => {
+                    use cac::detect::Detector;
+                    let (w, h) = d.input_size();
+                    println!(
+                        "  as a detector: {w}x{h} input, {} classes ({}...), config {:?}",
+                        d.classes().len(),
+                        d.classes().iter().take(3).cloned().collect::<Vec<_>>().join(", "),
+                        d.config()
+                    );
+                }
+                Err(e) => println!("  as a detector: not usable: {e:#}"),
+            }
+        }
     }
     Ok(())
 }

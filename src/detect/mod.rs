@@ -6,8 +6,8 @@
 //! What is here: the [`Detector`] interface the attack and the evaluation use, the detector
 //! catalogue ([`MODELS`], [`load`], [`load_all`]: the one place a detector is named and loaded),
 //! the detectors, a general TFJS graph-model importer ([`tfjs`]), the pre-processing, tfjs NMS,
-//! COCO labels and the model fetcher. Not here: rendering, losses, training loops, and the choice
-//! of compute device (callers pass one).
+//! COCO labels and the model fetcher, and users' own ONNX detectors ([`onnx`]). Not here:
+//! rendering, losses, training loops, and the choice of compute device (callers pass one).
 //!
 //! Images go in as `[B, 3, H, W]` floats in [0, 1] on any device; the detector resizes them
 //! inside (differentiably), so gradients of any output reach the input image.
@@ -22,6 +22,7 @@ pub mod frcnn;
 pub mod labels;
 pub mod nanodet;
 pub mod nms;
+pub mod onnx;
 pub mod preprocess;
 pub mod raw;
 pub mod tfjs;
@@ -94,6 +95,8 @@ pub enum Weights {
     /// A torchvision state_dict (`.pth` from `torch.save`, or `.safetensors`), named with the
     /// model as `MODEL=FILE`.
     Checkpoint,
+    /// A user's ONNX file, named in the spec: `onnx:MODEL.onnx[:CONFIG.toml]`.
+    Onnx,
 }
 
 /// One entry of the detector catalogue.
@@ -110,7 +113,7 @@ pub struct ModelInfo {
 }
 
 /// The detector catalogue: every detector [`load`] knows, in the order help texts list them.
-pub const MODELS: [ModelInfo; 6] = [
+pub const MODELS: [ModelInfo; 7] = [
     ModelInfo {
         name: "centernet",
         weights: Weights::Folder,
@@ -147,6 +150,12 @@ pub const MODELS: [ModelInfo; 6] = [
         variant_of: None,
         about: "torchvision fasterrcnn_resnet50_fpn (needs weights)",
     },
+    ModelInfo {
+        name: "onnx",
+        weights: Weights::Onnx,
+        variant_of: None,
+        about: "your ONNX detector: onnx:MODEL.onnx[:CONFIG.toml] (YOLOv3/v5/v8/11 exports)",
+    },
 ];
 
 /// The catalogue entry of a model name (without any `=FILE`).
@@ -169,7 +178,7 @@ pub fn expected() -> String {
         .split_last()
         .expect("the catalogue has folder models");
     format!(
-        "{}, {last} or {}=FILE.pth",
+        "{}, {last}, {}=FILE.pth or onnx:MODEL.onnx[:CONFIG.toml]",
         rest.join(", "),
         names(Weights::Checkpoint).collect::<Vec<_>>().join("|")
     )
@@ -178,6 +187,17 @@ pub fn expected() -> String {
 /// Checks a detector spec (`NAME`, or `NAME=FILE` for a checkpoint model) against the
 /// catalogue without loading anything; returns its entry.
 pub fn check_spec(spec: &str) -> Result<&'static ModelInfo> {
+    if spec.starts_with("onnx:") {
+        let (model, config) = onnx::parse_spec(spec).ok_or_else(|| {
+            anyhow::anyhow!("{spec:?}: write onnx:MODEL.onnx or onnx:MODEL.onnx:CONFIG.toml")
+        })?;
+        for f in std::iter::once(&model).chain(config.as_ref()) {
+            if !f.is_file() {
+                anyhow::bail!("{spec:?}: {} is not a file", f.display());
+            }
+        }
+        return Ok(model_info("onnx").expect("the catalogue has onnx"));
+    }
     let (name, file) = match spec.split_once('=') {
         Some((n, f)) => (n, Some(f)),
         None => (spec, None),
@@ -186,6 +206,9 @@ pub fn check_spec(spec: &str) -> Result<&'static ModelInfo> {
     match (info.map(|m| m.weights), file) {
         (Some(Weights::Checkpoint), Some(_)) | (Some(Weights::Folder), None) => {
             Ok(info.expect("matched"))
+        }
+        (Some(Weights::Onnx), _) => {
+            anyhow::bail!("{spec:?}: name an ONNX detector with its file, onnx:MODEL.onnx")
         }
         (_, Some(_)) => anyhow::bail!(
             "{spec:?}: only Faster R-CNN models take a weights file (MODEL=FILE with MODEL one of {})",
@@ -217,6 +240,9 @@ pub fn spec_with_weights(
         (Weights::Folder, Some(_)) => {
             anyhow::bail!("--weights only applies to the Faster R-CNN models")
         }
+        (Weights::Onnx, _) => {
+            anyhow::bail!("an ONNX detector is named with its file: onnx:MODEL.onnx[:CONFIG.toml]")
+        }
         (Weights::Folder, None) if human => "nanodet-human".to_string(),
         (Weights::Folder, None) => info.name.to_string(),
     })
@@ -229,8 +255,19 @@ pub fn spec_with_weights(
 /// `frcnn-mobilenet-v3-320=ckpt.pth`, `.pth` or `.safetensors`); `dir` is not used for it. Its
 /// candidates are the RPN's fixed top-n proposals with the box head's class logits, so the attack
 /// and the evaluation take it like the one-stage detectors.
+///
+/// A user's ONNX detector is named with its file, `onnx:MODEL.onnx` (a config beside it,
+/// `MODEL.toml`, is read when present) or `onnx:MODEL.onnx:CONFIG.toml` ([`onnx::OnnxConfig`]).
 pub fn load(spec: &str, dir: &Path, device: &Device) -> Result<Box<dyn Detector>> {
     let info = check_spec(spec)?;
+    if info.weights == Weights::Onnx {
+        let (model, config) = onnx::parse_spec(spec).expect("checked");
+        return Ok(Box::new(onnx::OnnxDetector::load(
+            &model,
+            config.as_deref(),
+            device,
+        )?));
+    }
     Ok(match (info.name, spec.split_once('=')) {
         (name, Some((_, weights))) => Box::new(FasterRcnn::load(name, Path::new(weights), device)?),
         ("centernet", None) => Box::new(CenterNet::load(dir, device)?),

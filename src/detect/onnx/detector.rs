@@ -1,0 +1,603 @@
+//! A user's ONNX detector as a [`Detector`]: pre-processing (letterbox or stretch, channel order,
+//! mean/std), the graph, and a dense head read from the exported output:
+//! - `yolov8`: `[B, 4 + C, N]`, rows `cx, cy, w, h` then C class probabilities (ultralytics
+//!   YOLOv8/11 and YOLOv5u exports: anchor-free, DFL decoded inside the graph);
+//! - `yolov5`: `[B, N, 5 + C]`, columns `cx, cy, w, h, objectness`, then C class probabilities
+//!   (the YOLOv5 repository's and YOLOv3/v7 exports: anchors decoded inside the graph);
+//!   a class's score is objectness × class probability, as those repositories rank it.
+//!
+//! The class *logits* the attack needs come from the graph itself: the Sigmoid nodes whose
+//! outputs reach the exported scores through layout ops only are tapped
+//! ([`super::graph::OnnxGraph::run_tapped`]), so the logits are exact, not `log(p / (1 - p))`
+//! of a rounded probability. A small TOML beside the model (`model.toml`, or named as
+//! `onnx:MODEL.onnx:CONFIG.toml`) overrides every choice; see [`OnnxConfig`].
+
+use super::graph::OnnxGraph;
+use super::model::{Dim, Model};
+use super::value::{Dev, Val};
+use crate::detect::labels::COCO80;
+use crate::detect::nms::non_max_suppression;
+use crate::detect::preprocess::resize_bilinear;
+use crate::detect::raw::{RawDump, RawImage, RawTensor};
+use crate::detect::{check_images, to_vec, Candidates, Detection, Detector};
+use anyhow::{anyhow, bail, ensure, Context, Result};
+use burn::tensor::{activation, Device, Tensor, TensorData};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// The optional TOML configuration of an ONNX detector. Every field has a default.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct OnnxConfig {
+    /// `auto` (default: `yolov8` for an output `[B, A, N]` with A < N, `yolov5` for
+    /// `[B, N, K]` with K < N), `yolov8` or `yolov5` (also YOLOv3/v7 exports).
+    pub head: String,
+    /// The graph input holding the image (default: the first graph input).
+    pub input: Option<String>,
+    /// The graph output holding the dense predictions (default: the first graph output).
+    pub output: Option<String>,
+    /// `[width, height]` of the network input (default: the input's fixed shape; required when
+    /// the exported height or width is dynamic).
+    pub input_size: Option<[usize; 2]>,
+    /// `letterbox` (default: aspect kept, padded with `pad_value`, as ultralytics does) or
+    /// `stretch`.
+    pub resize: String,
+    /// The letterbox border, in [0, 1] (default 114/255, ultralytics' grey).
+    pub pad_value: f32,
+    /// `rgb` (default) or `bgr`.
+    pub channels: String,
+    /// Per-channel `(x - mean) / std` on values in [0, 1] (defaults 0 and 1: ultralytics
+    /// feeds RGB / 255).
+    pub mean: [f32; 3],
+    pub std: [f32; 3],
+    /// How the output holds class scores: `sigmoid` (default: probabilities made by Sigmoid
+    /// nodes in the graph, whose inputs are tapped for exact logits), `probabilities` (no
+    /// sigmoid to tap: logits as `log(p / (1 - p))`, saturated beyond about ±16), or
+    /// `logits` (raw logits in the output).
+    pub scores: String,
+    /// `cxcywh` (default) or `xyxy`, in network-input pixels.
+    pub box_format: String,
+    /// Class names in output order (default: the model's `names` metadata as ultralytics
+    /// writes it, else COCO-80 when there are 80 classes, else `class0`, `class1`, ...).
+    pub classes: Option<Vec<String>>,
+    /// Final detections: score threshold (default 0.25), NMS IoU (0.45), cap (100).
+    pub score_threshold: f64,
+    pub iou_threshold: f64,
+    pub max_detections: usize,
+}
+
+impl Default for OnnxConfig {
+    fn default() -> Self {
+        OnnxConfig {
+            head: "auto".into(),
+            input: None,
+            output: None,
+            input_size: None,
+            resize: "letterbox".into(),
+            pad_value: 114.0 / 255.0,
+            channels: "rgb".into(),
+            mean: [0.0; 3],
+            std: [1.0; 3],
+            scores: "sigmoid".into(),
+            box_format: "cxcywh".into(),
+            classes: None,
+            score_threshold: 0.25,
+            iou_threshold: 0.45,
+            max_detections: 100,
+        }
+    }
+}
+
+impl OnnxConfig {
+    /// Reads a config file; unknown keys and bad values are errors naming the file.
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read {}", path.display()))?;
+        let c: OnnxConfig =
+            toml::from_str(&text).with_context(|| format!("{}: invalid ONNX detector config", path.display()))?;
+        c.check().with_context(|| format!("{}", path.display()))?;
+        Ok(c)
+    }
+
+    fn check(&self) -> Result<()> {
+        let one_of = |v: &str, key: &str, ok: &[&str]| {
+            ensure!(ok.contains(&v), "{key} = {v:?}: expected one of {ok:?}");
+            Ok(())
+        };
+        one_of(&self.head, "head", &["auto", "yolov8", "yolov5"])?;
+        one_of(&self.resize, "resize", &["letterbox", "stretch"])?;
+        one_of(&self.channels, "channels", &["rgb", "bgr"])?;
+        one_of(&self.scores, "scores", &["sigmoid", "probabilities", "logits"])?;
+        one_of(&self.box_format, "box_format", &["cxcywh", "xyxy"])?;
+        ensure!(self.std.iter().all(|&s| s != 0.0), "std {:?} has a zero", self.std);
+        Ok(())
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Head {
+    /// `[B, 4 + C, N]`.
+    V8,
+    /// `[B, N, 5 + C]`.
+    V5,
+}
+
+/// Where the network input sits in the image: `net = img * scale + pad`.
+#[derive(Clone, Copy, Debug)]
+pub struct Geometry {
+    /// Network pixels per image pixel, `[x, y]`.
+    pub scale: [f32; 2],
+    /// The letterbox border, `[left, top]`, in network pixels.
+    pub pad: [f32; 2],
+}
+
+/// An ONNX detector.
+pub struct OnnxDetector {
+    graph: OnnxGraph,
+    name: String,
+    config: OnnxConfig,
+    input: String,
+    output: String,
+    /// `(width, height)`.
+    size: (usize, usize),
+    head: Head,
+    classes: Vec<&'static str>,
+    /// The Sigmoid nodes whose inputs are the class logits.
+    taps: Vec<usize>,
+    /// The exported graph takes a batch of exactly one.
+    batch_one: bool,
+}
+
+impl OnnxDetector {
+    /// Loads `path` with the config `config`, or `path` with the extension `.toml` when that
+    /// exists, or the defaults; checks the graph, finds the head with one dry run.
+    pub fn load(path: &Path, config: Option<&Path>, device: &Device) -> Result<Self> {
+        let src = path.display().to_string();
+        let beside = path.with_extension("toml");
+        let config = match config {
+            Some(c) => OnnxConfig::load(c)?,
+            None if beside.is_file() => OnnxConfig::load(&beside)?,
+            None => OnnxConfig::default(),
+        };
+        let graph = OnnxGraph::new(Model::load(path)?, device)?;
+        let input_io = match &config.input {
+            Some(n) => graph
+                .graph_inputs()
+                .iter()
+                .find(|i| &i.name == n)
+                .ok_or_else(|| anyhow!("{src}: no graph input named {n:?}"))?,
+            None => graph
+                .graph_inputs()
+                .first()
+                .ok_or_else(|| anyhow!("{src}: the graph has no input"))?,
+        }
+        .clone();
+        ensure!(
+            input_io.dims.len() == 4 && matches!(input_io.dims[1], Dim::Fixed(3) | Dim::Param(_) | Dim::Unknown),
+            "{src}: input {:?} has shape {}; an image input [B, 3, H, W] is expected",
+            input_io.name,
+            input_io.shape_text()
+        );
+        let size = match (config.input_size, &input_io.dims[2], &input_io.dims[3]) {
+            (Some([w, h]), ..) => (w, h),
+            (None, Dim::Fixed(h), Dim::Fixed(w)) => (*w, *h),
+            _ => bail!(
+                "{src}: input {:?} has a dynamic size {}; set input_size = [width, height] in the config",
+                input_io.name,
+                input_io.shape_text()
+            ),
+        };
+        let batch_one = input_io.dims[0] == Dim::Fixed(1);
+        let output = match &config.output {
+            Some(o) => o.clone(),
+            None => graph
+                .graph_outputs()
+                .first()
+                .map(|o| o.name.clone())
+                .ok_or_else(|| anyhow!("{src}: the graph has no output"))?,
+        };
+        // One dry run gives the output's shape (exports often leave it symbolic).
+        let zeros = Tensor::<4>::zeros([1, 3, size.1, size.0], device);
+        let shape = graph.run_images(&input_io.name, zeros, &[&output])?[0].shape().to_vec();
+        ensure!(
+            shape.len() == 3,
+            "{src}: output {output:?} has shape {shape:?}; a dense [B, A, N] output is expected (set output in the config)"
+        );
+        let head = match config.head.as_str() {
+            "yolov8" => Head::V8,
+            "yolov5" => Head::V5,
+            _ if shape[1] < shape[2] => Head::V8,
+            _ => Head::V5,
+        };
+        let per = if head == Head::V8 { shape[1] } else { shape[2] };
+        let skip = if head == Head::V8 { 4 } else { 5 };
+        ensure!(
+            per > skip,
+            "{src}: output {output:?} of shape {shape:?} has no class scores for a {:?} head",
+            head
+        );
+        let n_classes = per - skip;
+        let classes = class_names(&config, graph.model.meta("names"), n_classes)
+            .with_context(|| src.clone())?;
+        let taps = if config.scores == "sigmoid" {
+            let t = sigmoid_taps(&graph, &output);
+            ensure!(
+                !t.is_empty(),
+                "{src}: no Sigmoid node feeds {output:?} through layout ops; set scores = \"probabilities\" or \"logits\" in the config"
+            );
+            t
+        } else {
+            Vec::new()
+        };
+        let name = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "onnx".into());
+        Ok(OnnxDetector {
+            graph,
+            name,
+            config,
+            input: input_io.name,
+            output,
+            size,
+            head,
+            classes,
+            taps,
+            batch_one,
+        })
+    }
+
+    pub fn config(&self) -> &OnnxConfig {
+        &self.config
+    }
+    pub fn graph(&self) -> &OnnxGraph {
+        &self.graph
+    }
+    pub fn classes(&self) -> &[&'static str] {
+        &self.classes
+    }
+
+    /// The network input of `images` (`[B, 3, H, W]` in [0, 1]) and where it sits in them.
+    pub fn network_input(&self, images: Tensor<4>) -> Result<(Tensor<4>, Geometry)> {
+        let [_, _, h, w] = check_images(&images)?;
+        let (nw, nh) = self.size;
+        let dev = images.device();
+        let (x, geo) = if self.config.resize == "stretch" {
+            (
+                resize_bilinear(images, 2, 3, nh, nw, false, true),
+                Geometry {
+                    scale: [nw as f32 / w as f32, nh as f32 / h as f32],
+                    pad: [0.0, 0.0],
+                },
+            )
+        } else {
+            let r = (nw as f32 / w as f32).min(nh as f32 / h as f32);
+            let (rw, rh) = (
+                ((w as f32 * r).round() as usize).clamp(1, nw),
+                ((h as f32 * r).round() as usize).clamp(1, nh),
+            );
+            let (left, top) = ((nw - rw) / 2, (nh - rh) / 2);
+            let x = resize_bilinear(images, 2, 3, rh, rw, false, true);
+            let x = x.pad(
+                [(top, nh - rh - top), (left, nw - rw - left)],
+                burn::tensor::ops::PadMode::Constant(self.config.pad_value),
+            );
+            (
+                x,
+                Geometry {
+                    scale: [rw as f32 / w as f32, rh as f32 / h as f32],
+                    pad: [left as f32, top as f32],
+                },
+            )
+        };
+        let x = if self.config.channels == "bgr" {
+            x.flip([1])
+        } else {
+            x
+        };
+        let x = if self.config.mean != [0.0; 3] || self.config.std != [1.0; 3] {
+            let c = |v: [f32; 3]| Tensor::<4>::from_data(TensorData::new(v.to_vec(), [1, 3, 1, 1]), &dev);
+            (x - c(self.config.mean)) / c(self.config.std)
+        } else {
+            x
+        };
+        Ok((x, geo))
+    }
+
+    /// The dense output `[B, N, K]` (rows per candidate) and its pre-sigmoid version.
+    fn dense(&self, x: Tensor<4>) -> Result<(Tensor<3>, Tensor<3>)> {
+        let b = x.dims()[0];
+        let chunks: Vec<Tensor<4>> = if self.batch_one && b > 1 {
+            (0..b).map(|i| x.clone().narrow(0, i, 1)).collect()
+        } else {
+            vec![x]
+        };
+        let mut probs = Vec::new();
+        let mut pre = Vec::new();
+        for c in chunks {
+            let feed = [(self.input.as_str(), Val::D(Dev::from(c)?))];
+            let (main, alt) = self.graph.run_tapped(&feed, &[&self.output], &self.taps)?;
+            let as3 = |v: &Val| -> Result<Tensor<3>> {
+                let d = v.dev(&self.graph.device)?;
+                ensure!(d.rank() == 3, "output {:?} has shape {:?}", self.output, d.shape);
+                let t: Tensor<3> = d.t.clone().reshape([d.shape[0], d.shape[1], d.shape[2]]);
+                Ok(if self.head == Head::V8 { t.swap_dims(1, 2) } else { t })
+            };
+            let p = as3(&main[0])?;
+            pre.push(match alt.first() {
+                Some(a) => as3(a)?,
+                None => p.clone(),
+            });
+            probs.push(p);
+        }
+        Ok((Tensor::cat(probs, 0), Tensor::cat(pre, 0)))
+    }
+
+    fn candidates_with(&self, images: Tensor<4>) -> Result<Candidates> {
+        let (x, geo) = self.network_input(images)?;
+        let (p, l) = self.dense(x)?;
+        let [b, n, k] = p.dims();
+        let col = |t: &Tensor<3>, i: usize| t.clone().narrow(2, i, 1);
+        let (c0, c1, c2, c3) = (col(&p, 0), col(&p, 1), col(&p, 2), col(&p, 3));
+        let (x1, y1, x2, y2) = if self.config.box_format == "xyxy" {
+            (c0, c1, c2, c3)
+        } else {
+            let (hw, hh) = (c2.div_scalar(2.0), c3.div_scalar(2.0));
+            (c0.clone() - hw.clone(), c1.clone() - hh.clone(), c0 + hw, c1 + hh)
+        };
+        let ux = |v: Tensor<3>| v.sub_scalar(geo.pad[0]).div_scalar(geo.scale[0]);
+        let uy = |v: Tensor<3>| v.sub_scalar(geo.pad[1]).div_scalar(geo.scale[1]);
+        let boxes = Tensor::cat(vec![ux(x1), uy(y1), ux(x2), uy(y2)], 2);
+        let skip = if self.head == Head::V8 { 4 } else { 5 };
+        let cls_p = p.clone().narrow(2, skip, k - skip);
+        let cls_l = l.clone().narrow(2, skip, k - skip);
+        let mode = self.config.scores.as_str();
+        // Log-probabilities of each class's score, for the logits of a product.
+        let logit_of_prob = |q: Tensor<3>| {
+            let q = q.clamp(1e-30, 1.0 - 1e-7);
+            q.clone().log() - q.neg().log1p()
+        };
+        let (scores, logits) = match (self.head, mode) {
+            (Head::V8, "logits") => (activation::sigmoid(cls_p.clone()), cls_p),
+            (Head::V8, "probabilities") => (cls_p.clone(), logit_of_prob(cls_p)),
+            (Head::V8, _) => (cls_p, cls_l),
+            (Head::V5, _) => {
+                let obj_p = col(&p, 4);
+                let obj_l = col(&l, 4);
+                if mode == "probabilities" {
+                    let s = cls_p * obj_p.expand([b, n, k - skip]);
+                    (s.clone(), logit_of_prob(s))
+                } else {
+                    // log p = log σ(o) + log σ(c); logit = log p − log(1 − p).
+                    let (lo, lc) = if mode == "logits" { (col(&p, 4), cls_p) } else { (obj_l, cls_l) };
+                    let logp = activation::log_sigmoid(lc) + activation::log_sigmoid(lo).expand([b, n, k - skip]);
+                    let p1 = logp.clone().exp().clamp_max(1.0 - 1e-7);
+                    let logits = logp - p1.clone().neg().log1p();
+                    (p1, logits)
+                }
+            }
+        };
+        Ok(Candidates {
+            boxes,
+            scores,
+            logits,
+        })
+    }
+}
+
+/// Class names: the config's list, ultralytics' `names` metadata, COCO-80, or numbered.
+fn class_names(config: &OnnxConfig, meta: Option<&str>, n: usize) -> Result<Vec<&'static str>> {
+    let leak = |v: Vec<String>| -> Vec<&'static str> {
+        v.into_iter().map(|s| &*Box::leak(s.into_boxed_str())).collect()
+    };
+    if let Some(c) = &config.classes {
+        ensure!(c.len() == n, "the config names {} classes, the output has {n}", c.len());
+        return Ok(leak(c.clone()));
+    }
+    // A model built without a dataset carries its indices as names ("0", "1", ...): no names.
+    let numbered = |v: &Vec<String>| v.iter().enumerate().all(|(k, s)| *s == k.to_string());
+    if let Some(names) = meta
+        .and_then(parse_names)
+        .filter(|v| v.len() == n && !numbered(v))
+    {
+        if n == 80 && names.iter().zip(COCO80).all(|(a, b)| a == b) {
+            return Ok(COCO80.to_vec());
+        }
+        return Ok(leak(names));
+    }
+    if n == 80 {
+        return Ok(COCO80.to_vec());
+    }
+    Ok(leak((0..n).map(|k| format!("class{k}")).collect()))
+}
+
+/// ultralytics' `names` metadata: a Python dict literal `{0: 'person', 1: 'bicycle', ...}`.
+fn parse_names(s: &str) -> Option<Vec<String>> {
+    let body = s.trim().strip_prefix('{')?.strip_suffix('}')?;
+    let mut out = Vec::new();
+    let mut rest = body;
+    while let Some(colon) = rest.find(':') {
+        let key: usize = rest[..colon].trim().trim_start_matches(',').trim().parse().ok()?;
+        let after = rest[colon + 1..].trim_start();
+        let q = after.chars().next()?;
+        if q != '\'' && q != '"' {
+            return None;
+        }
+        let end = after[1..].find(q)? + 1;
+        if key != out.len() {
+            return None;
+        }
+        out.push(after[1..end].to_string());
+        rest = &after[end + 1..];
+    }
+    Some(out)
+}
+
+/// The Sigmoid nodes whose outputs reach value `output` through layout ops only.
+fn sigmoid_taps(g: &OnnxGraph, output: &str) -> Vec<usize> {
+    const LAYOUT: &[&str] = &[
+        "Concat", "Reshape", "Transpose", "Slice", "Split", "Identity", "Flatten", "Squeeze",
+        "Unsqueeze",
+    ];
+    let mut taps = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    let mut stack: Vec<usize> = g.producer_of(output).into_iter().collect();
+    while let Some(k) = stack.pop() {
+        if !seen.insert(k) {
+            continue;
+        }
+        let op = g.node(k).op.as_str();
+        if op == "Sigmoid" {
+            taps.push(k);
+        } else if LAYOUT.contains(&op) {
+            // Only the data input (0) of ops whose other inputs are shapes or indices.
+            let producers = g.input_producers(k);
+            let data: Vec<Option<usize>> = if op == "Concat" {
+                producers
+            } else {
+                producers.into_iter().take(1).collect()
+            };
+            stack.extend(data.into_iter().flatten());
+        }
+    }
+    taps.sort_unstable();
+    taps
+}
+
+impl Detector for OnnxDetector {
+    fn name(&self) -> &str {
+        &self.name
+    }
+    fn input_size(&self) -> (usize, usize) {
+        self.size
+    }
+    fn candidates(&self, images: Tensor<4>) -> Result<Candidates> {
+        self.candidates_with(images)
+    }
+    fn detect(&self, images: Tensor<4>) -> Result<Vec<Vec<Detection>>> {
+        let c = self.candidates_with(images.detach())?;
+        let [b, n, k] = c.scores.dims();
+        let boxes = to_vec(&c.boxes)?;
+        let scores = to_vec(&c.scores)?;
+        let cfg = &self.config;
+        let mut out = Vec::with_capacity(b);
+        for i in 0..b {
+            let mut cand: Vec<(usize, f32, [f32; 4])> = Vec::new();
+            for j in 0..n {
+                let row = &scores[(i * n + j) * k..(i * n + j + 1) * k];
+                let bx: [f32; 4] = std::array::from_fn(|q| boxes[(i * n + j) * 4 + q]);
+                for (c, &s) in row.iter().enumerate() {
+                    if s.is_finite() && s as f64 > cfg.score_threshold {
+                        cand.push((c, s, bx));
+                    }
+                }
+            }
+            // Class-aware NMS: boxes of different classes are moved apart (as ultralytics does).
+            let off = 1e5_f32;
+            let shifted: Vec<[f32; 4]> = cand
+                .iter()
+                .map(|(c, _, b)| {
+                    let o = *c as f32 * off;
+                    [b[1] + o, b[0] + o, b[3] + o, b[2] + o]
+                })
+                .collect();
+            let sc: Vec<f32> = cand.iter().map(|c| c.1).collect();
+            let keep = non_max_suppression(
+                &shifted,
+                &sc,
+                cfg.max_detections,
+                cfg.iou_threshold,
+                cfg.score_threshold,
+            );
+            out.push(
+                keep.into_iter()
+                    .map(|q| {
+                        let (c, score, bbox) = cand[q];
+                        Detection {
+                            class_id: c,
+                            label: self.classes[c],
+                            score,
+                            bbox,
+                        }
+                    })
+                    .collect(),
+            );
+        }
+        Ok(out)
+    }
+    fn raw(&self, image: Tensor<4>) -> Result<RawDump> {
+        let [b, _, h, w] = check_images(&image)?;
+        ensure!(b == 1, "a raw dump is of one image, got a batch of {b}");
+        let (x, _) = self.network_input(image.detach())?;
+        let names: Vec<String> = self.graph.graph_outputs().iter().map(|o| o.name.clone()).collect();
+        let refs: Vec<&str> = names.iter().map(|s| s.as_str()).collect();
+        let vals = self.graph.run_images(&self.input, x.clone(), &refs)?;
+        let mut outputs = BTreeMap::new();
+        for (name, v) in names.iter().zip(vals) {
+            let h = v.host()?;
+            outputs.insert(name.clone(), RawTensor::new(Some(name), h.shape().to_vec(), h.floats()));
+        }
+        let dims = x.dims().to_vec();
+        Ok(RawDump {
+            model: self.name.clone(),
+            backend: "burn".into(),
+            norm: format!("{} {}", self.config.resize, self.config.channels),
+            image: RawImage {
+                path: None,
+                width: w,
+                height: h,
+            },
+            input: RawTensor::new(Some(&self.input), dims, to_vec(&x)?),
+            outputs,
+        })
+    }
+}
+
+/// A spec `onnx:MODEL.onnx[:CONFIG.toml]` split into its paths.
+pub fn parse_spec(spec: &str) -> Option<(PathBuf, Option<PathBuf>)> {
+    let rest = spec.strip_prefix("onnx:")?;
+    if rest.is_empty() {
+        return None;
+    }
+    // The config is the part after the last `:` when it ends in .toml.
+    match rest.rsplit_once(':') {
+        Some((m, c)) if c.ends_with(".toml") && !m.is_empty() => {
+            Some((PathBuf::from(m), Some(PathBuf::from(c))))
+        }
+        _ => Some((PathBuf::from(rest), None)),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn specs_split_into_model_and_config() {
+        assert_eq!(parse_spec("onnx:m.onnx"), Some(("m.onnx".into(), None)));
+        assert_eq!(
+            parse_spec("onnx:/a/m.onnx:/b/c.toml"),
+            Some(("/a/m.onnx".into(), Some("/b/c.toml".into())))
+        );
+        assert_eq!(parse_spec("onnx:"), None);
+        assert_eq!(parse_spec("nanodet"), None);
+    }
+
+    #[test]
+    fn ultralytics_names_metadata_parses_in_order() {
+        let v = parse_names("{0: 'person', 1: \"traffic light\", 2: 'a:b'}").unwrap();
+        assert_eq!(v, ["person", "traffic light", "a:b"]);
+        assert_eq!(parse_names("{1: 'x'}"), None); // keys must count from 0
+        assert_eq!(parse_names("not a dict"), None);
+    }
+
+    #[test]
+    fn config_rejects_unknown_keys_and_values() {
+        let bad: std::result::Result<OnnxConfig, _> = toml::from_str("heads = \"yolov8\"");
+        assert!(bad.is_err());
+        let c: OnnxConfig = toml::from_str("head = \"yolov9\"").unwrap();
+        let e = c.check().unwrap_err().to_string();
+        assert!(e.contains("head") && e.contains("yolov9"), "{e}");
+    }
+}

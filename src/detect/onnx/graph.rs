@@ -1,0 +1,269 @@
+//! Runs an ONNX [`Model`] as burn tensor ops: values are resolved to slots once, large float
+//! initializers are uploaded to the device once, and a run evaluates only the nodes the requested
+//! outputs depend on, in the file's (topological) order, freeing each value after its last use.
+//!
+//! [`OnnxGraph::run_tapped`] also gives the *pre-sigmoid* version of the outputs: the nodes
+//! downstream of chosen Sigmoid nodes are evaluated a second time with each of those sigmoids
+//! replaced by the identity, so a detector whose exported output holds probabilities
+//! (YOLOv5/v8) still yields exact class logits (for log-sigmoid losses) at the cost of its
+//! decode tail only.
+
+use super::model::{Io, Model, NodeDef};
+use super::ops;
+use super::value::{Dev, Val};
+use anyhow::{anyhow, bail, Context, Result};
+use burn::tensor::{Device, Tensor};
+use std::collections::{HashMap, HashSet};
+
+/// A model ready to run on one device.
+pub struct OnnxGraph {
+    pub model: Model,
+    pub opset: i64,
+    /// Value slot of every node input (`None`: omitted optional input).
+    inputs: Vec<Vec<Option<usize>>>,
+    outputs: Vec<Vec<usize>>,
+    slots: HashMap<String, usize>,
+    /// The node writing each slot (`None` for graph inputs and initializers).
+    producer: Vec<Option<usize>>,
+    consts: HashMap<usize, Val>,
+    pub device: Device,
+}
+
+/// Initializers with more elements than this go to the device at load time.
+const UPLOAD_OVER: usize = 16;
+
+impl OnnxGraph {
+    /// Resolves `model` for `device`: checks the opset and that every node's inputs exist and
+    /// its op is supported (an error names the file, the node and its op type).
+    pub fn new(model: Model, device: &Device) -> Result<Self> {
+        let src = model.source();
+        let opset = model.opset()?;
+        let mut slots: HashMap<String, usize> = HashMap::new();
+        let mut producer = Vec::new();
+        fn slot(
+            slots: &mut HashMap<String, usize>,
+            name: &str,
+            by: Option<usize>,
+            producer: &mut Vec<Option<usize>>,
+        ) -> usize {
+            let n = slots.len();
+            let s = *slots.entry(name.to_string()).or_insert(n);
+            if s == producer.len() {
+                producer.push(by);
+            } else if by.is_some() {
+                producer[s] = by;
+            }
+            s
+        }
+        let mut consts = HashMap::new();
+        for (name, h) in &model.initializers {
+            let s = slot(&mut slots, name, None, &mut producer);
+            let v = if h.len() > UPLOAD_OVER && matches!(h, super::value::Host::F(_)) {
+                Val::D(h.to_dev(device)?)
+            } else {
+                Val::H(h.clone())
+            };
+            consts.insert(s, v);
+        }
+        for i in &model.inputs {
+            slot(&mut slots, &i.name, None, &mut producer);
+        }
+        let mut inputs = Vec::new();
+        let mut outputs = Vec::new();
+        for (k, n) in model.nodes.iter().enumerate() {
+            if !(n.domain.is_empty() || n.domain == "ai.onnx") || !ops::SUPPORTED.contains(&n.op.as_str()) {
+                bail!(
+                    "{src}: node {:?} has op type {}{} which cac does not support (supported: {})",
+                    n.name,
+                    n.op,
+                    if n.domain.is_empty() { String::new() } else { format!(" (domain {})", n.domain) },
+                    ops::SUPPORTED.join(", ")
+                );
+            }
+            let mut ins = Vec::new();
+            for r in &n.inputs {
+                if r.is_empty() {
+                    ins.push(None);
+                    continue;
+                }
+                let s = *slots.get(r).ok_or_else(|| {
+                    anyhow!("{src}: node {:?} ({}) reads {r:?}, which no earlier node, input or initializer defines", n.name, n.op)
+                })?;
+                ins.push(Some(s));
+            }
+            inputs.push(ins);
+            outputs.push(
+                n.outputs
+                    .iter()
+                    .map(|o| slot(&mut slots, o, Some(k), &mut producer))
+                    .collect(),
+            );
+        }
+        for o in &model.outputs {
+            if !slots.contains_key(&o.name) {
+                bail!("{src}: graph output {:?} is not produced by any node", o.name);
+            }
+        }
+        Ok(OnnxGraph {
+            model,
+            opset,
+            inputs,
+            outputs,
+            slots,
+            producer,
+            consts,
+            device: device.clone(),
+        })
+    }
+
+    pub fn source(&self) -> String {
+        self.model.source()
+    }
+    pub fn graph_inputs(&self) -> &[Io] {
+        &self.model.inputs
+    }
+    pub fn graph_outputs(&self) -> &[Io] {
+        &self.model.outputs
+    }
+    pub fn node(&self, k: usize) -> &NodeDef {
+        &self.model.nodes[k]
+    }
+
+    /// The node producing value `name`.
+    pub fn producer_of(&self, name: &str) -> Option<usize> {
+        self.producer[*self.slots.get(name)?]
+    }
+
+    /// The nodes producing the inputs of node `k` (omitted inputs, graph inputs and
+    /// initializers have none).
+    pub fn input_producers(&self, k: usize) -> Vec<Option<usize>> {
+        self.inputs[k]
+            .iter()
+            .map(|s| s.and_then(|s| self.producer[s]))
+            .collect()
+    }
+
+    /// Runs the graph on `feeds` (by graph-input name) and returns `outputs` (value names).
+    pub fn run(&self, feeds: &[(&str, Val)], outputs: &[&str]) -> Result<Vec<Val>> {
+        Ok(self.run_tapped(feeds, outputs, &[])?.0)
+    }
+
+    /// [`OnnxGraph::run`] feeding one image batch `[B, C, H, W]` to the graph input `input`.
+    pub fn run_images(&self, input: &str, x: Tensor<4>, outputs: &[&str]) -> Result<Vec<Val>> {
+        self.run(&[(input, Val::D(Dev::from(x)?))], outputs)
+    }
+
+    /// Runs the graph and returns `(outputs, outputs with the sigmoid nodes in taps replaced by
+    /// the identity)`; the second list is empty when `taps` is.
+    pub fn run_tapped(
+        &self,
+        feeds: &[(&str, Val)],
+        outputs: &[&str],
+        taps: &[usize],
+    ) -> Result<(Vec<Val>, Vec<Val>)> {
+        let src = self.source();
+        let want: Vec<usize> = outputs
+            .iter()
+            .map(|o| {
+                self.slots
+                    .get(*o)
+                    .copied()
+                    .ok_or_else(|| anyhow!("{src}: no value named {o:?}"))
+            })
+            .collect::<Result<_>>()?;
+        // The nodes the outputs depend on.
+        let n = self.model.nodes.len();
+        let mut needed = vec![false; n];
+        let mut stack: Vec<usize> = want.iter().filter_map(|&s| self.producer[s]).collect();
+        while let Some(k) = stack.pop() {
+            if std::mem::replace(&mut needed[k], true) {
+                continue;
+            }
+            stack.extend(self.inputs[k].iter().flatten().filter_map(|&s| self.producer[s]));
+        }
+        let mut last_use: HashMap<usize, usize> = HashMap::new();
+        for k in (0..n).filter(|&k| needed[k]) {
+            for &s in self.inputs[k].iter().flatten() {
+                last_use.insert(s, k);
+            }
+        }
+        let keep: HashSet<usize> = want.iter().copied().collect();
+        let mut vals: HashMap<usize, Val> = HashMap::new();
+        for (name, v) in feeds {
+            let s = *self
+                .slots
+                .get(*name)
+                .ok_or_else(|| anyhow!("{src}: the graph has no input {name:?}"))?;
+            vals.insert(s, v.clone());
+        }
+        for i in &self.model.inputs {
+            let s = self.slots[&i.name];
+            if !vals.contains_key(&s) && !self.consts.contains_key(&s) && last_use.contains_key(&s) {
+                bail!("{src}: no value fed for graph input {:?}", i.name);
+            }
+        }
+        let tapped: HashSet<usize> = taps.iter().copied().collect();
+        let mut alt: HashMap<usize, Val> = HashMap::new();
+        let get = |vals: &HashMap<usize, Val>, s: usize| -> Option<Val> {
+            vals.get(&s).or_else(|| self.consts.get(&s)).cloned()
+        };
+        for k in (0..n).filter(|&k| needed[k]) {
+            let node = &self.model.nodes[k];
+            let args: Vec<Option<Val>> = self.inputs[k]
+                .iter()
+                .map(|s| s.map(|s| get(&vals, s).ok_or_else(|| anyhow!("{src}: value {s} missing"))).transpose())
+                .collect::<Result<_>>()?;
+            let refs: Vec<Option<&Val>> = args.iter().map(|v| v.as_ref()).collect();
+            let out = ops::eval(node, self.opset, &self.device, &refs)
+                .with_context(|| format!("{src}: node {:?} (op {})", node.name, node.op))?;
+            if out.len() < self.outputs[k].len() {
+                bail!("{src}: node {:?} ({}) gave {} outputs, the file names {}", node.name, node.op, out.len(), self.outputs[k].len());
+            }
+            // The pre-sigmoid pass: tapped sigmoids pass their input; their dependants re-run.
+            if tapped.contains(&k) {
+                alt.insert(self.outputs[k][0], args[0].clone().expect("sigmoid input"));
+            } else if self.inputs[k].iter().flatten().any(|s| alt.contains_key(s)) {
+                let alt_args: Vec<Option<Val>> = self.inputs[k]
+                    .iter()
+                    .zip(&args)
+                    .map(|(s, v)| s.and_then(|s| alt.get(&s).cloned()).or_else(|| v.clone()))
+                    .collect();
+                let refs: Vec<Option<&Val>> = alt_args.iter().map(|v| v.as_ref()).collect();
+                let out = ops::eval(node, self.opset, &self.device, &refs)
+                    .with_context(|| format!("{src}: node {:?} (op {}), pre-sigmoid pass", node.name, node.op))?;
+                for (s, v) in self.outputs[k].iter().zip(out) {
+                    alt.insert(*s, v);
+                }
+            }
+            for (s, v) in self.outputs[k].iter().zip(out) {
+                vals.insert(*s, v);
+            }
+            for &s in self.inputs[k].iter().flatten() {
+                if last_use.get(&s) == Some(&k) && !keep.contains(&s) {
+                    vals.remove(&s);
+                    alt.remove(&s);
+                }
+            }
+        }
+        let pick = |m: &HashMap<usize, Val>, s: usize, name: &str| {
+            m.get(&s)
+                .or_else(|| self.consts.get(&s))
+                .cloned()
+                .ok_or_else(|| anyhow!("{src}: output {name:?} was not computed"))
+        };
+        let main = want
+            .iter()
+            .zip(outputs)
+            .map(|(&s, o)| pick(&vals, s, o))
+            .collect::<Result<Vec<_>>>()?;
+        let pre = if taps.is_empty() {
+            Vec::new()
+        } else {
+            want.iter()
+                .zip(outputs)
+                .map(|(&s, o)| alt.get(&s).cloned().map(Ok).unwrap_or_else(|| pick(&vals, s, o)))
+                .collect::<Result<Vec<_>>>()?
+        };
+        Ok((main, pre))
+    }
+}

@@ -1,0 +1,34 @@
+//! Users' own detectors as ONNX files (YOLOv3/v5/v8/11 exports and other single-output dense
+//! detectors), run by cac's own differentiable executor: [`proto`] declares the ONNX protobuf
+//! schema for `prost`, [`model`] reads a file into plain values, [`value`] holds the edge values,
+//! [`ops`], [`shape`] and [`nn`] give the op semantics as burn ops, [`graph`] plans and runs, and
+//! [`detector`] is the [`crate::detect::Detector`] with its YOLO heads and TOML config.
+//!
+//! The TFJS importer ([`crate::detect::tfjs`]) is the other front end; both lower their graphs
+//! to burn tensor ops on the caller's device and share the pre-processing (`preprocess`), NMS
+//! and labels. They keep separate op tables because the two formats disagree on layout (TF's
+//! NHWC, ONNX's NCHW) and on op semantics (padding, resize coordinates, split forms). Not here:
+//! training graphs, control flow (If/Loop/Scan), quantised ops, sequence types.
+
+pub mod detector;
+pub mod graph;
+pub mod model;
+pub mod nn;
+pub mod ops;
+pub mod proto;
+pub mod shape;
+pub mod value;
+
+pub use detector::{parse_spec, OnnxConfig, OnnxDetector};
+pub use graph::OnnxGraph;
+pub use model::Model;
+pub use value::{Dev, Host, Val};
+
+use anyhow::Result;
+use burn::tensor::Device;
+use std::path::Path;
+
+/// Loads `path` and prepares it to run on `device`.
+pub fn load_graph(path: &Path, device: &Device) -> Result<OnnxGraph> {
+    OnnxGraph::new(Model::load(path)?, device)
+}
