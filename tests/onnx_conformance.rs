@@ -1,8 +1,8 @@
 //! ONNX detectors (src/detect/onnx) against onnxruntime, on models the tests build themselves:
-//! `tests/onnx/make_models.py` writes 81 single-op graphs (opsets 11–21, `onnx.helper`), a
+//! `tools/onnx/make_models.py` writes 81 single-op graphs (opsets 11–21, `onnx.helper`), a
 //! hand-built anchor-based YOLOv5/v3-style detector, and ultralytics' YOLOv8n and YOLOv5su built
 //! from their yaml with seeded random weights and exported; onnxruntime's outputs on seeded
-//! inputs come with them, and `tests/onnx/ort_run.py` runs onnxruntime on inputs cac makes.
+//! inputs come with them, and `tools/onnx/ort_run.py` runs onnxruntime on inputs cac makes.
 //!
 //! Checked: every op case and every detector's raw output within 1e-4 of the output's largest
 //! magnitude; the detectors' final detections on reference images equal those decoded from
@@ -65,9 +65,9 @@ fn fixtures() -> Option<&'static Path> {
         ) {
             return None;
         }
-        let script = support::root().join("tests/onnx/make_models.py");
+        let script = support::root().join("tools/onnx/make_models.py");
         let mut text = std::fs::read(&script).unwrap();
-        text.extend(std::fs::read(support::root().join("tests/onnx/ort_run.py")).unwrap());
+        text.extend(std::fs::read(support::root().join("tools/onnx/ort_run.py")).unwrap());
         use sha2::Digest;
         let stamp = format!("{:x}", sha2::Sha256::digest(&text));
         let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("onnx-fixtures");
@@ -263,7 +263,7 @@ fn yolo_detections_on_reference_images_match_onnxruntime() {
             write(&input, "images", &net.dims(), &data);
             let ort = |out: &Path, extra: &[&str]| {
                 let st = Command::new("python3")
-                    .arg(support::root().join("tests/onnx/ort_run.py"))
+                    .arg(support::root().join("tools/onnx/ort_run.py"))
                     .args([dir.join(&e.file).as_path(), &input, out])
                     .args(extra)
                     .status()

@@ -2,8 +2,9 @@
 //! milliseconds of a detector on a batch ([`forward_backward_ms`]) and of a torchvision Faster
 //! R-CNN with synthetic weights ([`frcnn_forward_backward_ms`]), fastest of some runs after a
 //! warm-up (the one timer, `report::timer`); and the references run as subprocesses: the TFJS
-//! runner's wasm backend ([`tfjs_wasm`]) and PyTorch ([`torch_ms`],
-//! `tools/torchvision_oracle.py --bench`).
+//! runner's wasm backend ([`tfjs_wasm`]), PyTorch ([`torch_ms`],
+//! `tools/torchvision_oracle.py --bench`) and onnxruntime for users' ONNX detectors
+//! ([`onnx_models`], `tools/onnx/ort_run.py --bench`).
 
 use super::frcnn::{synthetic, Arch, FasterRcnn};
 use super::{Detector, Weights, MODELS};
@@ -288,6 +289,124 @@ pub fn frcnn_models(
             format!("{bwd:.2}"),
             na(row.torch.map(|t| t.0), 2),
             na(row.torch.map(|t| t.1), 2),
+            na(rf, 4),
+            na(rb, 4),
+        ]);
+    }
+    Ok(rows)
+}
+
+/// onnxruntime's fastest forward ms (CPU, `threads` intra-op threads) of `model` on a uniform
+/// random input of `shape`, run by `python` (`tools/onnx/ort_run.py --bench`); None when
+/// onnxruntime cannot run.
+pub fn ort_ms(
+    python: &str,
+    model: &Path,
+    input: &str,
+    shape: [usize; 4],
+    threads: usize,
+    runs: usize,
+) -> Option<f64> {
+    let tmp = tempfile::tempdir().ok()?;
+    let feed = tmp.path().join("input.json");
+    let n: usize = shape.iter().product();
+    let data: Vec<f32> = (0..n).map(|i| ((i * 2654435761) % 1000) as f32 / 1000.0).collect();
+    let v = serde_json::json!({ input: { "shape": shape, "data": data } });
+    std::fs::write(&feed, serde_json::to_vec(&v).ok()?).ok()?;
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/onnx/ort_run.py");
+    let out = Command::new(python)
+        .arg(script)
+        .arg(model)
+        .arg(&feed)
+        .args(["--bench", &runs.to_string(), "--threads", &threads.to_string()])
+        .output()
+        .ok()?;
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = text.lines().find(|l| l.contains("\"forward_ms\""))?;
+    let v: serde_json::Value = serde_json::from_str(line).ok()?;
+    v["forward_ms"]
+        .as_array()?
+        .iter()
+        .filter_map(|x| x.as_f64())
+        .reduce(f64::min)
+}
+
+/// One ONNX detector: cac's graph forward, its detector forward (with the pre-sigmoid tail) and
+/// forward+backward to the image, and onnxruntime's forward, all at batch 1.
+pub struct OnnxRow {
+    pub name: String,
+    pub input: (usize, usize),
+    pub graph_ms: f64,
+    pub forward_ms: f64,
+    pub backward_ms: f64,
+    pub ort_ms: Option<f64>,
+}
+
+impl OnnxRow {
+    /// cac's graph forward and forward+backward over onnxruntime's forward.
+    pub fn ratios(&self) -> (Option<f64>, Option<f64>) {
+        (
+            self.ort_ms.map(|t| self.graph_ms / t),
+            self.ort_ms.map(|t| self.backward_ms / t),
+        )
+    }
+}
+
+/// Times each ONNX detector `files` (specs as `onnx:` takes them, without the prefix) at batch
+/// 1, fastest of `runs`, beside onnxruntime run by `python` with `threads` threads; `on_row`
+/// sees each row as it is measured; returns the CSV table.
+pub fn onnx_models(
+    files: &[String],
+    runs: usize,
+    python: &str,
+    threads: usize,
+    (inference, training): (&Device, &Device),
+    on_row: &mut dyn FnMut(&OnnxRow),
+) -> Result<Table> {
+    let mut rows = Table::new([
+        "model",
+        "input",
+        "threads",
+        "graph_forward_ms",
+        "detector_forward_ms",
+        "forward_backward_ms",
+        "ort_forward_ms",
+        "forward_over_ort",
+        "forward_backward_over_ort",
+    ]);
+    for f in files {
+        let spec = format!("onnx:{f}");
+        let (path, config) = super::onnx::parse_spec(&spec)
+            .with_context(|| format!("{f:?}: write MODEL.onnx[:CONFIG.toml]"))?;
+        let det = super::onnx::OnnxDetector::load(&path, config.as_deref(), inference)?;
+        let (w, h) = det.input_size();
+        let input = det.graph().graph_inputs()[0].name.clone();
+        let output = det.graph().graph_outputs()[0].name.clone();
+        let x = Tensor::<4>::random([1, 3, h, w], Distribution::Uniform(0.0, 1.0), inference);
+        let graph_ms = time(runs, || {
+            let v = det.graph().run_images(&input, x.clone(), &[&output])?;
+            let _ = v[0].dev(inference)?.t.sum().into_scalar::<f32>();
+            Ok(())
+        })?;
+        let (fwd, bwd) = forward_backward_ms(&det, runs, x, training)?;
+        let row = OnnxRow {
+            name: det.name().to_string(),
+            input: (w, h),
+            graph_ms,
+            forward_ms: fwd,
+            backward_ms: bwd,
+            ort_ms: ort_ms(python, &path, &input, [1, 3, h, w], threads, runs.max(3)),
+        };
+        on_row(&row);
+        let (rf, rb) = row.ratios();
+        rows.row([
+            row.name.clone(),
+            format!("{w}x{h}"),
+            threads.to_string(),
+            format!("{graph_ms:.2}"),
+            format!("{fwd:.2}"),
+            format!("{bwd:.2}"),
+            na(row.ort_ms, 2),
             na(rf, 4),
             na(rb, 4),
         ]);

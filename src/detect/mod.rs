@@ -16,6 +16,7 @@
 
 pub mod bench;
 pub mod centernet;
+pub mod conv;
 pub mod draw;
 pub mod fetch;
 pub mod frcnn;

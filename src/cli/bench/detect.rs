@@ -1,6 +1,7 @@
 //! `cac bench detect`: forward and forward+backward time of both detectors at native
 //! resolution, batch 1 and 4, and the TFJS reference runner's wasm backend timed in the same
-//! run; then the Faster R-CNN models against PyTorch ([`super::frcnn`]). Prints tables and writes
+//! run; then the Faster R-CNN models against PyTorch ([`super::frcnn`]); with `--onnx`, users'
+//! ONNX detectors against onnxruntime at the same thread count. Prints tables and writes
 //! CSVs. A benchmark, not a test: it asserts nothing. Measured by `cac::detect::bench`.
 
 use crate::cli::device;
@@ -29,15 +30,31 @@ pub struct DetectBench {
     /// Skip the Faster R-CNN models.
     #[arg(long)]
     pub no_frcnn: bool,
+    /// Only the --onnx models.
+    #[arg(long)]
+    pub onnx_only: bool,
     /// Python with torch + torchvision for the PyTorch columns of the Faster R-CNN table.
     #[arg(long, default_value = "python3")]
     pub python: String,
     /// CSV output file of the Faster R-CNN table.
     #[arg(long, default_value = "bench-detect-frcnn.csv")]
     pub frcnn_csv: PathBuf,
+    /// Your ONNX detectors (MODEL.onnx[:CONFIG.toml], comma-separated), timed beside
+    /// onnxruntime (run by --python, same thread count).
+    #[arg(long, value_delimiter = ',')]
+    pub onnx: Vec<String>,
+    /// CSV output file of the ONNX table.
+    #[arg(long, default_value = "bench-detect-onnx.csv")]
+    pub onnx_csv: PathBuf,
 }
 
 pub fn run(a: DetectBench) -> Result<()> {
+    if !a.onnx.is_empty() {
+        bench_onnx(&a)?;
+        if a.onnx_only {
+            return Ok(());
+        }
+    }
     if !a.frcnn_only {
         bench_tfjs(&a)?;
     }
@@ -73,5 +90,38 @@ fn bench_tfjs(a: &DetectBench) -> Result<()> {
     )?;
     cac::io::write_atomic(&a.csv, rows.csv().as_bytes())?;
     println!("wrote {}", a.csv.display());
+    Ok(())
+}
+
+fn bench_onnx(a: &DetectBench) -> Result<()> {
+    let threads = rayon::current_num_threads();
+    println!("onnxruntime column: CPU, {threads} threads (cac's CPU backend uses the same pool size)");
+    println!(
+        "{:16} {:>9} {:>9} {:>11} {:>11} {:>9} {:>8} {:>10}",
+        "model", "input", "graph_ms", "detect_ms", "fwd+bwd_ms", "ort_ms", "fwd/ort", "f+b/ort"
+    );
+    let rows = bench::onnx_models(
+        &a.onnx,
+        a.runs,
+        &a.python,
+        threads,
+        (&device::inference(), &device::training()),
+        &mut |r| {
+            let ((w, h), (rf, rb)) = (r.input, r.ratios());
+            println!(
+                "{:16} {:>9} {:>9.1} {:>11.1} {:>11.1} {:>9} {:>8} {:>10}",
+                r.name,
+                format!("{w}x{h}"),
+                r.graph_ms,
+                r.forward_ms,
+                r.backward_ms,
+                bench::na(r.ort_ms, 1),
+                bench::na(rf, 2),
+                bench::na(rb, 2)
+            )
+        },
+    )?;
+    cac::io::write_atomic(&a.onnx_csv, rows.csv().as_bytes())?;
+    println!("wrote {}", a.onnx_csv.display());
     Ok(())
 }

@@ -207,7 +207,10 @@ impl OnnxGraph {
         let get = |vals: &HashMap<usize, Val>, s: usize| -> Option<Val> {
             vals.get(&s).or_else(|| self.consts.get(&s)).cloned()
         };
+        let profile = std::env::var_os("CAC_PROFILE_GRAPH").is_some();
+        let mut op_ms: HashMap<&str, f64> = HashMap::new();
         for k in (0..n).filter(|&k| needed[k]) {
+            let started = std::time::Instant::now();
             let node = &self.model.nodes[k];
             let args: Vec<Option<Val>> = self.inputs[k]
                 .iter()
@@ -235,6 +238,12 @@ impl OnnxGraph {
                     alt.insert(*s, v);
                 }
             }
+            if profile {
+                if let Some(Val::D(d)) = out.first() {
+                    let _ = d.t.clone().sum().into_scalar::<f32>(); // wait for the op
+                }
+                *op_ms.entry(node.op.as_str()).or_default() += started.elapsed().as_secs_f64() * 1e3;
+            }
             for (s, v) in self.outputs[k].iter().zip(out) {
                 vals.insert(*s, v);
             }
@@ -244,6 +253,11 @@ impl OnnxGraph {
                     alt.remove(&s);
                 }
             }
+        }
+        if profile {
+            let mut v: Vec<_> = op_ms.into_iter().collect();
+            v.sort_by(|a, b| b.1.total_cmp(&a.1));
+            eprintln!("onnx graph profile (ms per op type): {v:.1?}");
         }
         let pick = |m: &HashMap<usize, Val>, s: usize, name: &str| {
             m.get(&s)

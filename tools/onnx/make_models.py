@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Builds the ONNX fixtures and their onnxruntime oracle outputs for the Rust ONNX front end.
 
-Usage: python3 tests/onnx/make_models.py OUTDIR [--skip-ultralytics]
+Usage: python3 tools/onnx/make_models.py OUTDIR [--skip-ultralytics]
 
 Writes, all deterministic (fixed numpy / torch seeds):
   OUTDIR/ops/<case>.onnx          one op or a short chain per case, float32, built with onnx.helper

@@ -2,9 +2,9 @@
 """Runs an ONNX model with onnxruntime (CPU) on feeds read from JSON: the oracle for the Rust tests.
 
 Usage:
-  python3 tests/onnx/ort_run.py MODEL INPUTS.json OUTPUTS.json [--outputs a,b] [--threads N]
+  python3 tools/onnx/ort_run.py MODEL INPUTS.json OUTPUTS.json [--outputs a,b] [--threads N]
                                 [--no-optimize]
-  python3 tests/onnx/ort_run.py MODEL INPUTS.json --bench K [--threads N]
+  python3 tools/onnx/ort_run.py MODEL INPUTS.json --bench K [--threads N]
 
 Tensor JSON schema (inputs and outputs alike): {"<name>": {"shape": [..], "data": [row-major
 numbers]}}, with an extra "dtype": "int64" (or another numpy dtype name) for non-float32 tensors.
