@@ -31,8 +31,10 @@ struct T {
 }
 
 fn read(path: &Path) -> BTreeMap<String, T> {
-    serde_json::from_slice(&std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())))
-        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+    serde_json::from_slice(
+        &std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())),
+    )
+    .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
 fn write(path: &Path, name: &str, shape: &[usize], data: &[f32]) {
@@ -74,7 +76,11 @@ fn fixtures() -> Option<&'static Path> {
         let stamp_file = dir.join("stamp");
         if std::fs::read_to_string(&stamp_file).ok().as_deref() != Some(stamp.as_str()) {
             let _ = std::fs::remove_dir_all(&dir);
-            let out = Command::new("python3").arg(&script).arg(&dir).output().unwrap();
+            let out = Command::new("python3")
+                .arg(&script)
+                .arg(&dir)
+                .output()
+                .unwrap();
             assert!(
                 out.status.success(),
                 "make_models.py failed:\n{}{}",
@@ -114,10 +120,18 @@ fn compare(what: &str, got: &Val, want: &T) -> Result<f64, String> {
 fn compare_within(what: &str, got: &Val, want: &T, rel: f64) -> Result<f64, String> {
     let h = got.host().map_err(|e| format!("{what}: {e}"))?;
     if h.shape() != want.shape.as_slice() {
-        return Err(format!("{what}: shape {:?}, onnxruntime {:?}", h.shape(), want.shape));
+        return Err(format!(
+            "{what}: shape {:?}, onnxruntime {:?}",
+            h.shape(),
+            want.shape
+        ));
     }
     let g = h.floats();
-    let scale = want.data.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-6);
+    let scale = want
+        .data
+        .iter()
+        .fold(0.0f64, |m, v| m.max(v.abs()))
+        .max(1e-6);
     let int = want.dtype.as_deref().is_some_and(|d| d.starts_with("int"));
     let mut worst = 0.0f64;
     for (i, (&a, &b)) in g.iter().zip(&want.data).enumerate() {
@@ -142,7 +156,13 @@ fn feed(t: &T) -> Val {
     }
     let v: Vec<f32> = t.data.iter().map(|&x| x as f32).collect();
     let n = v.len();
-    Val::D(Dev::new(Tensor::<1>::from_data(TensorData::new(v, [n]), &dev), t.shape.clone()).unwrap())
+    Val::D(
+        Dev::new(
+            Tensor::<1>::from_data(TensorData::new(v, [n]), &dev),
+            t.shape.clone(),
+        )
+        .unwrap(),
+    )
 }
 
 fn run_case(dir: &Path, e: &Entry) -> Result<f64, String> {
@@ -157,7 +177,11 @@ fn run_case(dir: &Path, e: &Entry) -> Result<f64, String> {
     let got = g.run(&refs, &outs).map_err(|x| format!("{x:#}"))?;
     let mut worst = 0.0f64;
     for (name, v) in e.outputs.iter().zip(&got) {
-        worst = worst.max(compare(&format!("{} output {name}", e.name), v, &want[name])?);
+        worst = worst.max(compare(
+            &format!("{} output {name}", e.name),
+            v,
+            &want[name],
+        )?);
     }
     Ok(worst)
 }
@@ -185,7 +209,12 @@ fn every_op_case_matches_onnxruntime() {
         worst.0,
         worst.1
     );
-    assert!(failures.is_empty(), "{} cases differ:\n{}", failures.len(), failures.join("\n"));
+    assert!(
+        failures.is_empty(),
+        "{} cases differ:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
 }
 
 #[test]
@@ -194,17 +223,34 @@ fn yolo_exports_match_onnxruntime_on_their_seeded_input() {
     has_ultralytics(dir);
     for e in manifest(dir).models.iter().filter(|e| e.kind == "detector") {
         let w = run_case(dir, e).unwrap_or_else(|x| panic!("{x}"));
-        eprintln!("{} (opset {}): largest error {w:.2e} of the output's magnitude", e.name, e.opset);
+        eprintln!(
+            "{} (opset {}): largest error {w:.2e} of the output's magnitude",
+            e.name, e.opset
+        );
     }
 }
 
 /// Detections decoded from a raw `[1, A, N]` (anchor-free) or `[1, N, 85]` (anchor) output,
 /// independently of cac's head: undo the letterbox, threshold, per-class greedy NMS.
-fn decode(raw: &T, anchor_free: bool, geo: ([f32; 2], [f32; 2]), thr: f32, iou: f32) -> Vec<(usize, f32, [f32; 4])> {
+fn decode(
+    raw: &T,
+    anchor_free: bool,
+    geo: ([f32; 2], [f32; 2]),
+    thr: f32,
+    iou: f32,
+) -> Vec<(usize, f32, [f32; 4])> {
     let s = &raw.shape;
-    let (n, k) = if anchor_free { (s[2], s[1]) } else { (s[1], s[2]) };
+    let (n, k) = if anchor_free {
+        (s[2], s[1])
+    } else {
+        (s[1], s[2])
+    };
     let at = |i: usize, j: usize| -> f32 {
-        (if anchor_free { raw.data[j * n + i] } else { raw.data[i * k + j] }) as f32
+        (if anchor_free {
+            raw.data[j * n + i]
+        } else {
+            raw.data[i * k + j]
+        }) as f32
     };
     let mut cand = Vec::new();
     for i in 0..n {
@@ -217,7 +263,11 @@ fn decode(raw: &T, anchor_free: bool, geo: ([f32; 2], [f32; 2]), thr: f32, iou: 
         ];
         let first = if anchor_free { 4 } else { 5 };
         for c in first..k {
-            let score = if anchor_free { at(i, c) } else { at(i, 4) * at(i, c) };
+            let score = if anchor_free {
+                at(i, c)
+            } else {
+                at(i, 4) * at(i, c)
+            };
             if score > thr {
                 cand.push((c - first, score, b));
             }
@@ -243,7 +293,9 @@ fn decode(raw: &T, anchor_free: bool, geo: ([f32; 2], [f32; 2]), thr: f32, iou: 
 #[test]
 fn yolo_detections_on_reference_images_match_onnxruntime() {
     let Some(dir) = fixtures() else { return };
-    let Some(shared) = support::shared() else { return };
+    let Some(shared) = support::shared() else {
+        return;
+    };
     has_ultralytics(dir);
     let dev = support::device();
     let tmp = tempfile::tempdir().unwrap();
@@ -259,7 +311,11 @@ fn yolo_detections_on_reference_images_match_onnxruntime() {
             let (net, geo) = det.network_input(x.clone()).unwrap();
             let input = tmp.path().join("in.json");
             let output = tmp.path().join("out.json");
-            let data: Vec<f32> = net.to_data().convert::<f32>().try_into_vec::<f32>().unwrap();
+            let data: Vec<f32> = net
+                .to_data()
+                .convert::<f32>()
+                .try_into_vec::<f32>()
+                .unwrap();
             write(&input, "images", &net.dims(), &data);
             let ort = |out: &Path, extra: &[&str]| {
                 let st = Command::new("python3")
@@ -279,7 +335,10 @@ fn yolo_detections_on_reference_images_match_onnxruntime() {
             let spread = {
                 let (a, b) = (&want["output0"].data, &plain["output0"].data);
                 let scale = a.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-                a.iter().zip(b).fold(0.0f64, |m, (p, q)| m.max((p - q).abs())) / scale
+                a.iter()
+                    .zip(b)
+                    .fold(0.0f64, |m, (p, q)| m.max((p - q).abs()))
+                    / scale
             };
             let got = det.graph().run_images("images", net, &["output0"]).unwrap();
             let got = &got;
@@ -296,13 +355,22 @@ fn yolo_detections_on_reference_images_match_onnxruntime() {
             let same = |a: &Detection, b: &(usize, f32, [f32; 4])| {
                 a.class_id == b.0
                     && (a.score - b.1).abs() < 1e-3
-                    && a.bbox.iter().zip(b.2).all(|(p, q)| (p - q).abs() < 1e-3 * w.max(h))
+                    && a.bbox
+                        .iter()
+                        .zip(b.2)
+                        .all(|(p, q)| (p - q).abs() < 1e-3 * w.max(h))
             };
             let geo = (geo.scale, geo.pad);
             // The head: cac's detections are those an independent decoder finds in cac's raw output.
             let ours = T {
                 shape: got[0].shape().to_vec(),
-                data: got[0].host().unwrap().floats().iter().map(|&v| v as f64).collect(),
+                data: got[0]
+                    .host()
+                    .unwrap()
+                    .floats()
+                    .iter()
+                    .map(|&v| v as f64)
+                    .collect(),
                 dtype: None,
             };
             let decoded = decode(&ours, anchor_free, geo, 0.3, 0.45);
@@ -314,7 +382,10 @@ fn yolo_detections_on_reference_images_match_onnxruntime() {
             // network saturates (scores of exactly 1.0 by the dozen), rank ties and the cap of
             // 100 make the selection depend on the last rounding: counted, not required.
             let theirs = decode(&want["output0"], anchor_free, geo, 0.3, 0.45);
-            let matched = mine.iter().filter(|d| theirs.iter().any(|t| same(d, t))).count();
+            let matched = mine
+                .iter()
+                .filter(|d| theirs.iter().any(|t| same(d, t)))
+                .count();
             let saturated = theirs.iter().filter(|t| t.1 >= 1.0).count();
             eprintln!(
                 "{} on {img}: {} detections, {matched} equal to onnxruntime's {} ({saturated} of them at score 1.0)",
@@ -323,7 +394,12 @@ fn yolo_detections_on_reference_images_match_onnxruntime() {
                 theirs.len()
             );
             if saturated == 0 {
-                assert_eq!(matched, mine.len(), "{} on {img}: cac {mine:?}\nonnxruntime {theirs:?}", e.name);
+                assert_eq!(
+                    matched,
+                    mine.len(),
+                    "{} on {img}: cac {mine:?}\nonnxruntime {theirs:?}",
+                    e.name
+                );
                 assert_eq!(theirs.len(), mine.len(), "{} on {img}", e.name);
             }
             compared += mine.len();
@@ -345,12 +421,15 @@ fn input_gradient_through_the_tapped_logits_matches_central_differences() {
         let (h, w) = (96, 128);
         let mut rng = 7u64;
         let mut next = || {
-            rng = rng.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            rng = rng
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((rng >> 33) as f32) / (1u64 << 31) as f32
         };
         let x0: Vec<f32> = (0..3 * h * w).map(|_| 0.2 + 0.6 * next()).collect();
         let v: Vec<f32> = (0..3 * h * w).map(|_| next() - 0.5).collect();
-        let img = |d: &[f32]| Tensor::<4>::from_data(TensorData::new(d.to_vec(), [1, 3, h, w]), &train);
+        let img =
+            |d: &[f32]| Tensor::<4>::from_data(TensorData::new(d.to_vec(), [1, 3, h, w]), &train);
         // Loss: the person logits (a targeted term), the car scores, and the boxes.
         let loss = |x: Tensor<4>| {
             let c = det.candidates(x).unwrap();
@@ -361,8 +440,18 @@ fn input_gradient_through_the_tapped_logits_matches_central_differences() {
         let x = img(&x0).require_grad();
         let l = loss(x.clone());
         let grads = l.backward();
-        let g: Vec<f32> = x.grad(&grads).unwrap().to_data().convert::<f32>().try_into_vec::<f32>().unwrap();
-        let analytic: f64 = g.iter().zip(&v).map(|(a, b)| (*a as f64) * (*b as f64)).sum();
+        let g: Vec<f32> = x
+            .grad(&grads)
+            .unwrap()
+            .to_data()
+            .convert::<f32>()
+            .try_into_vec::<f32>()
+            .unwrap();
+        let analytic: f64 = g
+            .iter()
+            .zip(&v)
+            .map(|(a, b)| (*a as f64) * (*b as f64))
+            .sum();
         let hstep = 1e-2f32;
         let at = |s: f32| -> f64 {
             let d: Vec<f32> = x0.iter().zip(&v).map(|(a, b)| a + s * b).collect();
@@ -371,7 +460,10 @@ fn input_gradient_through_the_tapped_logits_matches_central_differences() {
         let numeric = (at(hstep) - at(-hstep)) / (2.0 * hstep as f64);
         let rel = (analytic - numeric).abs() / numeric.abs().max(analytic.abs()).max(1e-6);
         eprintln!("{file}: directional derivative {analytic:.6e}, central differences {numeric:.6e} (rel {rel:.2e})");
-        assert!(rel < 2e-2, "{file}: analytic {analytic} vs numeric {numeric}");
+        assert!(
+            rel < 2e-2,
+            "{file}: analytic {analytic} vs numeric {numeric}"
+        );
         assert!(g.iter().all(|v| v.is_finite()));
     }
 }
@@ -402,11 +494,16 @@ fn op_gradients_match_central_differences() {
         let x0: Vec<f32> = x0.data.iter().map(|&v| v as f32).collect();
         let mut rng = 11u64;
         let mut next = || {
-            rng = rng.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            rng = rng
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((rng >> 33) as f32) / (1u64 << 31) as f32 - 0.5
         };
         let outs: Vec<&str> = e.outputs.iter().map(|s| s.as_str()).collect();
-        let weights: Vec<Vec<f32>> = outs.iter().map(|o| (0..want[*o].data.len()).map(|_| next()).collect()).collect();
+        let weights: Vec<Vec<f32>> = outs
+            .iter()
+            .map(|o| (0..want[*o].data.len()).map(|_| next()).collect())
+            .collect();
         let shape = inputs.values().next().unwrap().shape.clone();
         let loss = |x: Tensor<1>| -> Option<Tensor<1>> {
             let val = Val::D(Dev::new(x, shape.clone()).unwrap());
@@ -432,7 +529,9 @@ fn op_gradients_match_central_differences() {
         let h = 1e-3f32;
         let at = |v: &[f32], s: f32| -> f64 {
             let d: Vec<f32> = x0.iter().zip(v).map(|(a, b)| a + s * b).collect();
-            loss(Tensor::<1>::from_data(TensorData::new(d, [n]), &train)).unwrap().into_scalar::<f32>() as f64
+            loss(Tensor::<1>::from_data(TensorData::new(d, [n]), &train))
+                .unwrap()
+                .into_scalar::<f32>() as f64
         };
         let close = |a: f64, b: f64| (a - b).abs() <= 2e-2 * a.abs().max(b.abs()) + 2e-3;
         // A kink (max-pool switch, ReLU, clip) inside the step shows as one-sided differences
@@ -461,7 +560,11 @@ fn op_gradients_match_central_differences() {
         checked.push(e.name.clone());
     }
     eprintln!("{} op cases checked: {}", checked.len(), checked.join(" "));
-    assert!(checked.len() >= 50, "only {} cases were differentiable", checked.len());
+    assert!(
+        checked.len() >= 50,
+        "only {} cases were differentiable",
+        checked.len()
+    );
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
@@ -477,13 +580,27 @@ fn black_white_and_saturated_noise_stay_finite() {
         }
         let det = OnnxDetector::load(&path, None, &dev).unwrap();
         let n = 3 * 64 * 80;
-        let noise: Vec<f32> = (0..n).map(|i| ((i * 2654435761) >> 7) as f32 % 2.0).map(|v| v.floor()).collect();
-        for (what, data) in [("black", vec![0.0; n]), ("white", vec![1.0; n]), ("noise", noise)] {
+        let noise: Vec<f32> = (0..n)
+            .map(|i| ((i * 2654435761) >> 7) as f32 % 2.0)
+            .map(|v| v.floor())
+            .collect();
+        for (what, data) in [
+            ("black", vec![0.0; n]),
+            ("white", vec![1.0; n]),
+            ("noise", noise),
+        ] {
             let x = Tensor::<4>::from_data(TensorData::new(data, [1, 3, 64, 80]), &dev);
             let c = det.candidates(x.clone()).unwrap();
-            for (name, t) in [("boxes", c.boxes), ("scores", c.scores), ("logits", c.logits)] {
+            for (name, t) in [
+                ("boxes", c.boxes),
+                ("scores", c.scores),
+                ("logits", c.logits),
+            ] {
                 let v: Vec<f32> = t.to_data().convert::<f32>().try_into_vec::<f32>().unwrap();
-                assert!(v.iter().all(|x| x.is_finite()), "{file} on {what}: {name} not finite");
+                assert!(
+                    v.iter().all(|x| x.is_finite()),
+                    "{file} on {what}: {name} not finite"
+                );
             }
             det.detect(x).unwrap();
         }
@@ -537,36 +654,66 @@ fn tiny_model(path: &Path, op: &str, opset: i64, dims: &[Option<i64>]) {
 fn bad_files_are_refused_naming_the_file_node_and_op() {
     let dev = support::device();
     let tmp = tempfile::tempdir().unwrap();
-    let err = |p: &Path| format!("{:#}", OnnxDetector::load(p, None, &dev).err().expect("refused"));
+    let err = |p: &Path| {
+        format!(
+            "{:#}",
+            OnnxDetector::load(p, None, &dev).err().expect("refused")
+        )
+    };
     let garbage = tmp.path().join("garbage.onnx");
     std::fs::write(&garbage, b"\xff\xff\xff\xffnot protobuf").unwrap();
     let e = err(&garbage);
-    assert!(e.contains("garbage.onnx") && e.contains("not an ONNX model"), "{e}");
+    assert!(
+        e.contains("garbage.onnx") && e.contains("not an ONNX model"),
+        "{e}"
+    );
 
     let unsupported = tmp.path().join("einsum.onnx");
-    tiny_model(&unsupported, "Einsum", 17, &[Some(1), Some(3), Some(32), Some(32)]);
+    tiny_model(
+        &unsupported,
+        "Einsum",
+        17,
+        &[Some(1), Some(3), Some(32), Some(32)],
+    );
     let e = err(&unsupported);
-    assert!(e.contains("einsum.onnx") && e.contains("the_node") && e.contains("Einsum"), "{e}");
+    assert!(
+        e.contains("einsum.onnx") && e.contains("the_node") && e.contains("Einsum"),
+        "{e}"
+    );
 
     let opset = tmp.path().join("opset.onnx");
-    tiny_model(&opset, "Sigmoid", 30, &[Some(1), Some(3), Some(32), Some(32)]);
+    tiny_model(
+        &opset,
+        "Sigmoid",
+        30,
+        &[Some(1), Some(3), Some(32), Some(32)],
+    );
     let e = err(&opset);
     assert!(e.contains("opset.onnx") && e.contains("opset 30"), "{e}");
 
     let dynamic = tmp.path().join("dynamic.onnx");
     tiny_model(&dynamic, "Sigmoid", 17, &[Some(1), Some(3), None, None]);
     let e = err(&dynamic);
-    assert!(e.contains("dynamic.onnx") && e.contains("input_size"), "{e}");
+    assert!(
+        e.contains("dynamic.onnx") && e.contains("input_size"),
+        "{e}"
+    );
     // With the size in a config beside it, the same file loads (and has no dense output).
     std::fs::write(dynamic.with_extension("toml"), "input_size = [32, 32]\n").unwrap();
     let e = err(&dynamic);
     assert!(e.contains("dense"), "{e}");
-    std::fs::write(dynamic.with_extension("toml"), "input_size = [32, 32]\nhed = 1\n").unwrap();
+    std::fs::write(
+        dynamic.with_extension("toml"),
+        "input_size = [32, 32]\nhed = 1\n",
+    )
+    .unwrap();
     let e = err(&dynamic);
     assert!(e.contains("dynamic.toml") && e.contains("hed"), "{e}");
 
     // The catalogue refuses a missing file before anything loads.
-    let e = cac::detect::check_spec("onnx:/no/such/model.onnx").unwrap_err().to_string();
+    let e = cac::detect::check_spec("onnx:/no/such/model.onnx")
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("/no/such/model.onnx"), "{e}");
 }
 
@@ -584,7 +731,9 @@ fn cac_ok(args: &[&str]) -> String {
 #[test]
 fn the_cli_inspects_detects_trains_and_evaluates_with_an_onnx_model() {
     let Some(dir) = fixtures() else { return };
-    let Some(shared) = support::shared() else { return };
+    let Some(shared) = support::shared() else {
+        return;
+    };
     if !has_ultralytics(dir) {
         return;
     }
@@ -592,10 +741,15 @@ fn the_cli_inspects_detects_trains_and_evaluates_with_an_onnx_model() {
     let spec = format!("onnx:{}", model.display());
     let text = cac_ok(&["models", "inspect", model.to_str().unwrap()]);
     assert!(
-        text.contains("ai.onnx=18") && text.contains("output0 float32 [1, 84, 2100]") && text.contains("Conv×64"),
+        text.contains("ai.onnx=18")
+            && text.contains("output0 float32 [1, 84, 2100]")
+            && text.contains("Conv×64"),
         "{text}"
     );
-    assert!(text.contains("as a detector: 320x320 input, 80 classes (person"), "{text}");
+    assert!(
+        text.contains("as a detector: 320x320 input, 80 classes (person"),
+        "{text}"
+    );
     assert!(!text.contains("(unsupported)"), "{text}");
 
     // cac detect prints what the library detects.
@@ -604,11 +758,20 @@ fn the_cli_inspects_detects_trains_and_evaluates_with_an_onnx_model() {
     let cfg = tmp.path().join("low.toml");
     std::fs::write(&cfg, "score_threshold = 0.3\n").unwrap();
     let spec_cfg = format!("{spec}:{}", cfg.display());
-    let text = cac_ok(&["detect", img.to_str().unwrap(), "--model", &spec_cfg, "--json"]);
+    let text = cac_ok(&[
+        "detect",
+        img.to_str().unwrap(),
+        "--model",
+        &spec_cfg,
+        "--json",
+    ]);
     let dev = support::device();
     let det = OnnxDetector::load(&model, Some(&cfg), &dev).unwrap();
     let rgb = cac::io::load_rgb(&img).unwrap();
-    let want = det.detect(cac::detect::preprocess::image_to_tensor(&rgb, &dev)).unwrap().remove(0);
+    let want = det
+        .detect(cac::detect::preprocess::image_to_tensor(&rgb, &dev))
+        .unwrap()
+        .remove(0);
     let lines: Vec<serde_json::Value> = text
         .lines()
         .filter(|l| l.starts_with('{'))
@@ -629,17 +792,36 @@ fn the_cli_inspects_detects_trains_and_evaluates_with_an_onnx_model() {
     )
     .unwrap();
     cac_ok(&[
-        "train", "--config", scene.to_str().unwrap(), "--models", &spec, "--iterations", "2",
-        "--batch", "1", "--out", run.to_str().unwrap(),
+        "train",
+        "--config",
+        scene.to_str().unwrap(),
+        "--models",
+        &spec,
+        "--iterations",
+        "2",
+        "--batch",
+        "1",
+        "--out",
+        run.to_str().unwrap(),
     ]);
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(run.join("run.json")).unwrap()).unwrap();
     assert_eq!(json["finished"], true, "{json}");
     let eval = tmp.path().join("eval");
     cac_ok(&[
-        "eval", "--config", scene.to_str().unwrap(), "--texture",
-        &format!("original,CAC={}", run.display()), "--models", &format!("{spec},nanodet"),
-        "--views", "1", "--sets", "fv", "--out", eval.to_str().unwrap(),
+        "eval",
+        "--config",
+        scene.to_str().unwrap(),
+        "--texture",
+        &format!("original,CAC={}", run.display()),
+        "--models",
+        &format!("{spec},nanodet"),
+        "--views",
+        "1",
+        "--sets",
+        "fv",
+        "--out",
+        eval.to_str().unwrap(),
     ]);
     let csv = std::fs::read_to_string(eval.join("p05_fv.csv")).unwrap();
     assert!(csv.lines().next().unwrap().contains("yolov8n"), "{csv}");

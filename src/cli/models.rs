@@ -43,7 +43,10 @@ pub fn run(cmd: ModelsCmd) -> Result<()> {
             };
             let (path, config) = onnx::parse_spec(&spec)
                 .ok_or_else(|| anyhow::anyhow!("{spec:?}: write MODEL.onnx"))?;
-            print!("{}", onnx::Model::load(&path)?.describe());
+            print!(
+                "{}",
+                onnx::Model::load(&path)?.describe(onnx::ops::SUPPORTED)
+            );
             let device = super::device::inference();
             match onnx::OnnxDetector::load(&path, config.as_deref(), &device) {
                 Ok(d) => {
@@ -52,7 +55,12 @@ pub fn run(cmd: ModelsCmd) -> Result<()> {
                     println!(
                         "  as a detector: {w}x{h} input, {} classes ({}...), config {:?}",
                         d.classes().len(),
-                        d.classes().iter().take(3).cloned().collect::<Vec<_>>().join(", "),
+                        d.classes()
+                            .iter()
+                            .take(3)
+                            .cloned()
+                            .collect::<Vec<_>>()
+                            .join(", "),
                         d.config()
                     );
                 }

@@ -310,7 +310,9 @@ pub fn ort_ms(
     let tmp = tempfile::tempdir().ok()?;
     let feed = tmp.path().join("input.json");
     let n: usize = shape.iter().product();
-    let data: Vec<f32> = (0..n).map(|i| ((i * 2654435761) % 1000) as f32 / 1000.0).collect();
+    let data: Vec<f32> = (0..n)
+        .map(|i| ((i * 2654435761) % 1000) as f32 / 1000.0)
+        .collect();
     let v = serde_json::json!({ input: { "shape": shape, "data": data } });
     std::fs::write(&feed, serde_json::to_vec(&v).ok()?).ok()?;
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/onnx/ort_run.py");
@@ -318,7 +320,12 @@ pub fn ort_ms(
         .arg(script)
         .arg(model)
         .arg(&feed)
-        .args(["--bench", &runs.to_string(), "--threads", &threads.to_string()])
+        .args([
+            "--bench",
+            &runs.to_string(),
+            "--threads",
+            &threads.to_string(),
+        ])
         .output()
         .ok()?;
     let text = String::from_utf8_lossy(&out.stdout);

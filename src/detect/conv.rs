@@ -122,10 +122,21 @@ mod tests {
             let want = conv2d(x.clone(), w.clone(), Some(b.clone()), opts);
             for (name, got) in [(
                 "im2col",
-                conv_im2col(x.clone(), w.clone(), Some(b.clone()), [stride; 2], [dil; 2], pad),
+                conv_im2col(
+                    x.clone(),
+                    w.clone(),
+                    Some(b.clone()),
+                    [stride; 2],
+                    [dil; 2],
+                    pad,
+                ),
             )] {
                 let got = got.unwrap();
-                assert_eq!(got.dims(), want.dims(), "{name}: c {c} k {k} s {stride} d {dil}");
+                assert_eq!(
+                    got.dims(),
+                    want.dims(),
+                    "{name}: c {c} k {k} s {stride} d {dil}"
+                );
                 let err = (got - want.clone()).abs().max().into_scalar::<f32>();
                 assert!(
                     err < 1e-5,

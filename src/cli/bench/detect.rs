@@ -95,7 +95,9 @@ fn bench_tfjs(a: &DetectBench) -> Result<()> {
 
 fn bench_onnx(a: &DetectBench) -> Result<()> {
     let threads = rayon::current_num_threads();
-    println!("onnxruntime column: CPU, {threads} threads (cac's CPU backend uses the same pool size)");
+    println!(
+        "onnxruntime column: CPU, {threads} threads (cac's CPU backend uses the same pool size)"
+    );
     println!(
         "{:16} {:>9} {:>9} {:>11} {:>11} {:>9} {:>8} {:>10}",
         "model", "input", "graph_ms", "detect_ms", "fwd+bwd_ms", "ort_ms", "fwd/ort", "f+b/ort"

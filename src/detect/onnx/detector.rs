@@ -94,8 +94,8 @@ impl OnnxConfig {
     pub fn load(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read {}", path.display()))?;
-        let c: OnnxConfig =
-            toml::from_str(&text).with_context(|| format!("{}: invalid ONNX detector config", path.display()))?;
+        let c: OnnxConfig = toml::from_str(&text)
+            .with_context(|| format!("{}: invalid ONNX detector config", path.display()))?;
         c.check().with_context(|| format!("{}", path.display()))?;
         Ok(c)
     }
@@ -108,9 +108,17 @@ impl OnnxConfig {
         one_of(&self.head, "head", &["auto", "yolov8", "yolov5"])?;
         one_of(&self.resize, "resize", &["letterbox", "stretch"])?;
         one_of(&self.channels, "channels", &["rgb", "bgr"])?;
-        one_of(&self.scores, "scores", &["sigmoid", "probabilities", "logits"])?;
+        one_of(
+            &self.scores,
+            "scores",
+            &["sigmoid", "probabilities", "logits"],
+        )?;
         one_of(&self.box_format, "box_format", &["cxcywh", "xyxy"])?;
-        ensure!(self.std.iter().all(|&s| s != 0.0), "std {:?} has a zero", self.std);
+        ensure!(
+            self.std.iter().all(|&s| s != 0.0),
+            "std {:?} has a zero",
+            self.std
+        );
         Ok(())
     }
 }
@@ -174,7 +182,11 @@ impl OnnxDetector {
         }
         .clone();
         ensure!(
-            input_io.dims.len() == 4 && matches!(input_io.dims[1], Dim::Fixed(3) | Dim::Param(_) | Dim::Unknown),
+            input_io.dims.len() == 4
+                && matches!(
+                    input_io.dims[1],
+                    Dim::Fixed(3) | Dim::Param(_) | Dim::Unknown
+                ),
             "{src}: input {:?} has shape {}; an image input [B, 3, H, W] is expected",
             input_io.name,
             input_io.shape_text()
@@ -199,7 +211,9 @@ impl OnnxDetector {
         };
         // One dry run gives the output's shape (exports often leave it symbolic).
         let zeros = Tensor::<4>::zeros([1, 3, size.1, size.0], device);
-        let shape = graph.run_images(&input_io.name, zeros, &[&output])?[0].shape().to_vec();
+        let shape = graph.run_images(&input_io.name, zeros, &[&output])?[0]
+            .shape()
+            .to_vec();
         ensure!(
             shape.len() == 3,
             "{src}: output {output:?} has shape {shape:?}; a dense [B, A, N] output is expected (set output in the config)"
@@ -297,7 +311,9 @@ impl OnnxDetector {
             x
         };
         let x = if self.config.mean != [0.0; 3] || self.config.std != [1.0; 3] {
-            let c = |v: [f32; 3]| Tensor::<4>::from_data(TensorData::new(v.to_vec(), [1, 3, 1, 1]), &dev);
+            let c = |v: [f32; 3]| {
+                Tensor::<4>::from_data(TensorData::new(v.to_vec(), [1, 3, 1, 1]), &dev)
+            };
             (x - c(self.config.mean)) / c(self.config.std)
         } else {
             x
@@ -320,9 +336,18 @@ impl OnnxDetector {
             let (main, alt) = self.graph.run_tapped(&feed, &[&self.output], &self.taps)?;
             let as3 = |v: &Val| -> Result<Tensor<3>> {
                 let d = v.dev(&self.graph.device)?;
-                ensure!(d.rank() == 3, "output {:?} has shape {:?}", self.output, d.shape);
+                ensure!(
+                    d.rank() == 3,
+                    "output {:?} has shape {:?}",
+                    self.output,
+                    d.shape
+                );
                 let t: Tensor<3> = d.t.clone().reshape([d.shape[0], d.shape[1], d.shape[2]]);
-                Ok(if self.head == Head::V8 { t.swap_dims(1, 2) } else { t })
+                Ok(if self.head == Head::V8 {
+                    t.swap_dims(1, 2)
+                } else {
+                    t
+                })
             };
             let p = as3(&main[0])?;
             pre.push(match alt.first() {
@@ -344,7 +369,12 @@ impl OnnxDetector {
             (c0, c1, c2, c3)
         } else {
             let (hw, hh) = (c2.div_scalar(2.0), c3.div_scalar(2.0));
-            (c0.clone() - hw.clone(), c1.clone() - hh.clone(), c0 + hw, c1 + hh)
+            (
+                c0.clone() - hw.clone(),
+                c1.clone() - hh.clone(),
+                c0 + hw,
+                c1 + hh,
+            )
         };
         let ux = |v: Tensor<3>| v.sub_scalar(geo.pad[0]).div_scalar(geo.scale[0]);
         let uy = |v: Tensor<3>| v.sub_scalar(geo.pad[1]).div_scalar(geo.scale[1]);
@@ -370,8 +400,13 @@ impl OnnxDetector {
                     (s.clone(), logit_of_prob(s))
                 } else {
                     // log p = log σ(o) + log σ(c); logit = log p − log(1 − p).
-                    let (lo, lc) = if mode == "logits" { (col(&p, 4), cls_p) } else { (obj_l, cls_l) };
-                    let logp = activation::log_sigmoid(lc) + activation::log_sigmoid(lo).expand([b, n, k - skip]);
+                    let (lo, lc) = if mode == "logits" {
+                        (col(&p, 4), cls_p)
+                    } else {
+                        (obj_l, cls_l)
+                    };
+                    let logp = activation::log_sigmoid(lc)
+                        + activation::log_sigmoid(lo).expand([b, n, k - skip]);
                     let p1 = logp.clone().exp().clamp_max(1.0 - 1e-7);
                     let logits = logp - p1.clone().neg().log1p();
                     (p1, logits)
@@ -389,10 +424,16 @@ impl OnnxDetector {
 /// Class names: the config's list, ultralytics' `names` metadata, COCO-80, or numbered.
 fn class_names(config: &OnnxConfig, meta: Option<&str>, n: usize) -> Result<Vec<&'static str>> {
     let leak = |v: Vec<String>| -> Vec<&'static str> {
-        v.into_iter().map(|s| &*Box::leak(s.into_boxed_str())).collect()
+        v.into_iter()
+            .map(|s| &*Box::leak(s.into_boxed_str()))
+            .collect()
     };
     if let Some(c) = &config.classes {
-        ensure!(c.len() == n, "the config names {} classes, the output has {n}", c.len());
+        ensure!(
+            c.len() == n,
+            "the config names {} classes, the output has {n}",
+            c.len()
+        );
         return Ok(leak(c.clone()));
     }
     // A model built without a dataset carries its indices as names ("0", "1", ...): no names.
@@ -418,7 +459,12 @@ fn parse_names(s: &str) -> Option<Vec<String>> {
     let mut out = Vec::new();
     let mut rest = body;
     while let Some(colon) = rest.find(':') {
-        let key: usize = rest[..colon].trim().trim_start_matches(',').trim().parse().ok()?;
+        let key: usize = rest[..colon]
+            .trim()
+            .trim_start_matches(',')
+            .trim()
+            .parse()
+            .ok()?;
         let after = rest[colon + 1..].trim_start();
         let q = after.chars().next()?;
         if q != '\'' && q != '"' {
@@ -437,7 +483,14 @@ fn parse_names(s: &str) -> Option<Vec<String>> {
 /// The Sigmoid nodes whose outputs reach value `output` through layout ops only.
 fn sigmoid_taps(g: &OnnxGraph, output: &str) -> Vec<usize> {
     const LAYOUT: &[&str] = &[
-        "Concat", "Reshape", "Transpose", "Slice", "Split", "Identity", "Flatten", "Squeeze",
+        "Concat",
+        "Reshape",
+        "Transpose",
+        "Slice",
+        "Split",
+        "Identity",
+        "Flatten",
+        "Squeeze",
         "Unsqueeze",
     ];
     let mut taps = Vec::new();
@@ -530,13 +583,21 @@ impl Detector for OnnxDetector {
         let [b, _, h, w] = check_images(&image)?;
         ensure!(b == 1, "a raw dump is of one image, got a batch of {b}");
         let (x, _) = self.network_input(image.detach())?;
-        let names: Vec<String> = self.graph.graph_outputs().iter().map(|o| o.name.clone()).collect();
+        let names: Vec<String> = self
+            .graph
+            .graph_outputs()
+            .iter()
+            .map(|o| o.name.clone())
+            .collect();
         let refs: Vec<&str> = names.iter().map(|s| s.as_str()).collect();
         let vals = self.graph.run_images(&self.input, x.clone(), &refs)?;
         let mut outputs = BTreeMap::new();
         for (name, v) in names.iter().zip(vals) {
             let h = v.host()?;
-            outputs.insert(name.clone(), RawTensor::new(Some(name), h.shape().to_vec(), h.floats()));
+            outputs.insert(
+                name.clone(),
+                RawTensor::new(Some(name), h.shape().to_vec(), h.floats()),
+            );
         }
         let dims = x.dims().to_vec();
         Ok(RawDump {

@@ -71,12 +71,18 @@ impl OnnxGraph {
         let mut inputs = Vec::new();
         let mut outputs = Vec::new();
         for (k, n) in model.nodes.iter().enumerate() {
-            if !(n.domain.is_empty() || n.domain == "ai.onnx") || !ops::SUPPORTED.contains(&n.op.as_str()) {
+            if !(n.domain.is_empty() || n.domain == "ai.onnx")
+                || !ops::SUPPORTED.contains(&n.op.as_str())
+            {
                 bail!(
                     "{src}: node {:?} has op type {}{} which cac does not support (supported: {})",
                     n.name,
                     n.op,
-                    if n.domain.is_empty() { String::new() } else { format!(" (domain {})", n.domain) },
+                    if n.domain.is_empty() {
+                        String::new()
+                    } else {
+                        format!(" (domain {})", n.domain)
+                    },
                     ops::SUPPORTED.join(", ")
                 );
             }
@@ -101,7 +107,10 @@ impl OnnxGraph {
         }
         for o in &model.outputs {
             if !slots.contains_key(&o.name) {
-                bail!("{src}: graph output {:?} is not produced by any node", o.name);
+                bail!(
+                    "{src}: graph output {:?} is not produced by any node",
+                    o.name
+                );
             }
         }
         Ok(OnnxGraph {
@@ -179,7 +188,12 @@ impl OnnxGraph {
             if std::mem::replace(&mut needed[k], true) {
                 continue;
             }
-            stack.extend(self.inputs[k].iter().flatten().filter_map(|&s| self.producer[s]));
+            stack.extend(
+                self.inputs[k]
+                    .iter()
+                    .flatten()
+                    .filter_map(|&s| self.producer[s]),
+            );
         }
         let mut last_use: HashMap<usize, usize> = HashMap::new();
         for k in (0..n).filter(|&k| needed[k]) {
@@ -198,7 +212,8 @@ impl OnnxGraph {
         }
         for i in &self.model.inputs {
             let s = self.slots[&i.name];
-            if !vals.contains_key(&s) && !self.consts.contains_key(&s) && last_use.contains_key(&s) {
+            if !vals.contains_key(&s) && !self.consts.contains_key(&s) && last_use.contains_key(&s)
+            {
                 bail!("{src}: no value fed for graph input {:?}", i.name);
             }
         }
@@ -214,13 +229,22 @@ impl OnnxGraph {
             let node = &self.model.nodes[k];
             let args: Vec<Option<Val>> = self.inputs[k]
                 .iter()
-                .map(|s| s.map(|s| get(&vals, s).ok_or_else(|| anyhow!("{src}: value {s} missing"))).transpose())
+                .map(|s| {
+                    s.map(|s| get(&vals, s).ok_or_else(|| anyhow!("{src}: value {s} missing")))
+                        .transpose()
+                })
                 .collect::<Result<_>>()?;
             let refs: Vec<Option<&Val>> = args.iter().map(|v| v.as_ref()).collect();
             let out = ops::eval(node, self.opset, &self.device, &refs)
                 .with_context(|| format!("{src}: node {:?} (op {})", node.name, node.op))?;
             if out.len() < self.outputs[k].len() {
-                bail!("{src}: node {:?} ({}) gave {} outputs, the file names {}", node.name, node.op, out.len(), self.outputs[k].len());
+                bail!(
+                    "{src}: node {:?} ({}) gave {} outputs, the file names {}",
+                    node.name,
+                    node.op,
+                    out.len(),
+                    self.outputs[k].len()
+                );
             }
             // The pre-sigmoid pass: tapped sigmoids pass their input; their dependants re-run.
             if tapped.contains(&k) {
@@ -232,8 +256,12 @@ impl OnnxGraph {
                     .map(|(s, v)| s.and_then(|s| alt.get(&s).cloned()).or_else(|| v.clone()))
                     .collect();
                 let refs: Vec<Option<&Val>> = alt_args.iter().map(|v| v.as_ref()).collect();
-                let out = ops::eval(node, self.opset, &self.device, &refs)
-                    .with_context(|| format!("{src}: node {:?} (op {}), pre-sigmoid pass", node.name, node.op))?;
+                let out = ops::eval(node, self.opset, &self.device, &refs).with_context(|| {
+                    format!(
+                        "{src}: node {:?} (op {}), pre-sigmoid pass",
+                        node.name, node.op
+                    )
+                })?;
                 for (s, v) in self.outputs[k].iter().zip(out) {
                     alt.insert(*s, v);
                 }
@@ -242,7 +270,8 @@ impl OnnxGraph {
                 if let Some(Val::D(d)) = out.first() {
                     let _ = d.t.clone().sum().into_scalar::<f32>(); // wait for the op
                 }
-                *op_ms.entry(node.op.as_str()).or_default() += started.elapsed().as_secs_f64() * 1e3;
+                *op_ms.entry(node.op.as_str()).or_default() +=
+                    started.elapsed().as_secs_f64() * 1e3;
             }
             for (s, v) in self.outputs[k].iter().zip(out) {
                 vals.insert(*s, v);
@@ -275,7 +304,12 @@ impl OnnxGraph {
         } else {
             want.iter()
                 .zip(outputs)
-                .map(|(&s, o)| alt.get(&s).cloned().map(Ok).unwrap_or_else(|| pick(&vals, s, o)))
+                .map(|(&s, o)| {
+                    alt.get(&s)
+                        .cloned()
+                        .map(Ok)
+                        .unwrap_or_else(|| pick(&vals, s, o))
+                })
                 .collect::<Result<Vec<_>>>()?
         };
         Ok((main, pre))

@@ -1,7 +1,8 @@
 //! Users' own detectors as ONNX files (YOLOv3/v5/v8/11 exports and other single-output dense
 //! detectors), run by cac's own differentiable executor: [`proto`] declares the ONNX protobuf
 //! schema for `prost`, [`model`] reads a file into plain values, [`value`] holds the edge values,
-//! [`ops`], [`shape`] and [`nn`] give the op semantics as burn ops, [`graph`] plans and runs, and
+//! [`args`] is what an op reads, [`ops`] dispatches to [`elementwise`], [`shape`] and [`nn`] (the op
+//! semantics as burn ops), [`graph`] plans and runs, and
 //! [`detector`] is the [`crate::detect::Detector`] with its YOLO heads and TOML config.
 //!
 //! The TFJS importer ([`crate::detect::tfjs`]) is the other front end; both lower their graphs
@@ -10,7 +11,9 @@
 //! NHWC, ONNX's NCHW) and on op semantics (padding, resize coordinates, split forms). Not here:
 //! training graphs, control flow (If/Loop/Scan), quantised ops, sequence types.
 
+pub mod args;
 pub mod detector;
+pub mod elementwise;
 pub mod graph;
 pub mod model;
 pub mod nn;

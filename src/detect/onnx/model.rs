@@ -106,7 +106,8 @@ pub struct Model {
 impl Model {
     /// Reads and decodes `path`.
     pub fn load(path: &Path) -> Result<Self> {
-        let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+        let bytes =
+            std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
         let m = proto::decode_model(&bytes).map_err(|e| {
             anyhow!(
                 "{}: not an ONNX model (protobuf decoding failed: {e})",
@@ -211,8 +212,8 @@ impl Model {
     }
 
     /// What the file holds, for `cac models inspect`: producer, opsets, inputs and outputs with
-    /// their shapes, op types with counts (unsupported ones marked), metadata keys.
-    pub fn describe(&self) -> String {
+    /// their shapes, op types with counts (those not in `supported` marked), metadata keys.
+    pub fn describe(&self, supported: &[&str]) -> String {
         let mut s = format!(
             "{}\n  producer: {}\n  ir_version: {}\n  opsets: {}\n",
             self.source(),
@@ -251,7 +252,7 @@ impl Model {
             self.initializers.len()
         );
         for (op, n) in &ops {
-            let mark = if super::ops::SUPPORTED.contains(op) {
+            let mark = if supported.contains(op) {
                 ""
             } else {
                 " (unsupported)"
@@ -317,7 +318,8 @@ fn attr(a: &AttributeProto, dir: &Path) -> Result<Attr> {
         2 => Attr::I(a.i),
         3 => Attr::S(text(&a.s)),
         4 => Attr::T(tensor(
-            a.t.as_ref().ok_or_else(|| anyhow!("tensor attribute without a tensor"))?,
+            a.t.as_ref()
+                .ok_or_else(|| anyhow!("tensor attribute without a tensor"))?,
             dir,
         )?),
         6 => Attr::Fs(a.floats.clone()),
@@ -422,8 +424,8 @@ fn external_data(t: &TensorProto, dir: &Path) -> Result<Vec<u8>> {
     };
     let loc = get("location").ok_or_else(|| anyhow!("external data without a location"))?;
     let file = dir.join(&loc);
-    let bytes =
-        std::fs::read(&file).with_context(|| format!("cannot read external data {}", file.display()))?;
+    let bytes = std::fs::read(&file)
+        .with_context(|| format!("cannot read external data {}", file.display()))?;
     let offset: usize = get("offset").map(|s| s.parse()).transpose()?.unwrap_or(0);
     let length: usize = match get("length") {
         Some(s) => s.parse()?,
@@ -432,5 +434,11 @@ fn external_data(t: &TensorProto, dir: &Path) -> Result<Vec<u8>> {
     bytes
         .get(offset..offset + length)
         .map(|b| b.to_vec())
-        .ok_or_else(|| anyhow!("{}: bytes {offset}..{} are past its end", file.display(), offset + length))
+        .ok_or_else(|| {
+            anyhow!(
+                "{}: bytes {offset}..{} are past its end",
+                file.display(),
+                offset + length
+            )
+        })
 }

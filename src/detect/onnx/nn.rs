@@ -5,7 +5,7 @@
 //! NonMaxSuppression on the host. Each follows the ONNX operator specification as onnxruntime
 //! implements it (tests/onnx_conformance.rs compares them).
 
-use super::ops::{axis, broadcast, expand, Args};
+use super::args::{axis, broadcast, expand, Args};
 use super::value::{pad6, Dev, Host, Val, MAX_RANK};
 use crate::detect::conv::{conv_im2col, IM2COL_MAX_CHANNELS};
 use crate::detect::nms::non_max_suppression as nms;
@@ -102,12 +102,24 @@ pub fn conv(a: &Args) -> Result<Val> {
     // against 171–188 ms per forward).
     let stem = group == 1 && s[1] <= IM2COL_MAX_CHANNELS && ws[2] * ws[3] > 1;
     let y = match stem {
-        true => conv_im2col(xt.clone(), wt.clone(), bias.clone(), win.stride, win.dilation, win.pads),
+        true => conv_im2col(
+            xt.clone(),
+            wt.clone(),
+            bias.clone(),
+            win.stride,
+            win.dilation,
+            win.pads,
+        ),
         false => None,
     };
     let y = match y {
         Some(y) => y,
-        None => conv2d(xt, wt, bias, ConvOptions::new_with_padding(win.stride, win.pads, win.dilation, group)),
+        None => conv2d(
+            xt,
+            wt,
+            bias,
+            ConvOptions::new_with_padding(win.stride, win.pads, win.dilation, group),
+        ),
     };
     Ok(Val::D(Dev::from(y)?))
 }
@@ -120,7 +132,11 @@ pub fn batch_norm(a: &Args) -> Result<Val> {
     let eps = a.f("epsilon").unwrap_or(1e-5);
     let v = |k: usize| -> Result<Vec<f32>> {
         let h = a.input(k)?.host()?;
-        ensure!(h.len() == c, "parameter {k} has {} values for {c} channels", h.len());
+        ensure!(
+            h.len() == c,
+            "parameter {k} has {} values for {c} channels",
+            h.len()
+        );
         Ok(h.floats())
     };
     let (scale, bias, mean, var) = (v(1)?, v(2)?, v(3)?, v(4)?);
@@ -129,9 +145,12 @@ pub fn batch_norm(a: &Args) -> Result<Val> {
     let mut s = vec![1; x.rank()];
     s[1] = c;
     let up = |v: Vec<f32>| -> Result<Tensor<MAX_RANK>> {
-        Ok(Dev::new(Tensor::<1>::from_data(TensorData::new(v, [c]), a.dev), s.clone())?
-            .t
-            .expand(pad6(&x.shape)))
+        Ok(Dev::new(
+            Tensor::<1>::from_data(TensorData::new(v, [c]), a.dev),
+            s.clone(),
+        )?
+        .t
+        .expand(pad6(&x.shape)))
     };
     Ok(Val::D(Dev {
         t: x.t.clone() * up(mul)? + up(add)?,
@@ -147,7 +166,10 @@ pub fn pool(a: &Args) -> Result<Val> {
     let win = window(a, [s[2], s[3]], k)?;
     let ceil = a.i("ceil_mode").unwrap_or(0) != 0;
     let y = if a.node.op == "MaxPool" {
-        ensure!(a.n_outputs() == 1, "MaxPool's Indices output is not supported");
+        ensure!(
+            a.n_outputs() == 1,
+            "MaxPool's Indices output is not supported"
+        );
         let o = MaxPoolOptions::new(win.kernel)
             .with_stride(win.stride)
             .with_padding_pairs(win.pads)
@@ -155,7 +177,10 @@ pub fn pool(a: &Args) -> Result<Val> {
             .with_ceil_mode(ceil);
         max_pool2d(xt, o)
     } else {
-        ensure!(win.dilation == [1, 1], "AveragePool dilations are not supported");
+        ensure!(
+            win.dilation == [1, 1],
+            "AveragePool dilations are not supported"
+        );
         let o = AvgPoolOptions::new(win.kernel)
             .with_stride(win.stride)
             .with_padding_pairs(win.pads)
@@ -186,7 +211,9 @@ pub fn resize(a: &Args) -> Result<Val> {
     let (scales, sizes): (Option<Vec<f32>>, Option<Vec<i64>>) = if a.node.op == "Upsample" {
         let s = match a.opt(1) {
             Some(v) => v.host()?.floats(),
-            None => a.floats("scales").ok_or_else(|| anyhow!("Upsample without scales"))?,
+            None => a
+                .floats("scales")
+                .ok_or_else(|| anyhow!("Upsample without scales"))?,
         };
         (Some(s), None)
     } else if a.opset < 11 {
@@ -226,7 +253,8 @@ pub fn resize(a: &Args) -> Result<Val> {
     let ctm = if a.node.op == "Upsample" || a.opset < 11 {
         "asymmetric"
     } else {
-        a.s("coordinate_transformation_mode").unwrap_or("half_pixel")
+        a.s("coordinate_transformation_mode")
+            .unwrap_or("half_pixel")
     };
     let nearest_mode = a.s("nearest_mode").unwrap_or(if a.opset < 11 {
         "floor"
@@ -298,8 +326,10 @@ pub fn resize(a: &Args) -> Result<Val> {
                     .reshape(ws)
                     .expand(pad6(&shape));
                 let sel = |i: Vec<i64>| {
-                    v.t.clone()
-                        .select(ax, Tensor::<1, Int>::from_data(TensorData::new(i, [n_out]), a.dev))
+                    v.t.clone().select(
+                        ax,
+                        Tensor::<1, Int>::from_data(TensorData::new(i, [n_out]), a.dev),
+                    )
                 };
                 let (l, h) = (sel(lo), sel(hi));
                 Dev {
@@ -387,7 +417,12 @@ fn matmul2(x: Dev, y: Dev) -> Result<Dev> {
 
 pub fn gemm(a: &Args) -> Result<Val> {
     let (mut x, mut y) = (a.dev_input(0)?, a.dev_input(1)?);
-    ensure!(x.rank() == 2 && y.rank() == 2, "Gemm of {:?} and {:?}", x.shape, y.shape);
+    ensure!(
+        x.rank() == 2 && y.rank() == 2,
+        "Gemm of {:?} and {:?}",
+        x.shape,
+        y.shape
+    );
     let tr = |d: Dev| -> Result<Dev> {
         let s = vec![d.shape[1], d.shape[0]];
         Dev::new(d.t.swap_dims(MAX_RANK - 2, MAX_RANK - 1), s)
@@ -443,7 +478,10 @@ pub fn reduce(a: &Args) -> Result<Val> {
     let out_shape: Vec<usize> = if keep {
         shape.clone()
     } else {
-        (0..r).filter(|k| !axes.contains(k)).map(|k| x.shape()[k]).collect()
+        (0..r)
+            .filter(|k| !axes.contains(k))
+            .map(|k| x.shape()[k])
+            .collect()
     };
     let op = a.node.op.as_str();
     if let Val::H(h) = x {
@@ -515,7 +553,11 @@ pub fn top_k(a: &Args) -> Result<Vec<Val>> {
     let dim = x.shape[ax];
     ensure!(k >= 0 && k as usize <= dim, "k = {k} for axis length {dim}");
     let largest = a.i("largest").unwrap_or(1) != 0;
-    let t = if largest { x.t.clone() } else { x.t.clone().neg() };
+    let t = if largest {
+        x.t.clone()
+    } else {
+        x.t.clone().neg()
+    };
     let (vals, idx) = t.topk_with_indices(k as usize, x.axis(ax));
     let vals = if largest { vals } else { vals.neg() };
     let mut shape = x.shape.clone();
@@ -542,10 +584,16 @@ pub fn pad(a: &Args) -> Result<Val> {
     );
     let (pads, value) = if a.opset >= 11 {
         let v = match a.opt(2) {
-            Some(c) if !c.shape().contains(&0) => c.host()?.floats().first().copied().unwrap_or(0.0),
+            Some(c) if !c.shape().contains(&0) => {
+                c.host()?.floats().first().copied().unwrap_or(0.0)
+            }
             _ => 0.0,
         };
-        (a.ints_input(1)?.ok_or_else(|| anyhow!("Pad without pads"))?, v)
+        (
+            a.ints_input(1)?
+                .ok_or_else(|| anyhow!("Pad without pads"))?,
+            v,
+        )
     } else {
         (
             a.ints("pads").ok_or_else(|| anyhow!("Pad without pads"))?,
@@ -556,8 +604,14 @@ pub fn pad(a: &Args) -> Result<Val> {
         Some(v) => v.iter().map(|&k| axis(k, r)).collect::<Result<_>>()?,
         None => (0..r).collect(),
     };
-    ensure!(pads.len() == 2 * axes.len(), "pads {pads:?} for axes {axes:?}");
-    ensure!(pads.iter().all(|&p| p >= 0), "negative pads {pads:?} are not supported");
+    ensure!(
+        pads.len() == 2 * axes.len(),
+        "pads {pads:?} for axes {axes:?}"
+    );
+    ensure!(
+        pads.iter().all(|&p| p >= 0),
+        "negative pads {pads:?} are not supported"
+    );
     let mut pairs = [(0usize, 0usize); MAX_RANK];
     let mut shape = x.shape.clone();
     for (i, &k) in axes.iter().enumerate() {
@@ -603,7 +657,12 @@ pub fn non_max_suppression(a: &Args) -> Result<Val> {
                     let (cx, cy, w, h) = (v[0], v[1], v[2], v[3]);
                     [cy - h / 2.0, cx - w / 2.0, cy + h / 2.0, cx + w / 2.0]
                 } else {
-                    [v[0].min(v[2]), v[1].min(v[3]), v[0].max(v[2]), v[1].max(v[3])]
+                    [
+                        v[0].min(v[2]),
+                        v[1].min(v[3]),
+                        v[0].max(v[2]),
+                        v[1].max(v[3]),
+                    ]
                 }
             })
             .collect();
@@ -615,7 +674,10 @@ pub fn non_max_suppression(a: &Args) -> Result<Val> {
         }
     }
     let k = rows.len() / 3;
-    Ok(Val::H(Host::I(ArrayD::from_shape_vec(IxDyn(&[k, 3]), rows)?)))
+    Ok(Val::H(Host::I(ArrayD::from_shape_vec(
+        IxDyn(&[k, 3]),
+        rows,
+    )?)))
 }
 
 #[cfg(test)]
@@ -634,7 +696,13 @@ mod tests {
         let idx = Tensor::<1, Int>::from_data(TensorData::new(vec![0i64, 0, 1, 1, 2, 2], [6]), &d);
         let y = x.clone().select(1, idx).sum();
         let g = y.backward();
-        let gv: Vec<f32> = x.grad(&g).unwrap().to_data().convert::<f32>().try_into_vec().unwrap();
+        let gv: Vec<f32> = x
+            .grad(&g)
+            .unwrap()
+            .to_data()
+            .convert::<f32>()
+            .try_into_vec()
+            .unwrap();
         assert_eq!(gv, vec![2.0, 2.0, 2.0]);
     }
 }
@@ -651,10 +719,18 @@ mod pool_tests {
         // 5x5 distinct values; windows 3x3, stride 2, pad 1 overlap on rows/cols 2.
         let v: Vec<f32> = (0..25).map(|i| ((i * 7) % 25) as f32).collect();
         let x = Tensor::<4>::from_data(TensorData::new(v.clone(), [1, 1, 5, 5]), &d).require_grad();
-        let o = MaxPoolOptions::new([3, 3]).with_stride([2, 2]).with_padding_pairs([(1, 1), (1, 1)]);
+        let o = MaxPoolOptions::new([3, 3])
+            .with_stride([2, 2])
+            .with_padding_pairs([(1, 1), (1, 1)]);
         let y = max_pool2d(x.clone(), o);
         let g = y.sum().backward();
-        let got: Vec<f32> = x.grad(&g).unwrap().to_data().convert::<f32>().try_into_vec().unwrap();
+        let got: Vec<f32> = x
+            .grad(&g)
+            .unwrap()
+            .to_data()
+            .convert::<f32>()
+            .try_into_vec()
+            .unwrap();
         let mut want = vec![0.0f32; 25];
         for oy in 0..3i32 {
             for ox in 0..3i32 {

@@ -4,8 +4,8 @@
 //! forms are both read, by opset, where the op changed (Split 13/18, Squeeze/Unsqueeze 13,
 //! Slice 10).
 
+use super::args::{axis, broadcast, expand, Args};
 use super::model::Attr;
-use super::ops::{axis, broadcast, expand, Args};
 use super::value::{Dev, Host, Val, MAX_RANK};
 use anyhow::{anyhow, bail, ensure, Result};
 use burn::tensor::{Int, Tensor, TensorData};
@@ -87,10 +87,7 @@ pub fn flatten(a: &Args) -> Result<Val> {
         axis(a.i("axis").unwrap_or(1), r)?
     };
     let s = x.shape();
-    with_shape(
-        x,
-        vec![s[..k].iter().product(), s[k..].iter().product()],
-    )
+    with_shape(x, vec![s[..k].iter().product(), s[k..].iter().product()])
 }
 
 pub fn squeeze(a: &Args) -> Result<Val> {
@@ -151,7 +148,9 @@ pub fn transpose(a: &Args) -> Result<Val> {
                 shape,
             })
         }
-        Val::H(h) => Val::H(each!(h, a => a.clone().permuted_axes(IxDyn(&perm)).as_standard_layout().into_owned())),
+        Val::H(h) => Val::H(
+            each!(h, a => a.clone().permuted_axes(IxDyn(&perm)).as_standard_layout().into_owned()),
+        ),
     })
 }
 
@@ -160,7 +159,10 @@ pub fn concat(a: &Args) -> Result<Val> {
         .map(|k| a.input(k))
         .collect::<Result<_>>()?;
     let r = vals[0].shape().len();
-    let ax = axis(a.i("axis").ok_or_else(|| anyhow!("Concat without axis"))?, r)?;
+    let ax = axis(
+        a.i("axis").ok_or_else(|| anyhow!("Concat without axis"))?,
+        r,
+    )?;
     let mut shape = vals[0].shape().to_vec();
     shape[ax] = 0;
     for v in &vals {
@@ -209,17 +211,17 @@ fn take(v: &Val, ax: usize, idx: &[usize], dev: &burn::tensor::Device) -> Result
     shape[ax] = idx.len();
     let contiguous = idx.windows(2).all(|w| w[1] == w[0] + 1);
     Ok(match v {
-        Val::D(_) if idx.is_empty() => Val::D(Dev::new(
-            Tensor::<1>::zeros([0], dev),
-            shape,
-        )?),
+        Val::D(_) if idx.is_empty() => Val::D(Dev::new(Tensor::<1>::zeros([0], dev), shape)?),
         Val::D(d) if contiguous => Val::D(Dev {
             t: d.t.clone().narrow(d.axis(ax), idx[0], idx.len()),
             shape,
         }),
         Val::D(d) => {
             let i = Tensor::<1, Int>::from_data(
-                TensorData::new(idx.iter().map(|&i| i as i64).collect::<Vec<_>>(), [idx.len()]),
+                TensorData::new(
+                    idx.iter().map(|&i| i as i64).collect::<Vec<_>>(),
+                    [idx.len()],
+                ),
                 dev,
             );
             Val::D(Dev {
@@ -269,15 +271,19 @@ pub fn slice(a: &Args) -> Result<Val> {
     let r = x.shape().len();
     let (starts, ends, axes, steps) = if a.opset >= 10 {
         (
-            a.ints_input(1)?.ok_or_else(|| anyhow!("Slice without starts"))?,
-            a.ints_input(2)?.ok_or_else(|| anyhow!("Slice without ends"))?,
+            a.ints_input(1)?
+                .ok_or_else(|| anyhow!("Slice without starts"))?,
+            a.ints_input(2)?
+                .ok_or_else(|| anyhow!("Slice without ends"))?,
             a.ints_input(3)?,
             a.ints_input(4)?,
         )
     } else {
         (
-            a.ints("starts").ok_or_else(|| anyhow!("Slice without starts"))?,
-            a.ints("ends").ok_or_else(|| anyhow!("Slice without ends"))?,
+            a.ints("starts")
+                .ok_or_else(|| anyhow!("Slice without starts"))?,
+            a.ints("ends")
+                .ok_or_else(|| anyhow!("Slice without ends"))?,
             a.ints("axes"),
             None,
         )
@@ -326,7 +332,10 @@ pub fn gather(a: &Args) -> Result<Val> {
         .iter()
         .map(|&i| {
             let j = if i < 0 { i + dim } else { i };
-            ensure!((0..dim).contains(&j), "index {i} out of range for axis length {dim}");
+            ensure!(
+                (0..dim).contains(&j),
+                "index {i} out of range for axis length {dim}"
+            );
             Ok(j as usize)
         })
         .collect::<Result<_>>()?;
@@ -361,8 +370,14 @@ pub fn expand_op(a: &Args) -> Result<Val> {
 
 pub fn tile(a: &Args) -> Result<Val> {
     let x = a.input(0)?;
-    let reps = a.ints_input(1)?.ok_or_else(|| anyhow!("Tile without repeats"))?;
-    ensure!(reps.len() == x.shape().len(), "repeats {reps:?} for shape {:?}", x.shape());
+    let reps = a
+        .ints_input(1)?
+        .ok_or_else(|| anyhow!("Tile without repeats"))?;
+    ensure!(
+        reps.len() == x.shape().len(),
+        "repeats {reps:?} for shape {:?}",
+        x.shape()
+    );
     let mut v = x.clone();
     for (ax, &n) in reps.iter().enumerate() {
         let dim = v.shape()[ax];
@@ -387,14 +402,24 @@ pub fn shape(a: &Args) -> Result<Val> {
 pub fn constant(a: &Args) -> Result<Val> {
     let node = a.node;
     let get = |k: &str| node.attrs.get(k);
-    Ok(Val::H(match (get("value"), get("value_float"), get("value_floats"), get("value_int"), get("value_ints")) {
-        (Some(Attr::T(h)), ..) => h.clone(),
-        (_, Some(Attr::F(v)), ..) => Host::F(ArrayD::from_elem(IxDyn(&[]), *v)),
-        (_, _, Some(Attr::Fs(v)), ..) => Host::F(ArrayD::from_shape_vec(IxDyn(&[v.len()]), v.clone())?),
-        (_, _, _, Some(Attr::I(v)), _) => Host::scalar_i(*v),
-        (_, _, _, _, Some(Attr::Is(v))) => Host::vec_i(v.clone()),
-        _ => bail!("Constant without a supported value attribute"),
-    }))
+    Ok(Val::H(
+        match (
+            get("value"),
+            get("value_float"),
+            get("value_floats"),
+            get("value_int"),
+            get("value_ints"),
+        ) {
+            (Some(Attr::T(h)), ..) => h.clone(),
+            (_, Some(Attr::F(v)), ..) => Host::F(ArrayD::from_elem(IxDyn(&[]), *v)),
+            (_, _, Some(Attr::Fs(v)), ..) => {
+                Host::F(ArrayD::from_shape_vec(IxDyn(&[v.len()]), v.clone())?)
+            }
+            (_, _, _, Some(Attr::I(v)), _) => Host::scalar_i(*v),
+            (_, _, _, _, Some(Attr::Is(v))) => Host::vec_i(v.clone()),
+            _ => bail!("Constant without a supported value attribute"),
+        },
+    ))
 }
 
 pub fn constant_of_shape(a: &Args) -> Result<Val> {
