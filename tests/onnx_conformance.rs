@@ -68,8 +68,10 @@ fn fixtures() -> Option<&'static Path> {
             return None;
         }
         let script = support::root().join("tools/onnx/make_models.py");
+        let tv = support::root().join("tools/onnx/export_torchvision.py");
         let mut text = std::fs::read(&script).unwrap();
         text.extend(std::fs::read(support::root().join("tools/onnx/ort_run.py")).unwrap());
+        text.extend(std::fs::read(&tv).unwrap());
         use sha2::Digest;
         let stamp = format!("{:x}", sha2::Sha256::digest(&text));
         let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("onnx-fixtures");
@@ -87,6 +89,25 @@ fn fixtures() -> Option<&'static Path> {
                 String::from_utf8_lossy(&out.stdout),
                 String::from_utf8_lossy(&out.stderr)
             );
+            // torchvision's SSDlite as its dense pre-NMS export (where torch is installed), its
+            // --check: torchvision's own detections are rows of the dense output.
+            if dir.join("yolov8n.onnx").is_file() {
+                let out = Command::new("python3")
+                    .arg(&tv)
+                    .args([
+                        "ssdlite",
+                        dir.join("ssdlite.onnx").to_str().unwrap(),
+                        "--check",
+                    ])
+                    .output()
+                    .unwrap();
+                assert!(
+                    out.status.success(),
+                    "export_torchvision.py failed:\n{}{}",
+                    String::from_utf8_lossy(&out.stdout),
+                    String::from_utf8_lossy(&out.stderr)
+                );
+            }
             std::fs::write(&stamp_file, &stamp).unwrap();
         }
         Some(dir)
@@ -235,6 +256,7 @@ fn yolo_exports_match_onnxruntime_on_their_seeded_input() {
 fn decode(
     raw: &T,
     anchor_free: bool,
+    xyxy: bool,
     geo: ([f32; 2], [f32; 2]),
     thr: f32,
     iou: f32,
@@ -254,12 +276,17 @@ fn decode(
     };
     let mut cand = Vec::new();
     for i in 0..n {
-        let (cx, cy, w, h) = (at(i, 0), at(i, 1), at(i, 2), at(i, 3));
+        let (a0, a1, a2, a3) = (at(i, 0), at(i, 1), at(i, 2), at(i, 3));
+        let [x1, y1, x2, y2] = if xyxy {
+            [a0, a1, a2, a3]
+        } else {
+            [a0 - a2 / 2.0, a1 - a3 / 2.0, a0 + a2 / 2.0, a1 + a3 / 2.0]
+        };
         let b = [
-            (cx - w / 2.0 - geo.1[0]) / geo.0[0],
-            (cy - h / 2.0 - geo.1[1]) / geo.0[1],
-            (cx + w / 2.0 - geo.1[0]) / geo.0[0],
-            (cy + h / 2.0 - geo.1[1]) / geo.0[1],
+            (x1 - geo.1[0]) / geo.0[0],
+            (y1 - geo.1[1]) / geo.0[1],
+            (x2 - geo.1[0]) / geo.0[0],
+            (y2 - geo.1[1]) / geo.0[1],
         ];
         let first = if anchor_free { 4 } else { 5 };
         for c in first..k {
@@ -373,7 +400,7 @@ fn yolo_detections_on_reference_images_match_onnxruntime() {
                     .collect(),
                 dtype: None,
             };
-            let decoded = decode(&ours, anchor_free, geo, 0.3, 0.45);
+            let decoded = decode(&ours, anchor_free, false, geo, 0.3, 0.45);
             assert_eq!(mine.len(), decoded.len(), "{} on {img}", e.name);
             for (d, t) in mine.iter().zip(&decoded) {
                 assert!(same(d, t), "{} on {img}: cac {d:?}, decoder {t:?}", e.name);
@@ -381,7 +408,7 @@ fn yolo_detections_on_reference_images_match_onnxruntime() {
             // The whole: against detections decoded from onnxruntime's output. Where the random
             // network saturates (scores of exactly 1.0 by the dozen), rank ties and the cap of
             // 100 make the selection depend on the last rounding: counted, not required.
-            let theirs = decode(&want["output0"], anchor_free, geo, 0.3, 0.45);
+            let theirs = decode(&want["output0"], anchor_free, false, geo, 0.3, 0.45);
             let matched = mine
                 .iter()
                 .filter(|d| theirs.iter().any(|t| same(d, t)))
@@ -406,6 +433,51 @@ fn yolo_detections_on_reference_images_match_onnxruntime() {
         }
     }
     assert!(compared > 0, "no detection was compared");
+}
+
+#[test]
+fn torchvision_ssdlite_dense_export_matches_onnxruntime() {
+    let Some(dir) = fixtures() else { return };
+    let Some(shared) = support::shared() else {
+        return;
+    };
+    if !has_ultralytics(dir) {
+        return; // torch is installed with ultralytics; both or neither
+    }
+    let dev = support::device();
+    let model = dir.join("ssdlite.onnx");
+    // The TOML written beside it: stretch, torchvision's mean/std, probabilities, xyxy, names.
+    let det = OnnxDetector::load(&model, None, &dev).unwrap();
+    assert_eq!(det.config().resize, "stretch");
+    assert_eq!(det.config().scores, "probabilities");
+    assert_eq!(det.classes().len(), 90);
+    assert_eq!(det.classes()[..3], ["person", "bicycle", "car"]);
+    let rgb = cac::io::load_rgb(&shared.join("reference/images/horse.png")).unwrap();
+    let x = cac::detect::preprocess::image_to_tensor(&rgb, &dev);
+    let (net, _) = det.network_input(x.clone()).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let (input, output) = (tmp.path().join("in.json"), tmp.path().join("out.json"));
+    let data: Vec<f32> = net
+        .to_data()
+        .convert::<f32>()
+        .try_into_vec::<f32>()
+        .unwrap();
+    write(&input, "images", &net.dims(), &data);
+    let st = Command::new("python3")
+        .arg(support::root().join("tools/onnx/ort_run.py"))
+        .args([model.as_path(), &input, &output])
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let want = read(&output);
+    let got = det.graph().run_images("images", net, &["output"]).unwrap();
+    let rel = compare("ssdlite on horse.png", &got[0], &want["output"]).unwrap();
+    // (Its random head gives every class the same 1/91 on photos, so detections would only test
+    // ties; the fixture's --check found each of torchvision's own detections, on a random image,
+    // as a row of this dense output.)
+    eprintln!("ssdlite on horse.png: raw output within {rel:.2e} of the largest magnitude");
+    let c = det.candidates(x).unwrap();
+    assert_eq!(c.scores.dims(), [1, 3234, 90]);
 }
 
 #[test]
