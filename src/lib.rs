@@ -5,11 +5,13 @@
 //! forward only. A module names only modules of an earlier rank (modules joined by `/` share one
 //! and do not name each other; `tests/import_graph.rs` checks it against this line):
 //!
-//! `io` / `report` → `scene` → `render` → `environment` → `config` → `detect` → `attack` / `eval` → `export` / `physical` → `sim` / `video`
+//! `io` / `report` → `scene` → `render` → `environment` → `config` → `detect` → `attack` / `eval` → `export` / `physical` / `study` → `sim` / `video`
 //!
 //! `io` and `report` are the shared floor (files, tables, plots, HTML, drawn labels); `config`
-//! holds the scene config and the named presets; `sim` is the simulated turntable firmware that
-//! `physical`'s driver talks to; `video` scores recordings with the detectors and the protocol.
+//! holds the scene config and the named presets; `study` holds the experiments that train with
+//! `attack` and judge with `eval` (the studies, the demo, the attack benchmark); `sim` is the
+//! simulated turntable firmware that `physical`'s driver talks to; `video` scores recordings
+//! with the detectors and the protocol.
 //!
 //! Library code never names a concrete compute backend: tensors live on a [`burn::tensor::Device`]
 //! chosen once at the edge (the `cac` binary, the tests, the benchmarks).
@@ -26,4 +28,5 @@ pub mod render;
 pub mod report;
 pub mod scene;
 pub mod sim;
+pub mod study;
 pub mod video;

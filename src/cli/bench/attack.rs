@@ -1,20 +1,10 @@
-//! `cac bench attack`: (1) iteration time split into render / detector forward (+ proposal
-//! selection and loss) / backward / optimiser, batch 1 and 4 at 512×512 on the default scene;
-//! (2) white-box P@0.5 and targeted success against training wall time for a few settings of
-//! batch size, n and texture resolution (the demo's scene and street-level views). Prints tables
-//! and writes CSVs. A benchmark, not a test: it asserts nothing.
+//! `cac bench attack`: the iteration time split and the white-box error against training time
+//! (`cac::study::attack_bench`); prints the tables as they are measured and writes CSVs. A
+//! benchmark, not a test: it asserts nothing.
 
-use super::timer::{median, Stopwatch};
 use crate::cli::{device, train};
 use anyhow::Result;
-use cac::attack::{loss::Goal, AttackConfig, IterationLog, Trainer};
-use cac::config::{self, SceneConfig};
-use cac::detect::Detector;
-use cac::environment::{street_views, Brightness, Environment};
-use cac::eval::{self, Protocol};
-use cac::render::Renderer;
-use cac::report::Table;
-use cac::scene::{Scene, Texture};
+use cac::study::attack_bench::{error_against_time, time_split, Setting};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -62,161 +52,24 @@ pub fn run(a: Args) -> Result<()> {
     let settings = parse_settings(&a.settings)?;
     let dets = train::load_detectors(&["nanodet".into()])?;
     let det = [dets[0].as_ref()];
-    let scene = time_split(&a, &det)?;
+    let dev = device::inference();
+    let (split, scene) = time_split(a.runs, &det, &dev)?;
+    let p = csv_path(&a, "split");
+    cac::io::write_atomic(&p, split.csv().as_bytes())?;
+    println!("wrote {}", p.display());
     if a.split_only {
         return Ok(());
     }
-    error_against_time(&a, &det, &scene, settings)
-}
-
-/// (1) The iteration time split on the default scene (512², 4 spp, 512² atlas); returns the scene.
-fn time_split(a: &Args, det: &[&dyn Detector]) -> Result<Scene> {
-    let cfg = SceneConfig::default();
-    let config::Stage {
-        renderer,
-        env,
-        original: init,
-    } = cfg.stage()?;
-    println!("iteration time, nanodet, n = 300, {}x{} renders ({} spp), {}² atlas, CPU (median of {} after 1 warm-up)", cfg.render.width, cfg.render.height, cfg.render.samples, cfg.render.atlas_res, a.runs);
-    println!(
-        "{:>5} {:>10} {:>11} {:>12} {:>13} {:>9}",
-        "batch", "render_ms", "forward_ms", "backward_ms", "optimiser_ms", "total_ms"
-    );
-    let mut split = Table::new([
-        "batch",
-        "render_ms",
-        "forward_ms",
-        "backward_ms",
-        "optimiser_ms",
-        "total_ms",
-    ]);
-    for batch in [1usize, 4] {
-        let ac = AttackConfig {
-            batch,
-            iterations: a.runs + 1,
-            checkpoint_every: 0,
-            ..Default::default()
-        };
-        let mut tr = Trainer::new(ac, &renderer, &env, det.to_vec(), device::training(), &init)?;
-        tr.step()?;
-        let logs: Vec<_> = (0..a.runs).map(|_| tr.step()).collect::<Result<_>>()?;
-        let m = |f: fn(&IterationLog) -> f64| median(logs.iter().map(f).collect());
-        let (r, f, b, o) = (
-            m(|l| l.ms_render),
-            m(|l| l.ms_forward),
-            m(|l| l.ms_backward),
-            m(|l| l.ms_optimiser),
-        );
-        println!(
-            "{batch:>5} {r:>10.0} {f:>11.0} {b:>12.0} {o:>13.1} {:>9.0}",
-            r + f + b + o
-        );
-        split.row([
-            batch.to_string(),
-            format!("{r:.1}"),
-            format!("{f:.1}"),
-            format!("{b:.1}"),
-            format!("{o:.2}"),
-            format!("{:.1}", r + f + b + o),
-        ]);
-    }
-    let p = csv_path(a, "split");
-    cac::io::write_atomic(&p, split.csv().as_bytes())?;
-    println!("wrote {}", p.display());
-    Ok(renderer.scene.clone())
-}
-
-/// (2) White-box error against training time on the demo's scene and street-level views.
-fn error_against_time(
-    a: &Args,
-    det: &[&dyn Detector],
-    scene: &Scene,
-    settings: Vec<(usize, usize, usize)>,
-) -> Result<()> {
-    let dcfg = SceneConfig::training();
-    let denv = Environment::new(dcfg.environment.clone())?;
-    let mut views = street_views(a.views, 1.5, Brightness::Bright);
-    views.extend(street_views(a.views, 1.5, Brightness::Dark));
-    let proto = Protocol {
-        target: Some(0),
-        ..Default::default()
-    };
-    let inf = device::inference();
-    let mut rows = error_header(views.len());
-    for (batch, n, res) in settings {
-        let mut c = dcfg.clone();
-        c.render.atlas_res = res;
-        let r = Renderer::new(scene.clone(), c.render.clone())?;
-        let eval_r = Renderer::new(scene.clone(), config::eval_render(&c.render))?;
-        let score = |atlas: &Texture| -> Result<eval::Summary> {
-            let r = eval::evaluate(&eval_r, &denv, &views, atlas, det, &proto, &inf)?;
-            Ok(eval::summarise(&r.scores[0]))
-        };
-        let mut report = |it: usize, secs: f64, s: &eval::Summary| {
-            println!(
-                "{batch:>5} {n:>5} {res:>7} {it:>10} {secs:>10.1} {:>7.3} {:>14.3}",
-                s.p_at_05, s.targeted_success
-            );
-            rows.row([
-                batch.to_string(),
-                n.to_string(),
-                res.to_string(),
-                it.to_string(),
-                format!("{secs:.2}"),
-                format!("{:.4}", s.p_at_05),
-                format!("{:.4}", s.targeted_success),
-            ]);
-        };
-        let original = r.scene.initial_atlas(res);
-        let ac = AttackConfig {
-            batch,
-            top_n: n,
-            iterations: a.iterations,
-            checkpoint_every: 0,
-            ..Default::default()
-        };
-        if ac.goal()? != Goal::Targeted(0) {
-            anyhow::bail!("the default target must be person");
-        }
-        let mut tr = Trainer::new(ac, &r, &denv, det.to_vec(), device::training(), &original)?;
-        let mut secs = 0.0;
-        report(0, 0.0, &score(&original)?);
-        while tr.state.iteration < a.iterations {
-            let t = Stopwatch::start();
-            tr.step()?;
-            secs += t.secs();
-            let it = tr.state.iteration;
-            if it % a.eval_every == 0 || it == a.iterations {
-                report(it, secs, &score(&tr.atlas())?);
-            }
-        }
-    }
-    let p = csv_path(a, "error");
+    let part = (a.iterations, a.eval_every, a.views);
+    let rows = error_against_time(part, &det, &scene, &settings, &dev)?;
+    let p = csv_path(&a, "error");
     cac::io::write_atomic(&p, rows.csv().as_bytes())?;
     println!("wrote {}", p.display());
     Ok(())
 }
 
-/// Prints the error table's heading for `views` views; returns the CSV table.
-fn error_header(views: usize) -> Table {
-    println!("\nwhite-box error against training time: nanodet, target \"person\", demo scene (320², 1 spp), {} street-level views (416², 4 spp)", views);
-    println!(
-        "{:>5} {:>5} {:>7} {:>10} {:>10} {:>7} {:>14}",
-        "batch", "n", "texture", "iterations", "train_s", "P@0.5", "person_success"
-    );
-    Table::new([
-        "batch",
-        "n",
-        "texture_res",
-        "iterations",
-        "train_s",
-        "p_at_05",
-        "targeted_success",
-    ])
-}
-
 /// `BATCHxNxRES,...` → `(batch, n, res)` triples.
-fn parse_settings(s: &str) -> Result<Vec<(usize, usize, usize)>> {
+fn parse_settings(s: &str) -> Result<Vec<Setting>> {
     s.split(',')
         .map(|t| {
             let v: Vec<usize> = t

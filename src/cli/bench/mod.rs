@@ -1,6 +1,6 @@
 //! `cac bench …`: the benchmarks (the subcommands are listed in [`super::BenchCmd`]). Each prints
-//! a table and writes CSV through [`cac::report::Table`], timed with the one [`timer`]; timings
-//! are measured here, never in tests. A benchmark asserts nothing. (`cac bench export` lives in
+//! a table and writes CSV through [`cac::report::Table`], timed in the library with the one
+//! timer (`cac::report::timer`), never in tests. A benchmark asserts nothing. (`cac bench export` lives in
 //! `cli/export.rs`.)
 
 pub mod attack;
@@ -9,5 +9,4 @@ pub mod eval;
 pub mod frcnn;
 pub mod realism;
 pub mod render;
-pub mod timer;
 pub mod video;

@@ -1,0 +1,187 @@
+//! The methods study: CAC and the paper's baselines in one harness, judged where attacks are
+//! judged. Every method trains for the same iterations on the same distribution (one resumable
+//! run per method in OUT/<method>/), then the original, the simple textures and every learned
+//! texture are evaluated by the protocol (its renderer and distances, views of the evaluation
+//! seed; the full report in OUT/eval/), and the table goes to OUT/methods.{md,csv}. CAC uses the
+//! job's proposal rule; each baseline keeps its own paper's choice of what it attacks. Each
+//! entry of `hide` adds a CAC row in hide mode.
+
+use super::{refs, train_run};
+use crate::attack::{loss::ProposalRule, AttackConfig, Method};
+use crate::config::SceneConfig;
+use crate::detect::{self, labels};
+use crate::environment::ViewpointSet;
+use crate::eval::job::{self, EvalJob};
+use crate::eval::run::ViewPlan;
+use crate::eval::{report, study, Protocol};
+use anyhow::{bail, Context, Result};
+use burn::tensor::Device;
+use std::path::PathBuf;
+
+/// The study's settings.
+#[derive(Debug, Clone)]
+pub struct MethodsJob {
+    /// The training scene (judged with the protocol's renderer on its object).
+    pub scene: SceneConfig,
+    pub methods: Vec<Method>,
+    /// Hide-mode rows: `all`, or COCO labels joined by `+`.
+    pub hide: Vec<String>,
+    /// CAC's proposal rule.
+    pub proposals: ProposalRule,
+    /// Source detectors.
+    pub models: Vec<String>,
+    /// Detectors the textures are judged by.
+    pub eval_models: Vec<String>,
+    pub target: String,
+    /// Training iterations per method.
+    pub iterations: usize,
+    pub batch: usize,
+    /// Textures evaluated beside the learned ones (`cac eval --texture` specs).
+    pub textures: Vec<String>,
+    /// Evaluation views per brightness level and set.
+    pub views: usize,
+    pub sets: Vec<ViewpointSet>,
+    /// Seed of the training runs.
+    pub seed: u64,
+    /// Seed of the evaluation views (and of the simple textures).
+    pub eval_seed: u64,
+    pub out: PathBuf,
+}
+
+/// A trained row: its name in the tables, its folder name and its settings.
+struct Row {
+    name: String,
+    dir: String,
+    attack: AttackConfig,
+}
+
+/// The name of a method in the tables.
+fn display(m: Method) -> &'static str {
+    match m {
+        Method::Cac => "CAC",
+        Method::Advpat => "AdvPat",
+        Method::Shapeshifter => "ShapeShifter",
+        Method::Upc => "UPC",
+        Method::Camou => "CAMOU",
+    }
+}
+
+impl MethodsJob {
+    /// The rows to train, each checked.
+    fn rows(&self) -> Result<Vec<Row>> {
+        let base = AttackConfig {
+            models: self.models.clone(),
+            target: self.target.clone(),
+            proposals: self.proposals,
+            batch: self.batch,
+            iterations: self.iterations,
+            seed: self.seed,
+            checkpoint_every: 10,
+            ..Default::default()
+        };
+        let mut out: Vec<Row> = self
+            .methods
+            .iter()
+            .map(|&m| Row {
+                name: display(m).into(),
+                dir: m.name().into(),
+                attack: AttackConfig {
+                    method: m,
+                    ..base.clone()
+                },
+            })
+            .collect();
+        for h in &self.hide {
+            let keep = |c: char| c.is_ascii_alphanumeric() || c == '+';
+            let tag: String = h.chars().map(|c| if keep(c) { c } else { '-' }).collect();
+            out.push(Row {
+                name: format!("CAC hide ({h})"),
+                dir: format!("cac-hide-{tag}"),
+                attack: AttackConfig {
+                    hide: true,
+                    hide_classes: h.replace('+', ","),
+                    ..base.clone()
+                },
+            });
+        }
+        if out.is_empty() {
+            bail!("nothing to train: give --methods or --hide");
+        }
+        for r in &out {
+            r.attack.validate().with_context(|| r.name.clone())?;
+        }
+        Ok(out)
+    }
+
+    /// Trains every row (resuming), evaluates, writes methods.md and methods.csv; returns the
+    /// Markdown page.
+    pub fn run(&self, device: &Device) -> Result<String> {
+        if self.views == 0 || self.iterations == 0 {
+            bail!("--views and --iterations must be positive");
+        }
+        let rows = self.rows()?;
+        let stage = self.scene.stage()?;
+        let sources = detect::load_all(&self.models, None, device)?;
+        let src = refs(&sources);
+        let mut trained = vec![];
+        for r in &rows {
+            let dir = self.out.join(&r.dir);
+            let ac = r.attack.clone();
+            let secs = train_run(&dir, &self.scene, ac, &stage, &src, device, &r.name, None)?;
+            trained.push((r.name.clone(), secs, dir));
+        }
+        // Judged as `cac eval` judges: the protocol's renderer on the training config's object.
+        let scene = SceneConfig {
+            render: SceneConfig::default().render,
+            ..self.scene.clone()
+        };
+        let target = labels::class_id(&self.target)
+            .with_context(|| format!("unknown target class {:?}", self.target))?;
+        let mut specs = self.textures.clone();
+        specs.extend(trained.iter().map(|(n, _, d)| format!("{n}={}", d.display())));
+        let job = EvalJob {
+            scene,
+            textures: specs,
+            plan: ViewPlan {
+                views_per_level: self.views,
+                seed: self.eval_seed,
+                sets: self.sets.clone(),
+                ..Default::default()
+            },
+            protocol: Protocol {
+                target: Some(target),
+                ..Default::default()
+            },
+            examples_per_group: 1,
+            figures: vec![],
+            out: self.out.join("eval"),
+        };
+        let evals = detect::load_all(&self.eval_models, None, device)?;
+        println!("evaluating {} textures ...", job.textures.len());
+        let o = job::run(&job, &refs(&evals), device, &mut |_, _| {})?;
+        let mut table_rows: Vec<(String, Option<f64>)> = o
+            .info
+            .textures
+            .iter()
+            .filter(|t| !trained.iter().any(|(n, _, _)| n == *t))
+            .map(|t| (t.clone(), None))
+            .collect();
+        table_rows.extend(trained.iter().map(|(n, s, _)| (n.clone(), Some(*s))));
+        let (models, sets) = (&o.info.models, &job.plan.sets);
+        let t = study::methods_table(&o.records, &table_rows, models, &self.models, sets);
+        let md = format!(
+            "# Methods under the protocol\n\n```\n{}\ntraining: {} iterations, batch {}, sources {}, target {:?}, CAC proposals {}, seed {}; train (s) = the logged iteration times\n```\n\n{}",
+            report::protocol_text(&o.info),
+            self.iterations,
+            self.batch,
+            self.models.join(", "),
+            self.target,
+            self.proposals.name(),
+            self.seed,
+            t.markdown()
+        );
+        crate::io::write_atomic(&self.out.join("methods.md"), md.as_bytes())?;
+        crate::io::write_atomic(&self.out.join("methods.csv"), t.csv().as_bytes())?;
+        Ok(md)
+    }
+}

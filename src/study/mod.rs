@@ -1,0 +1,72 @@
+//! Studies: experiments that train runs with `attack` and judge the learned textures with
+//! `eval`, so they sit after both stages. [`topn`] is the denseness study (`cac study topn`),
+//! [`methods`] CAC against the baselines (`cac study methods`), [`demo`] the main job on the
+//! embedded defaults (`cac demo`) and [`attack_bench`] the attack's iteration time and white-box
+//! error against training time (`cac bench attack`). They share [`train_run`]: one resumable run
+//! folder trained up to its iteration count, or only read when it is finished.
+
+pub mod attack_bench;
+pub mod demo;
+pub mod methods;
+pub mod topn;
+
+use crate::attack::{run::RunDir, AttackConfig, Trainer};
+use crate::config::{SceneConfig, Stage};
+use crate::detect::Detector;
+use anyhow::{bail, Result};
+use burn::tensor::Device;
+use std::path::Path;
+
+/// Trains (resuming a checkpoint) the run in `dir` up to `ac.iterations` on the autodiff device
+/// over `device`, or only reads it when it is finished; with `read_only` (the hint of the
+/// command that trains it) an unfinished run is an error. Says which on stdout, prefixed with
+/// `label`. Returns the run's logged training seconds (the iterations' own times).
+#[allow(clippy::too_many_arguments)]
+pub fn train_run(
+    dir: &Path,
+    cfg: &SceneConfig,
+    ac: AttackConfig,
+    stage: &Stage,
+    src: &[&dyn Detector],
+    device: &Device,
+    label: &str,
+    read_only: Option<&str>,
+) -> Result<f64> {
+    let iterations = ac.iterations;
+    let run = RunDir::open_or_create(dir, cfg.clone(), ac.clone())?;
+    let tr = Trainer::new(
+        ac,
+        &stage.renderer,
+        &stage.env,
+        src.to_vec(),
+        Device::autodiff(device.clone()),
+        &stage.original,
+    )?;
+    let mut tr = run.resume(tr)?;
+    let it = tr.state.iteration;
+    if let Some(hint) = read_only.filter(|_| it < iterations) {
+        bail!("{label}: the run in {} is not finished (iteration {it} of {iterations}); train it first ({hint})", dir.display());
+    }
+    if it >= iterations {
+        // Read only: evaluation shards running side by side reuse the same finished runs.
+        println!("{label}: reusing the finished run in {}", dir.display());
+    } else {
+        println!(
+            "{label}: training iterations {it}..{iterations} in {}",
+            dir.display()
+        );
+        run.train(&mut tr, true)?;
+    }
+    let ms: f64 = tr
+        .state
+        .log
+        .iter()
+        .map(|l| l.ms_render + l.ms_forward + l.ms_backward + l.ms_optimiser)
+        .sum();
+    Ok(ms / 1000.0)
+}
+
+/// Loaded detectors as the trait objects the trainer and the evaluation take.
+fn refs(boxes: &[Box<dyn Detector>]) -> Vec<&dyn Detector> {
+    boxes.iter().map(|d| d.as_ref()).collect()
+}

@@ -1,0 +1,201 @@
+//! The top-n denseness study (the paper's Figure 5): one CAC run per number of fixed proposals
+//! n in OUT/n<N>/ (reused when finished, resumed when not), every learned texture and the
+//! original evaluated with the protocol on the evaluation models (a model not among the sources
+//! measures transfer), and P@0.5 against n written as OUT/topn.png, topn.csv, topn.md and
+//! topn.html (the full evaluation report in OUT/eval/). A sweep runs it in parts: one training
+//! task per setting, evaluation shards, then the merge.
+
+use super::{refs, train_run};
+use crate::attack::{loss::ProposalRule, AttackConfig};
+use crate::config::SceneConfig;
+use crate::detect::{self, labels};
+use crate::environment::ViewpointSet;
+use crate::eval::job::{self, EvalJob, ShardOutcome};
+use crate::eval::run::ViewPlan;
+use crate::eval::shard::Shard;
+use crate::eval::{report, study, Protocol};
+use crate::report::Html;
+use anyhow::{bail, Context, Result};
+use burn::tensor::Device;
+use std::path::PathBuf;
+
+/// Which part of the study one process does.
+#[derive(Debug, Clone, Copy)]
+pub enum Part {
+    /// Train every setting, evaluate, write the study.
+    Whole,
+    /// Train setting K only (the K-th value of `n`).
+    Task(usize),
+    /// Evaluate one shard (every run must be finished).
+    Shard(Shard),
+    /// Write the study from the shards' files, rendering nothing.
+    Merge,
+}
+
+/// The study's settings.
+#[derive(Debug, Clone)]
+pub struct TopnJob {
+    /// The training scene (the evaluation uses it too, at `eval_size` when given).
+    pub scene: SceneConfig,
+    /// The values of n.
+    pub n: Vec<usize>,
+    pub proposals: ProposalRule,
+    /// Source detectors.
+    pub models: Vec<String>,
+    /// Detectors the textures are evaluated on.
+    pub eval_models: Vec<String>,
+    pub target: String,
+    pub iterations: usize,
+    pub batch: usize,
+    /// Evaluation views per brightness level and set.
+    pub views: usize,
+    pub sets: Vec<ViewpointSet>,
+    /// Evaluation image side (default: the scene's).
+    pub eval_size: Option<usize>,
+    /// Seed of the training runs and of the evaluation views.
+    pub seed: u64,
+    pub out: PathBuf,
+    pub part: Part,
+}
+
+/// What a process of the study did.
+pub enum TopnOutcome {
+    /// One setting trained (`Part::Task`).
+    Trained,
+    /// One evaluation shard written.
+    Shard(ShardOutcome),
+    /// The study written; its Markdown page.
+    Written { markdown: String },
+}
+
+impl TopnJob {
+    /// The scene of the study when no config is given: the training preset on the pickup.
+    pub fn default_scene() -> SceneConfig {
+        let mut c = SceneConfig::training();
+        c.object.mesh = "pickup".into();
+        c
+    }
+
+    /// Runs this job's part on `device` (inference; training on its autodiff).
+    pub fn run(&self, device: &Device) -> Result<TopnOutcome> {
+        if self.n.is_empty() || self.n.contains(&0) {
+            bail!("--n needs positive values");
+        }
+        let specs = self.train_runs(device)?;
+        if matches!(self.part, Part::Task(_)) {
+            return Ok(TopnOutcome::Trained);
+        }
+        self.evaluate(specs, device)
+    }
+
+    /// Trains (or reuses, or resumes) one run per n in OUT/n<N>/; returns the texture specs for
+    /// the evaluation, the original first.
+    fn train_runs(&self, device: &Device) -> Result<Vec<String>> {
+        let stage = self.scene.stage()?;
+        let sources = detect::load_all(&self.models, None, device)?;
+        let src = refs(&sources);
+        let mut specs = vec!["original".to_string()];
+        let task = match self.part {
+            Part::Task(k) => Some(k),
+            _ => None,
+        };
+        // Sweep: a task trains its setting only; a shard or the merge trains nothing.
+        if let Some(k) = task.filter(|&k| k >= self.n.len()) {
+            bail!(
+                "--task {k} is out of range: the study has {} setting(s) (--n), tasks 0 to {}",
+                self.n.len(),
+                self.n.len() - 1
+            );
+        }
+        for (k, &n) in self.n.iter().enumerate() {
+            if task.is_some_and(|t| t != k) {
+                continue;
+            }
+            let dir = self.out.join(format!("n{n}"));
+            let ac = AttackConfig {
+                models: self.models.clone(),
+                target: self.target.clone(),
+                proposals: self.proposals,
+                top_n: n,
+                batch: self.batch,
+                iterations: self.iterations,
+                seed: self.seed,
+                checkpoint_every: 10,
+                viewpoints: ViewpointSet::Free,
+                ..Default::default()
+            };
+            let read_only = matches!(self.part, Part::Shard(_) | Part::Merge)
+                .then(|| format!("--task {k}"));
+            let label = format!("n = {n}");
+            let ro = read_only.as_deref();
+            train_run(&dir, &self.scene, ac, &stage, &src, device, &label, ro)?;
+            specs.push(format!("{}={}", study::run_name(n), dir.display()));
+        }
+        Ok(specs)
+    }
+
+    /// Evaluates the textures with the protocol and writes the study's table, plot and pages.
+    fn evaluate(&self, specs: Vec<String>, device: &Device) -> Result<TopnOutcome> {
+        let mut eval_scene = self.scene.clone();
+        if let Some(s) = self.eval_size {
+            (eval_scene.render.width, eval_scene.render.height) = (s, s);
+        }
+        let target = labels::class_id(&self.target)
+            .with_context(|| format!("unknown target class {:?}", self.target))?;
+        let job = EvalJob {
+            scene: eval_scene,
+            textures: specs,
+            plan: ViewPlan {
+                views_per_level: self.views,
+                seed: self.seed,
+                sets: self.sets.clone(),
+                ..Default::default()
+            },
+            protocol: Protocol {
+                target: Some(target),
+                ..Default::default()
+            },
+            examples_per_group: 1,
+            figures: vec![],
+            out: self.out.join("eval"),
+        };
+        let evals = detect::load_all(&self.eval_models, None, device)?;
+        let refs = refs(&evals);
+        println!(
+            "evaluating {} textures on {} ...",
+            job.textures.len(),
+            self.eval_models.join(", ")
+        );
+        let o = match self.part {
+            Part::Shard(s) => {
+                let o = job::run_shard(&job, s, &refs, device, &mut |_, _| {})?;
+                return Ok(TopnOutcome::Shard(o));
+            }
+            Part::Merge => job::merge(&job, &refs, device)?,
+            _ => job::run(&job, &refs, device, &mut |_, _| {})?,
+        };
+        let t = study::topn_table(&o.records, &self.n, &o.info.models, &self.models);
+        let img = study::topn_plot(&o.records, &self.n, &o.info.models, &self.models)?;
+        crate::io::save_png_atomic(&self.out.join("topn.png"), &img)?;
+        crate::io::write_atomic(&self.out.join("topn.csv"), t.csv().as_bytes())?;
+        let md = format!(
+            "# Top-n denseness study\n\n```\n{}\ntraining: {} iterations, batch {}, sources {}, target {:?}, seed {}\n```\n\n{}",
+            report::protocol_text(&o.info),
+            self.iterations,
+            self.batch,
+            self.models.join(", "),
+            self.target,
+            self.seed,
+            t.markdown()
+        );
+        crate::io::write_atomic(&self.out.join("topn.md"), md.as_bytes())?;
+        let mut h = Html::new("Top-n denseness study");
+        h.pre(&report::protocol_text(&o.info)).table(&t).image(
+            &img,
+            "P@0.5 against n (error bars: binomial standard error)",
+        )?;
+        h.paragraph("The full evaluation (tables, breakdowns, example views): eval/report.html.");
+        crate::io::write_atomic(&self.out.join("topn.html"), h.finish().as_bytes())?;
+        Ok(TopnOutcome::Written { markdown: md })
+    }
+}
