@@ -481,6 +481,50 @@ fn torchvision_ssdlite_dense_export_matches_onnxruntime() {
 }
 
 #[test]
+fn split_head_reads_boxes_and_scores_from_two_outputs() {
+    let Some(dir) = fixtures() else { return };
+    let dev = support::device();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tmp.path().join("split.toml");
+    std::fs::write(
+        &cfg,
+        "output = \"scores\"\nboxes = \"boxes\"\nbox_format = \"xyxy\"\nresize = \"stretch\"\n",
+    )
+    .unwrap();
+    let model = dir.join("split_head.onnx");
+    let det = OnnxDetector::load(&model, Some(&cfg), &dev).unwrap();
+    let input = read(&dir.join("split_head.input.json"));
+    let want = read(&dir.join("split_head.expected.json"));
+    let x: Vec<f32> = input["images"].data.iter().map(|&v| v as f32).collect();
+    let x = Tensor::<4>::from_data(TensorData::new(x, [1, 3, 64, 64]), &dev);
+    let c = det.candidates(x.clone()).unwrap();
+    let host =
+        |t: Tensor<3>| -> Vec<f32> { t.to_data().convert::<f32>().try_into_vec::<f32>().unwrap() };
+    let (boxes, scores, logits) = (host(c.boxes), host(c.scores), host(c.logits));
+    let close = |a: &[f32], b: &[f64], tol: f64| {
+        a.len() == b.len() && a.iter().zip(b).all(|(p, q)| (*p as f64 - q).abs() <= tol)
+    };
+    assert!(close(&boxes, &want["boxes"].data, 1e-3), "boxes differ");
+    assert!(close(&scores, &want["scores"].data, 1e-6), "scores differ");
+    // The tapped logits are the sigmoid's input: log(p / (1 - p)) of onnxruntime's p.
+    let lo: Vec<f64> = want["scores"]
+        .data
+        .iter()
+        .map(|p| (p / (1.0 - p)).ln())
+        .collect();
+    assert!(close(&logits, &lo, 1e-3), "logits differ");
+    // And the config refuses a split head without its boxes.
+    let bad = tmp.path().join("bad.toml");
+    std::fs::write(&bad, "head = \"split\"\n").unwrap();
+    let e = format!(
+        "{:#}",
+        OnnxDetector::load(&model, Some(&bad), &dev).err().unwrap()
+    );
+    assert!(e.contains("bad.toml") && e.contains("boxes"), "{e}");
+    det.detect(x).unwrap();
+}
+
+#[test]
 fn input_gradient_through_the_tapped_logits_matches_central_differences() {
     let Some(dir) = fixtures() else { return };
     let train = support::training();

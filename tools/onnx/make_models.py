@@ -445,6 +445,40 @@ CLS_BIAS = -4.0
 HEAD_GAIN = 3.0
 
 
+def split_head(opset=17, size=64, cells=4):
+    """Boxes and class scores in two outputs, as mmdeploy's dense export (`with_nms=False`)
+    writes them: `boxes` [1, N, 4] (x1, y1, x2, y2 in input pixels) and `scores` [1, N, 80]
+    (sigmoid probabilities), N = (size / cells)^2 cells of a strided convolution."""
+    r = np.random.default_rng(9)
+    n = (size // cells) ** 2
+    w = r.standard_normal((4 + NUM_CLASSES, 3, cells, cells)) * np.sqrt(2.0 / (3 * cells * cells))
+    b = np.concatenate([np.zeros(4), np.full(NUM_CLASSES, -1.0)])
+    grid = np.stack(np.meshgrid(np.arange(size // cells), np.arange(size // cells)), -1).reshape(-1, 2)
+    centre = ((grid + 0.5) * cells).astype(np.float32)  # [N, 2] (x, y)
+    inits = [const("w", w), const("b", b), i64("flat", [1, 4 + NUM_CLASSES, n]),
+             const("centre", np.concatenate([centre, centre], 1)[None]),
+             const("half", np.array([-1, -1, 1, 1], np.float32) * cells),
+             i64("s0", [0]), i64("s4", [4]), i64("send", [4 + NUM_CLASSES]), i64("ax2", [2])]
+    nodes = [
+        helper.make_node("Conv", ["images", "w", "b"], ["y"], kernel_shape=[cells, cells], strides=[cells, cells]),
+        helper.make_node("Reshape", ["y", "flat"], ["yf"]),
+        helper.make_node("Transpose", ["yf"], ["yt"], perm=[0, 2, 1]),
+        helper.make_node("Slice", ["yt", "s0", "s4", "ax2"], ["raw_box"]),
+        helper.make_node("Exp", ["raw_box"], ["tb"]),
+        helper.make_node("Mul", ["tb", "half"], ["off"]),
+        helper.make_node("Add", ["centre", "off"], ["boxes"]),
+        helper.make_node("Slice", ["yt", "s4", "send", "ax2"], ["logits"]),
+        helper.make_node("Sigmoid", ["logits"], ["scores"]),
+    ]
+    graph = helper.make_graph(
+        nodes, "split_head",
+        [helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, size, size])],
+        [helper.make_tensor_value_info("boxes", TensorProto.FLOAT, [1, n, 4]),
+         helper.make_tensor_value_info("scores", TensorProto.FLOAT, [1, n, NUM_CLASSES])],
+        inits)
+    return helper.make_model(graph, opset_imports=[helper.make_opsetid("", opset)], ir_version=8)
+
+
 def yolov5_anchor(opset=17, size=320):
     """Conv+SiLU stride-2 backbone, three 1x1 heads at strides 8/16/32 and the classic Detect decode."""
     r = np.random.default_rng(5)
@@ -678,6 +712,15 @@ def main():
     assert 3 <= counts["yolov5_anchor"] <= 300, f"yolov5_anchor: {counts} candidates above 0.3, retune CLS_BIAS"
     manifest.append({"name": "yolov5_anchor", "file": "yolov5_anchor.onnx", "opset": model_opset(model),
                      "inputs": ["images"], "outputs": outs, "kind": "detector", "layout": "anchor"})
+
+    # Boxes and scores in separate outputs (cac's head = "split").
+    path = outdir / "split_head.onnx"
+    model = split_head()
+    onnx.save(model, str(path))
+    feed = {"images": np.random.default_rng(77).uniform(0, 1, (1, 3, 64, 64)).astype(np.float32)}
+    outs = write_oracle(path, feed, outdir / "split_head")
+    manifest.append({"name": "split_head", "file": "split_head.onnx", "opset": model_opset(model),
+                     "inputs": ["images"], "outputs": outs, "kind": "split_detector"})
 
     stems, extra_versions = ([], {}) if args.skip_ultralytics else export_ultralytics(outdir, detector_feed["images"])
     for stem in stems:

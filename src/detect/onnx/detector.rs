@@ -4,7 +4,9 @@
 //!   YOLOv8/11 and YOLOv5u exports: anchor-free, DFL decoded inside the graph);
 //! - `yolov5`: `[B, N, 5 + C]`, columns `cx, cy, w, h, objectness`, then C class probabilities
 //!   (the YOLOv5 repository's and YOLOv3/v7 exports: anchors decoded inside the graph);
-//!   a class's score is objectness × class probability, as those repositories rank it.
+//!   a class's score is objectness × class probability, as those repositories rank it;
+//! - `split`: boxes `[B, N, 4]` and class scores `[B, N, C]` in two outputs (mmdeploy's dense
+//!   export, or any head written that way).
 //!
 //! The class *logits* the attack needs come from the graph itself: the Sigmoid nodes whose
 //! outputs reach the exported scores through layout ops only are tapped
@@ -30,9 +32,13 @@ use std::path::{Path, PathBuf};
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct OnnxConfig {
-    /// `auto` (default: `yolov8` for an output `[B, A, N]` with A < N, `yolov5` for
-    /// `[B, N, K]` with K < N), `yolov8` or `yolov5` (also YOLOv3/v7 exports).
+    /// `auto` (default: `split` when `boxes` is set, else `yolov8` for an output `[B, A, N]`
+    /// with A < N, `yolov5` for `[B, N, K]` with K < N), `yolov8`, `yolov5` (also YOLOv3/v7
+    /// exports) or `split` (boxes `[B, N, 4]` in the output `boxes`, class scores `[B, N, C]` in
+    /// `output`, as mmdeploy's dense export writes them).
     pub head: String,
+    /// The graph output holding the boxes when they are not in `output` (head `split`).
+    pub boxes: Option<String>,
     /// The graph input holding the image (default: the first graph input).
     pub input: Option<String>,
     /// The graph output holding the dense predictions (default: the first graph output).
@@ -71,6 +77,7 @@ impl Default for OnnxConfig {
     fn default() -> Self {
         OnnxConfig {
             head: "auto".into(),
+            boxes: None,
             input: None,
             output: None,
             input_size: None,
@@ -105,7 +112,11 @@ impl OnnxConfig {
             ensure!(ok.contains(&v), "{key} = {v:?}: expected one of {ok:?}");
             Ok(())
         };
-        one_of(&self.head, "head", &["auto", "yolov8", "yolov5"])?;
+        one_of(&self.head, "head", &["auto", "yolov8", "yolov5", "split"])?;
+        ensure!(
+            (self.head == "split") <= self.boxes.is_some(),
+            "head = \"split\" needs boxes = \"OUTPUT\" (the graph output holding the boxes)"
+        );
         one_of(&self.resize, "resize", &["letterbox", "stretch"])?;
         one_of(&self.channels, "channels", &["rgb", "bgr"])?;
         one_of(
@@ -129,6 +140,8 @@ enum Head {
     V8,
     /// `[B, N, 5 + C]`.
     V5,
+    /// Boxes `[B, N, 4]` and scores `[B, N, C]` in two outputs.
+    Split,
 }
 
 /// Where the network input sits in the image: `net = img * scale + pad`.
@@ -211,9 +224,11 @@ impl OnnxDetector {
         };
         // One dry run gives the output's shape (exports often leave it symbolic).
         let zeros = Tensor::<4>::zeros([1, 3, size.1, size.0], device);
-        let shape = graph.run_images(&input_io.name, zeros, &[&output])?[0]
-            .shape()
-            .to_vec();
+        let probe: Vec<&str> = std::iter::once(output.as_str())
+            .chain(config.boxes.as_deref())
+            .collect();
+        let outs = graph.run_images(&input_io.name, zeros, &probe)?;
+        let shape = outs[0].shape().to_vec();
         ensure!(
             shape.len() == 3,
             "{src}: output {output:?} has shape {shape:?}; a dense [B, A, N] output is expected (set output in the config)"
@@ -221,17 +236,32 @@ impl OnnxDetector {
         let head = match config.head.as_str() {
             "yolov8" => Head::V8,
             "yolov5" => Head::V5,
+            "split" => Head::Split,
+            _ if config.boxes.is_some() => Head::Split,
             _ if shape[1] < shape[2] => Head::V8,
             _ => Head::V5,
         };
-        let per = if head == Head::V8 { shape[1] } else { shape[2] };
-        let skip = if head == Head::V8 { 4 } else { 5 };
-        ensure!(
-            per > skip,
-            "{src}: output {output:?} of shape {shape:?} has no class scores for a {:?} head",
-            head
-        );
-        let n_classes = per - skip;
+        let n_classes = match head {
+            Head::Split => {
+                let bs = outs[1].shape();
+                ensure!(
+                    bs.len() == 3 && bs[2] == 4 && bs[..2] == shape[..2],
+                    "{src}: boxes output {:?} has shape {bs:?}, scores {output:?} {shape:?}; [B, N, 4] and [B, N, C] are expected",
+                    config.boxes.as_deref().unwrap_or_default()
+                );
+                shape[2]
+            }
+            _ => {
+                let per = if head == Head::V8 { shape[1] } else { shape[2] };
+                let skip = if head == Head::V8 { 4 } else { 5 };
+                ensure!(
+                    per > skip,
+                    "{src}: output {output:?} of shape {shape:?} has no class scores for a {:?} head",
+                    head
+                );
+                per - skip
+            }
+        };
         let classes = class_names(&config, graph.model.meta("names"), n_classes)
             .with_context(|| src.clone())?;
         let taps = if config.scores == "sigmoid" {
@@ -333,7 +363,10 @@ impl OnnxDetector {
         let mut pre = Vec::new();
         for c in chunks {
             let feed = [(self.input.as_str(), Val::D(Dev::from(c)?))];
-            let (main, alt) = self.graph.run_tapped(&feed, &[&self.output], &self.taps)?;
+            let names: Vec<&str> = std::iter::once(self.output.as_str())
+                .chain(self.config.boxes.as_deref())
+                .collect();
+            let (main, alt) = self.graph.run_tapped(&feed, &names, &self.taps)?;
             let as3 = |v: &Val| -> Result<Tensor<3>> {
                 let d = v.dev(&self.graph.device)?;
                 ensure!(
@@ -349,9 +382,17 @@ impl OnnxDetector {
                     t
                 })
             };
-            let p = as3(&main[0])?;
+            // Split: the boxes joined in front of the scores, as the yolov8 head has them.
+            let join = |scores: &Val| -> Result<Tensor<3>> {
+                let t = as3(scores)?;
+                Ok(match self.head {
+                    Head::Split => Tensor::cat(vec![as3(&main[1])?, t], 2),
+                    _ => t,
+                })
+            };
+            let p = join(&main[0])?;
             pre.push(match alt.first() {
-                Some(a) => as3(a)?,
+                Some(a) => join(a)?,
                 None => p.clone(),
             });
             probs.push(p);
@@ -379,7 +420,7 @@ impl OnnxDetector {
         let ux = |v: Tensor<3>| v.sub_scalar(geo.pad[0]).div_scalar(geo.scale[0]);
         let uy = |v: Tensor<3>| v.sub_scalar(geo.pad[1]).div_scalar(geo.scale[1]);
         let boxes = Tensor::cat(vec![ux(x1), uy(y1), ux(x2), uy(y2)], 2);
-        let skip = if self.head == Head::V8 { 4 } else { 5 };
+        let skip = if self.head == Head::V5 { 5 } else { 4 };
         let cls_p = p.clone().narrow(2, skip, k - skip);
         let cls_l = l.clone().narrow(2, skip, k - skip);
         let mode = self.config.scores.as_str();
@@ -389,9 +430,9 @@ impl OnnxDetector {
             q.clone().log() - q.neg().log1p()
         };
         let (scores, logits) = match (self.head, mode) {
-            (Head::V8, "logits") => (activation::sigmoid(cls_p.clone()), cls_p),
-            (Head::V8, "probabilities") => (cls_p.clone(), logit_of_prob(cls_p)),
-            (Head::V8, _) => (cls_p, cls_l),
+            (Head::V8 | Head::Split, "logits") => (activation::sigmoid(cls_p.clone()), cls_p),
+            (Head::V8 | Head::Split, "probabilities") => (cls_p.clone(), logit_of_prob(cls_p)),
+            (Head::V8 | Head::Split, _) => (cls_p, cls_l),
             (Head::V5, _) => {
                 let obj_p = col(&p, 4);
                 let obj_l = col(&l, 4);
