@@ -525,6 +525,77 @@ fn split_head_reads_boxes_and_scores_from_two_outputs() {
 }
 
 #[test]
+fn grad_cam_reaches_an_onnx_graph_and_its_gradient_matches_central_differences() {
+    use cac::eval::gradcam;
+    let Some(dir) = fixtures() else { return };
+    let Some(shared) = support::shared() else {
+        return;
+    };
+    if !has_ultralytics(dir) {
+        return;
+    }
+    let dev = support::device();
+    let det = OnnxDetector::load(&dir.join("yolov8n.onnx"), None, &dev).unwrap();
+    let rgb = cac::io::load_rgb(&shared.join("reference/images/horse.png")).unwrap();
+    let x = cac::detect::preprocess::image_to_tensor(&rgb, &dev);
+    let layers = gradcam::layers(&det, x.clone()).unwrap();
+    let io = det
+        .cam_io(x.clone())
+        .unwrap()
+        .expect("YOLOv8n exposes its graph");
+    // The default layer is the neck's last concatenation on the finest grid (40² at 320²).
+    let default = layers
+        .iter()
+        .find(|l| l.name == io.default_layer)
+        .expect("listed");
+    assert_eq!(
+        (default.op.as_str(), default.shape[2]),
+        ("Concat", 40),
+        "{default:?}"
+    );
+    let act = gradcam::activation(&io, &io.default_layer).unwrap();
+    let class = 17; // horse
+    let (score, g) = gradcam::class_score(&io, &io.default_layer, &act, class, true).unwrap();
+    let g = g.unwrap();
+    assert!(score.is_finite() && g.iter().any(|v| *v != 0.0));
+    let mut rng = 3u64;
+    let mut next = || {
+        rng = rng
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((rng >> 33) as f32) / (1u64 << 31) as f32 - 0.5
+    };
+    let scale = act.values.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    let h = 1e-3 * scale;
+    let at = |v: &[f32], t: f32| -> f64 {
+        let mut a = act.clone();
+        a.values.iter_mut().zip(v).for_each(|(x, d)| *x += t * d);
+        gradcam::class_score(&io, &io.default_layer, &a, class, false)
+            .unwrap()
+            .0 as f64
+    };
+    let mut verdict = None;
+    for _ in 0..4 {
+        let v: Vec<f32> = (0..act.values.len()).map(|_| next()).collect();
+        let (lo, mid, hi) = (at(&v, -h), at(&v, 0.0), at(&v, h));
+        let (left, right) = ((mid - lo) / h as f64, (hi - mid) / h as f64);
+        if (left - right).abs() > 2e-2 * left.abs().max(right.abs()) {
+            continue; // the maximum changed candidate inside the step
+        }
+        let analytic: f64 = g.iter().zip(&v).map(|(a, b)| *a as f64 * *b as f64).sum();
+        let numeric = (hi - lo) / (2.0 * h as f64);
+        verdict = Some((analytic, numeric));
+        break;
+    }
+    let (analytic, numeric) = verdict.expect("a smooth direction");
+    eprintln!("Grad-CAM on YOLOv8n: d score along a random direction {analytic:.5e}, central differences {numeric:.5e}");
+    assert!((analytic - numeric).abs() <= 2e-2 * analytic.abs().max(numeric.abs()));
+    let cam = gradcam::grad_cam(&det, x, class, None).unwrap();
+    assert_eq!(cam.grid, (40, 40));
+    assert!(cam.map.iter().all(|v| (0.0..=1.0).contains(v)));
+}
+
+#[test]
 fn input_gradient_through_the_tapped_logits_matches_central_differences() {
     let Some(dir) = fixtures() else { return };
     let train = support::training();

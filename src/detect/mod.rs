@@ -61,13 +61,42 @@ pub struct Detection {
 /// A detector's graph as attention maps (Grad-CAM) need it: the graph, its inputs for one image
 /// batch, the outputs holding the pre-sigmoid class logits, and a default layer.
 pub struct CamIo<'a> {
-    pub graph: &'a tfjs::Graph,
+    pub graph: &'a dyn CamGraph,
     /// Graph inputs (placeholder name, pre-processed network input).
     pub feeds: Vec<(String, Tensor<4>)>,
-    /// Graph outputs of class logits, each with the logical axis of its 80 classes.
+    /// Graph values of class logits, each with the logical axis of its classes.
     pub logits: Vec<(String, usize)>,
     /// The default layer: a late feature map of good spatial resolution.
     pub default_layer: String,
+}
+
+/// What Grad-CAM needs of a graph, whichever format it came from (TFJS, ONNX): its layers, a
+/// run that returns float values, and a run with one layer's output replaced (an autodiff leaf,
+/// so the gradient of the class score with respect to that layer can be taken).
+pub trait CamGraph {
+    /// The device the graph's constants live on.
+    fn device(&self) -> Device;
+    /// `(name, op type)` of the nodes `outputs` depend on whose output can be a feature map
+    /// (convolutions, activations, sums, products, concatenations), in graph order.
+    fn feature_layers(&self, outputs: &[&str]) -> Result<Vec<(String, String)>>;
+    /// Runs the graph on `feeds` (graph input name, value), `inject` replacing the output of one
+    /// layer (name, value in that layer's logical layout and shape), and returns `outputs` as
+    /// float tensors padded to rank 4 with their logical shapes (rank <= 4).
+    fn run_cam(
+        &self,
+        feeds: &[(&str, Tensor<4>)],
+        inject: Option<(&str, Tensor<4>, &[usize])>,
+        outputs: &[&str],
+    ) -> Result<Vec<(Tensor<4>, Vec<usize>)>>;
+    /// The channel axis of a `[1, a, b, c]` feature map, None when it is not one (a square grid
+    /// is expected: NHWC when `a == b`, NCHW when `b == c`).
+    fn channel_axis(&self, shape: &[usize]) -> Option<usize> {
+        match shape {
+            [1, a, b, _] if a == b => Some(3),
+            [1, _, b, c] if b == c => Some(1),
+            _ => None,
+        }
+    }
 }
 
 /// A differentiable object detector. Object-safe.

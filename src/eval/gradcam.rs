@@ -3,11 +3,10 @@
 //! The class score is the largest pre-sigmoid logit of the class over all of the detector's
 //! dense outputs (the most confident candidate of that class). For a layer with activation
 //! `A` (`h × w × C`), its gradient `∂score/∂A` is taken by running the graph a second time with
-//! `A` re-injected as an autodiff leaf ([`Graph::run_injected`](crate::detect::tfjs::Graph));
+//! `A` re-injected as an autodiff leaf ([`CamGraph::run_cam`], TFJS and ONNX graphs alike);
 //! channel weights are the spatially averaged gradients `α_k = mean_ij ∂score/∂A_ijk`, the map is
 //! `ReLU(Σ_k α_k A_k)`, normalised to [0, 1] and bilinearly upsampled to the image.
 
-use crate::detect::tfjs::{FloatValue, Value};
 use crate::detect::{CamIo, Detector};
 use anyhow::{anyhow, bail, Context, Result};
 use burn::tensor::{Device, Tensor, TensorData};
@@ -43,49 +42,17 @@ pub fn layers(det: &dyn Detector, image: Tensor<4>) -> Result<Vec<Layer>> {
     let io = io(det, image)?;
     let g = io.graph;
     // Only the ancestors of the class logits can carry their gradient.
-    let mut anc = vec![false; g.nodes.len()];
-    let mut stack: Vec<usize> = io
-        .logits
-        .iter()
-        .filter_map(|(n, _)| g.node_index(n))
-        .collect();
-    while let Some(i) = stack.pop() {
-        if !std::mem::replace(&mut anc[i], true) {
-            stack.extend(g.nodes[i].inputs.iter().map(|x| x.0));
-        }
-    }
-    let names: Vec<&str> = g
-        .nodes
-        .iter()
-        .enumerate()
-        .filter(|(i, _)| anc[*i])
-        .map(|(_, n)| n)
-        .filter(|n| {
-            let op = n.op();
-            op.contains("Conv")
-                || matches!(
-                    op,
-                    "Relu" | "Relu6" | "LeakyRelu" | "AddV2" | "Add" | "ConcatV2" | "Mul"
-                )
-        })
-        .map(|n| n.name())
-        .collect();
-    let dev = g.device.clone();
-    let f = feeds(&io, &dev);
+    let outs: Vec<&str> = io.logits.iter().map(|(n, _)| n.as_str()).collect();
+    let found = g.feature_layers(&outs)?;
+    let names: Vec<&str> = found.iter().map(|(n, _)| n.as_str()).collect();
+    let f = feeds(&io, &g.device());
     let fr: Vec<(&str, Tensor<4>)> = f.iter().map(|(n, t)| (n.as_str(), t.clone())).collect();
-    let vals = g.run(&fr, &names)?;
-    Ok(names
-        .iter()
+    let vals = g.run_cam(&fr, None, &names)?;
+    Ok(found
+        .into_iter()
         .zip(vals)
-        .filter(|(_, v)| {
-            let s = v.shape();
-            matches!(v, Value::Float(_)) && channel_axis(s).is_some() && s[2] > 1
-        })
-        .map(|(n, v)| Layer {
-            name: n.to_string(),
-            op: g.nodes[g.node_index(n).unwrap()].op().to_string(),
-            shape: v.shape().to_vec(),
-        })
+        .filter(|(_, (_, s))| g.channel_axis(s).is_some() && s[2] > 1)
+        .map(|((name, op), (_, shape))| Layer { name, op, shape })
         .collect())
 }
 
@@ -120,33 +87,19 @@ impl Activation {
     }
 }
 
-/// The channel axis of a `[1, a, b, c]` map of a square network input: the spatial axes are the
-/// two equal ones (NHWC when `a == b`, NCHW when `b == c` and `a != b`).
-pub fn channel_axis(shape: &[usize]) -> Option<usize> {
-    match shape {
-        [1, a, b, _] if a == b => Some(3),
-        [1, _, b, c] if b == c => Some(1),
-        _ => None,
-    }
-}
-
 /// The activation of `layer` for `io`'s inputs.
 pub fn activation(io: &CamIo, layer: &str) -> Result<Activation> {
-    let f = feeds(io, &io.graph.device);
+    let f = feeds(io, &io.graph.device());
     let fr: Vec<(&str, Tensor<4>)> = f.iter().map(|(n, t)| (n.as_str(), t.clone())).collect();
-    let v = io.graph.run(&fr, &[layer])?.remove(0);
-    let Value::Float(a) = v else {
-        bail!("layer {layer:?} is not a float tensor");
-    };
-    let Some(channel_axis) = channel_axis(&a.shape) else {
+    let (t, s) = io.graph.run_cam(&fr, None, &[layer])?.remove(0);
+    let Some(channel_axis) = io.graph.channel_axis(&s) else {
         bail!(
-            "layer {layer:?} has shape {:?}: Grad-CAM needs a [1, h, w, C] or [1, C, h, w] \
-             feature map with a square grid (see --list-layers)",
-            a.shape
+            "layer {layer:?} has shape {s:?}: Grad-CAM needs a [1, h, w, C] or [1, C, h, w] \
+             feature map with a square grid (see --list-layers)"
         );
     };
-    let shape = [a.shape[0], a.shape[1], a.shape[2], a.shape[3]];
-    let values = a.to_host()?.as_f32();
+    let shape = [s[0], s[1], s[2], s[3]];
+    let values = crate::detect::to_vec(&t)?;
     Ok(Activation {
         shape,
         channel_axis,
@@ -167,9 +120,9 @@ pub fn class_score(
         bail!("class id {class} is not a COCO-80 class");
     }
     let dev = if grad {
-        Device::autodiff(io.graph.device.clone())
+        Device::autodiff(io.graph.device())
     } else {
-        io.graph.device.clone()
+        io.graph.device()
     };
     let mut a = Tensor::<4>::from_data(TensorData::new(act.values.clone(), act.shape), &dev);
     if grad {
@@ -178,15 +131,13 @@ pub fn class_score(
     let f = feeds(io, &dev);
     let fr: Vec<(&str, Tensor<4>)> = f.iter().map(|(n, t)| (n.as_str(), t.clone())).collect();
     let outs: Vec<&str> = io.logits.iter().map(|(n, _)| n.as_str()).collect();
-    let inj = FloatValue::new(a.clone(), act.shape.to_vec());
-    let vals = io.graph.run_injected(&fr, &[(layer, inj)], &outs)?;
+    let vals = io
+        .graph
+        .run_cam(&fr, Some((layer, a.clone(), &act.shape)), &outs)?;
     let mut maxes = vec![];
-    for (v, (name, axis)) in vals.into_iter().zip(&io.logits) {
-        let Value::Float(l) = v else {
-            bail!("logits output {name:?} is not a float tensor");
-        };
-        let dim = l.offset() + axis;
-        maxes.push(l.t.narrow(dim, class, 1).max());
+    for ((t, shape), (_, axis)) in vals.into_iter().zip(&io.logits) {
+        let dim = 4 - shape.len() + axis;
+        maxes.push(t.narrow(dim, class, 1).max());
     }
     let score = Tensor::cat(maxes, 0).max();
     let s = crate::detect::to_vec(&score)?[0];

@@ -563,6 +563,61 @@ impl Detector for OnnxDetector {
     fn name(&self) -> &str {
         &self.name
     }
+    /// The class logits are the tapped sigmoids' inputs (rank <= 4, one axis of the class
+    /// count). The default layer: after the neck's last upsampling (where there is one), the
+    /// last concatenation on the finest grid (in YOLO necks it feeds every level's head), else
+    /// the last feature map of at least 8 × 8.
+    fn cam_io(&self, images: Tensor<4>) -> Result<Option<crate::detect::CamIo<'_>>> {
+        use crate::detect::CamGraph;
+        let (x, _) = self.network_input(images)?;
+        let n = self.classes.len();
+        let mut logits = Vec::new();
+        for &k in &self.taps {
+            let Some(name) = self.graph.node(k).inputs.first() else {
+                continue;
+            };
+            let s = self
+                .graph
+                .run_cam(&[(&self.input, x.clone())], None, &[name])?
+                .remove(0)
+                .1;
+            if let Some(axis) = s.iter().rposition(|&d| d == n) {
+                logits.push((name.clone(), axis));
+            }
+        }
+        if logits.is_empty() {
+            return Ok(None);
+        }
+        let outs: Vec<&str> = logits.iter().map(|(n, _)| n.as_str()).collect();
+        let layers = self.graph.feature_layers(&outs)?;
+        let names: Vec<&str> = layers.iter().map(|(n, _)| n.as_str()).collect();
+        let shapes = self
+            .graph
+            .run_cam(&[(&self.input, x.clone())], None, &names)?;
+        let last_upsample = (0..self.graph.model.nodes.len())
+            .filter(|&k| matches!(self.graph.node(k).op.as_str(), "Resize" | "Upsample"))
+            .max();
+        let maps: Vec<(&str, &str, usize)> = layers
+            .iter()
+            .zip(&shapes)
+            .filter(|(_, (_, s))| s.len() == 4 && s[2] >= 8 && s[3] >= 8)
+            .filter(|((n, _), _)| self.graph.producer_of(n) > last_upsample)
+            .map(|((n, op), (_, s))| (n.as_str(), op.as_str(), s[2] * s[3]))
+            .collect();
+        let finest = maps.iter().map(|m| m.2).max().unwrap_or(0);
+        let default_layer = maps
+            .iter()
+            .rfind(|m| m.1 == "Concat" && m.2 == finest)
+            .or(maps.last())
+            .map(|m| m.0.to_string())
+            .ok_or_else(|| anyhow!("{}: no feature map for attention maps", self.name))?;
+        Ok(Some(crate::detect::CamIo {
+            graph: &self.graph,
+            feeds: vec![(self.input.clone(), x)],
+            logits,
+            default_layer,
+        }))
+    }
     fn input_size(&self) -> (usize, usize) {
         self.size
     }

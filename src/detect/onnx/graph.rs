@@ -170,7 +170,28 @@ impl OnnxGraph {
         outputs: &[&str],
         taps: &[usize],
     ) -> Result<(Vec<Val>, Vec<Val>)> {
+        self.run_full(feeds, &[], outputs, taps)
+    }
+
+    /// [`OnnxGraph::run_tapped`] with the values of some graph values replaced (`inject`: value
+    /// name, value): the nodes only they depend on are not run (Grad-CAM injects an autodiff
+    /// leaf in place of a feature map).
+    pub fn run_full(
+        &self,
+        feeds: &[(&str, Val)],
+        inject: &[(&str, Val)],
+        outputs: &[&str],
+        taps: &[usize],
+    ) -> Result<(Vec<Val>, Vec<Val>)> {
         let src = self.source();
+        let mut injected: HashMap<usize, Val> = HashMap::new();
+        for (name, v) in inject {
+            let s = *self
+                .slots
+                .get(*name)
+                .ok_or_else(|| anyhow!("{src}: no value named {name:?}"))?;
+            injected.insert(s, v.clone());
+        }
         let want: Vec<usize> = outputs
             .iter()
             .map(|o| {
@@ -183,7 +204,11 @@ impl OnnxGraph {
         // The nodes the outputs depend on.
         let n = self.model.nodes.len();
         let mut needed = vec![false; n];
-        let mut stack: Vec<usize> = want.iter().filter_map(|&s| self.producer[s]).collect();
+        let mut stack: Vec<usize> = want
+            .iter()
+            .filter(|s| !injected.contains_key(s))
+            .filter_map(|&s| self.producer[s])
+            .collect();
         while let Some(k) = stack.pop() {
             if std::mem::replace(&mut needed[k], true) {
                 continue;
@@ -192,6 +217,7 @@ impl OnnxGraph {
                 self.inputs[k]
                     .iter()
                     .flatten()
+                    .filter(|s| !injected.contains_key(s))
                     .filter_map(|&s| self.producer[s]),
             );
         }
@@ -202,7 +228,7 @@ impl OnnxGraph {
             }
         }
         let keep: HashSet<usize> = want.iter().copied().collect();
-        let mut vals: HashMap<usize, Val> = HashMap::new();
+        let mut vals: HashMap<usize, Val> = injected.clone();
         for (name, v) in feeds {
             let s = *self
                 .slots
@@ -274,6 +300,7 @@ impl OnnxGraph {
                     started.elapsed().as_secs_f64() * 1e3;
             }
             for (s, v) in self.outputs[k].iter().zip(out) {
+                let v = injected.get(s).cloned().unwrap_or(v);
                 vals.insert(*s, v);
             }
             for &s in self.inputs[k].iter().flatten() {
@@ -313,5 +340,65 @@ impl OnnxGraph {
                 .collect::<Result<Vec<_>>>()?
         };
         Ok((main, pre))
+    }
+}
+
+/// Grad-CAM's view of an ONNX graph: layers are node output values, feature maps are NCHW.
+impl crate::detect::CamGraph for OnnxGraph {
+    fn device(&self) -> Device {
+        self.device.clone()
+    }
+
+    fn feature_layers(&self, outputs: &[&str]) -> Result<Vec<(String, String)>> {
+        let mut needed = vec![false; self.model.nodes.len()];
+        let mut stack: Vec<usize> = outputs.iter().filter_map(|o| self.producer_of(o)).collect();
+        while let Some(k) = stack.pop() {
+            if !std::mem::replace(&mut needed[k], true) {
+                stack.extend(self.input_producers(k).into_iter().flatten());
+            }
+        }
+        Ok(self
+            .model
+            .nodes
+            .iter()
+            .enumerate()
+            .filter(|(k, n)| {
+                needed[*k]
+                    && matches!(
+                        n.op.as_str(),
+                        "Conv" | "Relu" | "LeakyRelu" | "Add" | "Mul" | "Concat" | "HardSwish"
+                    )
+            })
+            .filter_map(|(_, n)| Some((n.outputs.first()?.clone(), n.op.clone())))
+            .collect())
+    }
+
+    fn run_cam(
+        &self,
+        feeds: &[(&str, Tensor<4>)],
+        inject: Option<(&str, Tensor<4>, &[usize])>,
+        outputs: &[&str],
+    ) -> Result<Vec<(Tensor<4>, Vec<usize>)>> {
+        let feeds: Vec<(&str, Val)> = feeds
+            .iter()
+            .map(|(n, t)| Ok((*n, Val::D(Dev::from(t.clone())?))))
+            .collect::<Result<_>>()?;
+        let inj: Vec<(&str, Val)> = match inject {
+            Some((n, t, s)) => vec![(n, Val::D(Dev::new(t, s.to_vec())?))],
+            None => vec![],
+        };
+        let (vals, _) = self.run_full(&feeds, &inj, outputs, &[])?;
+        vals.into_iter()
+            .map(|v| {
+                let d = v.dev(&self.device)?;
+                let t = d.t4()?;
+                Ok((t, d.shape))
+            })
+            .collect()
+    }
+
+    /// Every `[1, C, h, w]` value is channels-first.
+    fn channel_axis(&self, shape: &[usize]) -> Option<usize> {
+        matches!(shape, [1, _, _, _]).then_some(1)
     }
 }

@@ -380,3 +380,55 @@ fn broadcast_fill<T: Clone>(v: Vec<T>, n: usize) -> Result<Vec<T>> {
         len => bail!("inline value has {len} elements, shape needs {n}"),
     }
 }
+
+/// Grad-CAM's view of a TFJS graph (values logical: NHWC, or NCHW where the converter kept it).
+impl crate::detect::CamGraph for Graph {
+    fn device(&self) -> Device {
+        self.device.clone()
+    }
+
+    fn feature_layers(&self, outputs: &[&str]) -> Result<Vec<(String, String)>> {
+        let mut anc = vec![false; self.nodes.len()];
+        let mut stack: Vec<usize> = outputs.iter().filter_map(|n| self.node_index(n)).collect();
+        while let Some(i) = stack.pop() {
+            if !std::mem::replace(&mut anc[i], true) {
+                stack.extend(self.nodes[i].inputs.iter().map(|x| x.0));
+            }
+        }
+        Ok(self
+            .nodes
+            .iter()
+            .enumerate()
+            .filter(|(i, n)| {
+                let op = n.op();
+                anc[*i]
+                    && (op.contains("Conv")
+                        || matches!(
+                            op,
+                            "Relu" | "Relu6" | "LeakyRelu" | "AddV2" | "Add" | "ConcatV2" | "Mul"
+                        ))
+            })
+            .map(|(_, n)| (n.name().to_string(), n.op().to_string()))
+            .collect())
+    }
+
+    fn run_cam(
+        &self,
+        feeds: &[(&str, Tensor<4>)],
+        inject: Option<(&str, Tensor<4>, &[usize])>,
+        outputs: &[&str],
+    ) -> Result<Vec<(Tensor<4>, Vec<usize>)>> {
+        let inj: Vec<(&str, FloatValue)> = inject
+            .map(|(n, t, s)| (n, FloatValue::new(t, s.to_vec())))
+            .into_iter()
+            .collect();
+        self.run_injected(feeds, &inj, outputs)?
+            .into_iter()
+            .zip(outputs)
+            .map(|(v, name)| match v {
+                Value::Float(f) => Ok((f.t, f.shape)),
+                Value::Host(_) => bail!("{}: {name:?} is not a float tensor", self.source),
+            })
+            .collect()
+    }
+}
