@@ -11,7 +11,7 @@ use std::path::PathBuf;
 pub struct Args {
     /// Input image (PNG/JPEG).
     pub image: PathBuf,
-    /// Detector: centernet or nanodet.
+    /// Detector: centernet, nanodet, or onnx:MODEL.onnx (a head whose sigmoid cac taps).
     #[arg(long, default_value = "nanodet")]
     pub model: String,
     /// COCO class whose score is explained.
