@@ -16,7 +16,7 @@ pub struct Args {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Attack iterations (batch 2).
-    #[arg(long, default_value_t = 600)]
+    #[arg(long, default_value_t = 400)]
     pub iterations: usize,
     /// Protocol views per brightness level and viewpoint set (4 groups: FV/RV × bright/dark).
     #[arg(long, default_value_t = 16)]
