@@ -41,6 +41,10 @@ fn cluster() -> bool {
     ) {
         return false;
     }
+    // The tests of this file run in parallel: one of them starts the cluster, the others wait
+    // (two concurrent starts race for munged's socket lock).
+    static START: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _one = START.lock().unwrap_or_else(|e| e.into_inner());
     if !node_up() {
         let (ok, text) = sh(support::root().join(".ci/slurm-up").to_str().unwrap(), &[]);
         if !ok || !node_up() {
