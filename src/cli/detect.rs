@@ -18,38 +18,24 @@ fn catalogue() -> impl Iterator<Item = PossibleValue> {
         .map(|m| PossibleValue::new(m.name).help(m.about))
 }
 
-/// A model name of the catalogue, bare (`--model`, weights from `--weights`), or an ONNX
-/// detector's spec `onnx:MODEL.onnx[:CONFIG.toml]`.
+/// A detector spec, checked by [`detect::check_spec`] with the catalogue listed in the help:
+/// `NAME`, `MODEL=FILE` for a checkpoint model, or `onnx:MODEL.onnx[:CONFIG.toml]`
+/// (`--models`: [`MODEL_SPECS`]). [`MODEL_NAME`] also takes a checkpoint model's bare name (`cac detect --model`,
+/// whose weights come from `--weights`).
 #[derive(Clone, Copy, Debug)]
-pub struct ModelName;
-
-impl TypedValueParser for ModelName {
-    type Value = String;
-
-    fn parse_ref(
-        &self,
-        _cmd: &clap::Command,
-        _arg: Option<&clap::Arg>,
-        value: &std::ffi::OsStr,
-    ) -> std::result::Result<String, clap::Error> {
-        let s = value.to_string_lossy();
-        let ok = match detect::model_info(&s) {
-            Some(m) if m.weights != detect::Weights::Onnx => Ok(()),
-            _ => detect::check_spec(&s).map(|_| ()),
-        };
-        ok.map_err(|e| clap::Error::raw(ErrorKind::InvalidValue, format!("{e}\n")))?;
-        Ok(s.into_owned())
-    }
-
-    fn possible_values(&self) -> Option<Box<dyn Iterator<Item = PossibleValue> + '_>> {
-        Some(Box::new(catalogue()))
-    }
+pub struct ModelSpec {
+    bare_checkpoints: bool,
 }
 
-/// A detector spec of the catalogue, `NAME` or `MODEL=FILE` for a checkpoint model (`--models`):
-/// checked by [`detect::check_spec`], the catalogue listed in the help.
-#[derive(Clone, Copy, Debug)]
-pub struct ModelSpec;
+/// `--models`' parser.
+pub const MODEL_SPECS: ModelSpec = ModelSpec {
+    bare_checkpoints: false,
+};
+
+/// `cac detect --model`'s parser.
+pub const MODEL_NAME: ModelSpec = ModelSpec {
+    bare_checkpoints: true,
+};
 
 impl TypedValueParser for ModelSpec {
     type Value = String;
@@ -61,8 +47,11 @@ impl TypedValueParser for ModelSpec {
         value: &std::ffi::OsStr,
     ) -> std::result::Result<String, clap::Error> {
         let s = value.to_string_lossy();
-        detect::check_spec(&s)
-            .map_err(|e| clap::Error::raw(ErrorKind::InvalidValue, format!("{e}\n")))?;
+        let bare = detect::model_info(&s).is_some_and(|m| m.weights == detect::Weights::Checkpoint);
+        if !(self.bare_checkpoints && bare) {
+            detect::check_spec(&s)
+                .map_err(|e| clap::Error::raw(ErrorKind::InvalidValue, format!("{e}\n")))?;
+        }
         Ok(s.into_owned())
     }
 
@@ -77,7 +66,7 @@ pub struct DetectArgs {
     #[arg(required = true)]
     pub images: Vec<PathBuf>,
     /// A catalogue name, or your ONNX detector as onnx:MODEL.onnx[:CONFIG.toml].
-    #[arg(long, default_value = "centernet", value_parser = ModelName)]
+    #[arg(long, default_value = "centernet", value_parser = MODEL_NAME)]
     pub model: String,
     /// NanoDet only: @vladmandic/human's pre-/post-processing (RGB/255 input, argmax boxes),
     /// for parity checks; the default is the model's real BGR mean/std input and DFL decoding.

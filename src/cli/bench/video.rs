@@ -23,7 +23,7 @@ pub struct Args {
     #[arg(long, default_value_t = 24)]
     pub frames: usize,
     /// Detectors, comma-separated.
-    #[arg(long, value_delimiter = ',', value_parser = crate::cli::detect::ModelSpec, default_value = "nanodet,centernet")]
+    #[arg(long, value_delimiter = ',', value_parser = crate::cli::detect::MODEL_SPECS, default_value = "nanodet,centernet")]
     pub models: Vec<String>,
     /// Codecs, comma-separated (h264, hevc, mjpeg).
     #[arg(long, value_delimiter = ',', default_value = "h264,hevc,mjpeg")]
