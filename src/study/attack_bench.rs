@@ -34,7 +34,13 @@ pub fn time_split(runs: usize, det: &[&dyn Detector], device: &Device) -> Result
         "{:>5} {:>10} {:>11} {:>12} {:>13} {:>9}",
         "batch", "render_ms", "forward_ms", "backward_ms", "optimiser_ms", "total_ms"
     );
-    let columns = ["render_ms", "forward_ms", "backward_ms", "optimiser_ms", "total_ms"];
+    let columns = [
+        "render_ms",
+        "forward_ms",
+        "backward_ms",
+        "optimiser_ms",
+        "total_ms",
+    ];
     let mut split = Table::new(std::iter::once("batch").chain(columns));
     for batch in [1usize, 4] {
         let ac = AttackConfig {

@@ -78,7 +78,17 @@ impl DemoJob {
         let score = |name: &str, atlas: &Texture| {
             let (r, e) = (&eval_renderer, &env);
             evaluate_texture_in(
-                r, e, &groups, &views, name, atlas, &all, &proto, 2, device, &mut || {},
+                r,
+                e,
+                &groups,
+                &views,
+                name,
+                atlas,
+                &all,
+                &proto,
+                2,
+                device,
+                &mut || {},
             )
         };
         let n = 4 * self.views;
@@ -145,7 +155,14 @@ impl DemoJob {
     ) -> Result<(Texture, usize)> {
         let run = RunDir::open_or_create(&self.out.join("run"), cfg.clone(), attack.clone())?;
         let training = Device::autodiff(device.clone());
-        let tr = Trainer::new(attack.clone(), renderer, env, vec![source], training, original)?;
+        let tr = Trainer::new(
+            attack.clone(),
+            renderer,
+            env,
+            vec![source],
+            training,
+            original,
+        )?;
         let mut tr = run.resume(tr)?;
         if tr.state.iteration > 0 {
             let it = tr.state.iteration;

@@ -138,7 +138,11 @@ impl MethodsJob {
         let target = labels::class_id(&self.target)
             .with_context(|| format!("unknown target class {:?}", self.target))?;
         let mut specs = self.textures.clone();
-        specs.extend(trained.iter().map(|(n, _, d)| format!("{n}={}", d.display())));
+        specs.extend(
+            trained
+                .iter()
+                .map(|(n, _, d)| format!("{n}={}", d.display())),
+        );
         let job = EvalJob {
             scene,
             textures: specs,

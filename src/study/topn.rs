@@ -124,8 +124,8 @@ impl TopnJob {
                 viewpoints: ViewpointSet::Free,
                 ..Default::default()
             };
-            let read_only = matches!(self.part, Part::Shard(_) | Part::Merge)
-                .then(|| format!("--task {k}"));
+            let read_only =
+                matches!(self.part, Part::Shard(_) | Part::Merge).then(|| format!("--task {k}"));
             let label = format!("n = {n}");
             let ro = read_only.as_deref();
             train_run(&dir, &self.scene, ac, &stage, &src, device, &label, ro)?;
