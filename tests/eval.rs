@@ -140,17 +140,6 @@ fn grad_cam_peaks_on_the_vehicle_and_its_gradient_matches_finite_differences() {
     }
 }
 
-fn cac(args: &[&str]) -> String {
-    let out = support::cac(args);
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(out.status.success(), "cac {args:?} failed:\n{text}");
-    text
-}
-
 #[test]
 fn eval_config_runs_barrel_and_container_with_the_stop_sign_target_and_resumes() {
     let dir = tempfile::tempdir().unwrap();
@@ -184,7 +173,7 @@ fn eval_config_runs_barrel_and_container_with_the_stop_sign_target_and_resumes()
             "--out",
             out.to_str().unwrap(),
         ];
-        cac(&args);
+        support::cac_ok(&args);
         let json: serde_json::Value =
             serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap();
         assert_eq!(json["info"]["object"], object);
@@ -226,7 +215,7 @@ fn eval_config_runs_barrel_and_container_with_the_stop_sign_target_and_resumes()
         let html = std::fs::read_to_string(out.join("report.html")).unwrap();
         assert!(html.contains("data:image/png;base64,") && !html.contains("src=\"http"));
         // Rerun: both textures come from the cache, with the same records.
-        let text = cac(&args);
+        let text = support::cac_ok(&args);
         assert!(
             text.contains("reused from") && text.contains("Original, Random"),
             "{text}"
@@ -278,7 +267,7 @@ fn study_methods_trains_each_method_and_tables_the_protocols_records() {
         "--out",
         out.to_str().unwrap(),
     ];
-    cac(&args);
+    support::cac_ok(&args);
     let run: serde_json::Value = serde_json::from_slice(
         &std::fs::read(out.join("cac-hide-car+bus+truck/run.json")).unwrap(),
     )
@@ -312,7 +301,7 @@ fn study_methods_trains_each_method_and_tables_the_protocols_records() {
         // Trained rows carry their logged training time; the original none.
         assert_eq!(r[1] == "—", r[0] == "Original", "{csv}");
     }
-    let text = cac(&args);
+    let text = support::cac_ok(&args);
     assert!(text.contains("CAMOU: reusing the finished run"), "{text}");
     assert_eq!(
         std::fs::read_to_string(out.join("methods.csv")).unwrap(),

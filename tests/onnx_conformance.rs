@@ -131,6 +131,21 @@ fn has_ultralytics(dir: &Path) -> bool {
     ok
 }
 
+/// The fixtures with the torch-built models (ultralytics, torchvision) and the shared folder of
+/// reference photos; None (a skip outside CI, a failure under it) when one is missing.
+fn exports_and_shared() -> Option<(&'static Path, PathBuf)> {
+    let dir = fixtures()?;
+    let shared = support::shared()?;
+    has_ultralytics(dir).then_some((dir, shared))
+}
+
+/// A reference photo from ../shared as an image and as a `[1, 3, H, W]` tensor.
+fn photo(shared: &Path, name: &str) -> (image::RgbImage, Tensor<4>) {
+    let rgb = cac::io::load_rgb(&shared.join("reference/images").join(name)).unwrap();
+    let x = cac::detect::preprocess::image_to_tensor(&rgb, &support::device());
+    (rgb, x)
+}
+
 /// `got` against onnxruntime's `want`: same shape, every value within 1e-4 of the largest
 /// magnitude of `want` (integers exactly). Returns the error relative to that magnitude.
 fn compare(what: &str, got: &Val, want: &T) -> Result<f64, String> {
@@ -319,11 +334,9 @@ fn decode(
 
 #[test]
 fn yolo_detections_on_reference_images_match_onnxruntime() {
-    let Some(dir) = fixtures() else { return };
-    let Some(shared) = support::shared() else {
+    let Some((dir, shared)) = exports_and_shared() else {
         return;
     };
-    has_ultralytics(dir);
     let dev = support::device();
     let tmp = tempfile::tempdir().unwrap();
     let cfg = tmp.path().join("test.toml");
@@ -333,8 +346,7 @@ fn yolo_detections_on_reference_images_match_onnxruntime() {
         let det = OnnxDetector::load(&dir.join(&e.file), Some(&cfg), &dev).unwrap();
         let anchor_free = e.name != "yolov5_anchor";
         for img in ["astronaut.png", "horse.png", "motorcycle_left.png"] {
-            let rgb = cac::io::load_rgb(&shared.join("reference/images").join(img)).unwrap();
-            let x = cac::detect::preprocess::image_to_tensor(&rgb, &dev);
+            let (rgb, x) = photo(&shared, img);
             let (net, geo) = det.network_input(x.clone()).unwrap();
             let input = tmp.path().join("in.json");
             let output = tmp.path().join("out.json");
@@ -437,13 +449,9 @@ fn yolo_detections_on_reference_images_match_onnxruntime() {
 
 #[test]
 fn torchvision_ssdlite_dense_export_matches_onnxruntime() {
-    let Some(dir) = fixtures() else { return };
-    let Some(shared) = support::shared() else {
+    let Some((dir, shared)) = exports_and_shared() else {
         return;
     };
-    if !has_ultralytics(dir) {
-        return; // torch is installed with ultralytics; both or neither
-    }
     let dev = support::device();
     let model = dir.join("ssdlite.onnx");
     // The TOML written beside it: stretch, torchvision's mean/std, probabilities, xyxy, names.
@@ -452,8 +460,7 @@ fn torchvision_ssdlite_dense_export_matches_onnxruntime() {
     assert_eq!(det.config().scores, "probabilities");
     assert_eq!(det.classes().len(), 90);
     assert_eq!(det.classes()[..3], ["person", "bicycle", "car"]);
-    let rgb = cac::io::load_rgb(&shared.join("reference/images/horse.png")).unwrap();
-    let x = cac::detect::preprocess::image_to_tensor(&rgb, &dev);
+    let (_, x) = photo(&shared, "horse.png");
     let (net, _) = det.network_input(x.clone()).unwrap();
     let tmp = tempfile::tempdir().unwrap();
     let (input, output) = (tmp.path().join("in.json"), tmp.path().join("out.json"));
@@ -527,17 +534,12 @@ fn split_head_reads_boxes_and_scores_from_two_outputs() {
 #[test]
 fn grad_cam_reaches_an_onnx_graph_and_its_gradient_matches_central_differences() {
     use cac::eval::gradcam;
-    let Some(dir) = fixtures() else { return };
-    let Some(shared) = support::shared() else {
+    let Some((dir, shared)) = exports_and_shared() else {
         return;
     };
-    if !has_ultralytics(dir) {
-        return;
-    }
     let dev = support::device();
     let det = OnnxDetector::load(&dir.join("yolov8n.onnx"), None, &dev).unwrap();
-    let rgb = cac::io::load_rgb(&shared.join("reference/images/horse.png")).unwrap();
-    let x = cac::detect::preprocess::image_to_tensor(&rgb, &dev);
+    let (_, x) = photo(&shared, "horse.png");
     let layers = gradcam::layers(&det, x.clone()).unwrap();
     let io = det
         .cam_io(x.clone())
@@ -904,29 +906,14 @@ fn bad_files_are_refused_naming_the_file_node_and_op() {
     assert!(e.contains("/no/such/model.onnx"), "{e}");
 }
 
-fn cac_ok(args: &[&str]) -> String {
-    let out = support::cac(args);
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(out.status.success(), "cac {args:?} failed:\n{text}");
-    text
-}
-
 #[test]
 fn the_cli_inspects_detects_trains_and_evaluates_with_an_onnx_model() {
-    let Some(dir) = fixtures() else { return };
-    let Some(shared) = support::shared() else {
+    let Some((dir, shared)) = exports_and_shared() else {
         return;
     };
-    if !has_ultralytics(dir) {
-        return;
-    }
     let model = dir.join("yolov8n.onnx");
     let spec = format!("onnx:{}", model.display());
-    let text = cac_ok(&["models", "inspect", model.to_str().unwrap()]);
+    let text = support::cac_ok(&["models", "inspect", model.to_str().unwrap()]);
     assert!(
         text.contains("ai.onnx=18")
             && text.contains("output0 float32 [1, 84, 2100]")
@@ -945,7 +932,7 @@ fn the_cli_inspects_detects_trains_and_evaluates_with_an_onnx_model() {
     let cfg = tmp.path().join("low.toml");
     std::fs::write(&cfg, "score_threshold = 0.3\n").unwrap();
     let spec_cfg = format!("{spec}:{}", cfg.display());
-    let text = cac_ok(&[
+    let text = support::cac_ok(&[
         "detect",
         img.to_str().unwrap(),
         "--model",
@@ -954,11 +941,7 @@ fn the_cli_inspects_detects_trains_and_evaluates_with_an_onnx_model() {
     ]);
     let dev = support::device();
     let det = OnnxDetector::load(&model, Some(&cfg), &dev).unwrap();
-    let rgb = cac::io::load_rgb(&img).unwrap();
-    let want = det
-        .detect(cac::detect::preprocess::image_to_tensor(&rgb, &dev))
-        .unwrap()
-        .remove(0);
+    let want = det.detect(photo(&shared, "horse.png").1).unwrap().remove(0);
     let lines: Vec<serde_json::Value> = text
         .lines()
         .filter(|l| l.starts_with('{'))
@@ -978,7 +961,7 @@ fn the_cli_inspects_detects_trains_and_evaluates_with_an_onnx_model() {
          atlas_res = 32\n[environment]\ndistance_ratio = [1.5, 2.0]\n",
     )
     .unwrap();
-    cac_ok(&[
+    support::cac_ok(&[
         "train",
         "--config",
         scene.to_str().unwrap(),
@@ -995,7 +978,7 @@ fn the_cli_inspects_detects_trains_and_evaluates_with_an_onnx_model() {
         serde_json::from_slice(&std::fs::read(run.join("run.json")).unwrap()).unwrap();
     assert_eq!(json["finished"], true, "{json}");
     let eval = tmp.path().join("eval");
-    cac_ok(&[
+    support::cac_ok(&[
         "eval",
         "--config",
         scene.to_str().unwrap(),

@@ -47,14 +47,7 @@ fn run(args: &[String], extra: &[&str]) -> std::process::Output {
 }
 
 fn ok(args: &[String], extra: &[&str]) -> String {
-    let o = run(args, extra);
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    assert!(o.status.success(), "cac {args:?} {extra:?} failed:\n{text}");
-    text
+    support::ok_text(&format!("{args:?} {extra:?}"), &run(args, extra))
 }
 
 fn fails(args: &[String], extra: &[&str]) -> String {

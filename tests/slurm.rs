@@ -58,20 +58,6 @@ fn cluster() -> bool {
     true
 }
 
-fn cac_ok(args: &[&str]) -> String {
-    let o = support::cac_command()
-        .args(args)
-        .output()
-        .expect("cac runs");
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    assert!(o.status.success(), "cac {args:?} failed:\n{text}");
-    text
-}
-
 /// The job ids `cac slurm` printed, by stage (`eval: job 12, ...`).
 fn job_id(text: &str, stage: &str) -> String {
     text.lines()
@@ -182,7 +168,7 @@ fn slurm_eval_with_a_killed_and_resubmitted_shard_equals_one_process() {
     // The dry run prints the array and the dependent merge and writes nothing.
     let mut dry = submit.clone();
     dry.insert(4, "--dry-run");
-    let text = cac_ok(&dry);
+    let text = support::cac_ok(&dry);
     assert!(
         text.contains("sbatch --parsable --array=0-1 ")
             && text.contains("--dependency=afterok:$EVAL_JOB")
@@ -192,7 +178,7 @@ fn slurm_eval_with_a_killed_and_resubmitted_shard_equals_one_process() {
     );
     assert!(!out.exists(), "a dry run writes nothing");
 
-    let text = cac_ok(&submit);
+    let text = support::cac_ok(&submit);
     let (array, merge) = (job_id(&text, "eval"), job_id(&text, "merge"));
     // Kill shard 0 once its first texture is written, before its second.
     let first = out.join("cache/Original.shard-0-of-2.json");
@@ -219,7 +205,7 @@ fn slurm_eval_with_a_killed_and_resubmitted_shard_equals_one_process() {
     );
 
     // The single-process reference meanwhile.
-    cac_ok(
+    support::cac_ok(
         &["eval"]
             .into_iter()
             .chain(with_out(&single).iter().map(String::as_str))
@@ -228,7 +214,7 @@ fn slurm_eval_with_a_killed_and_resubmitted_shard_equals_one_process() {
 
     // Resubmitted: shard 0 resumes after Original, shard 1 has nothing left, the merge writes
     // the report.
-    let text = cac_ok(&submit);
+    let text = support::cac_ok(&submit);
     let (array2, merge2) = (job_id(&text, "eval"), job_id(&text, "merge"));
     wait_for(&[array2.clone(), merge2.clone()], &out.join("slurm"));
     let logs = log(&out.join("slurm"), &format!("eval-{array2}_"));
@@ -287,7 +273,7 @@ fn slurm_two_setting_topn_study_trains_as_an_array_and_merges_to_one_process() {
         .into_iter()
         .chain(a.iter().map(String::as_str))
         .collect();
-    let text = cac_ok(&submit);
+    let text = support::cac_ok(&submit);
     let ids = ["train", "eval", "merge"]
         .map(|s| job_id(&text, s))
         .to_vec();
@@ -308,7 +294,7 @@ fn slurm_two_setting_topn_study_trains_as_an_array_and_merges_to_one_process() {
         copy_dir(&out.join(n), &single.join(n));
     }
     let s = args(&single);
-    let text = cac_ok(
+    let text = support::cac_ok(
         &["study", "topn"]
             .into_iter()
             .chain(s.iter().map(String::as_str))

@@ -16,10 +16,10 @@
 
 pub mod bench;
 pub mod centernet;
-pub mod conv;
 pub mod draw;
 pub mod fetch;
 pub mod frcnn;
+pub mod kernels;
 pub mod labels;
 pub mod nanodet;
 pub mod nms;

@@ -6,14 +6,13 @@
 //! job's proposal rule; each baseline keeps its own paper's choice of what it attacks. Each
 //! entry of `hide` adds a CAC row in hide mode.
 
-use super::{refs, train_run};
+use super::{protocol_job, refs, train_run};
 use crate::attack::{loss::ProposalRule, AttackConfig, Method};
 use crate::config::SceneConfig;
-use crate::detect::{self, labels};
+use crate::detect;
 use crate::environment::ViewpointSet;
-use crate::eval::job::{self, EvalJob};
-use crate::eval::run::ViewPlan;
-use crate::eval::{report, study, Protocol};
+use crate::eval::job;
+use crate::eval::{report, study};
 use anyhow::{bail, Context, Result};
 use burn::tensor::Device;
 use std::path::PathBuf;
@@ -135,31 +134,14 @@ impl MethodsJob {
             render: SceneConfig::default().render,
             ..self.scene.clone()
         };
-        let target = labels::class_id(&self.target)
-            .with_context(|| format!("unknown target class {:?}", self.target))?;
         let mut specs = self.textures.clone();
         specs.extend(
             trained
                 .iter()
                 .map(|(n, _, d)| format!("{n}={}", d.display())),
         );
-        let job = EvalJob {
-            scene,
-            textures: specs,
-            plan: ViewPlan {
-                views_per_level: self.views,
-                seed: self.eval_seed,
-                sets: self.sets.clone(),
-                ..Default::default()
-            },
-            protocol: Protocol {
-                target: Some(target),
-                ..Default::default()
-            },
-            examples_per_group: 1,
-            figures: vec![],
-            out: self.out.join("eval"),
-        };
+        let plan = (self.views, self.eval_seed, self.sets.clone());
+        let job = protocol_job(scene, specs, plan, &self.target, &self.out)?;
         let evals = detect::load_all(&self.eval_models, None, device)?;
         println!("evaluating {} textures ...", job.textures.len());
         let o = job::run(&job, &refs(&evals), device, &mut |_, _| {})?;

@@ -12,8 +12,12 @@ pub mod topn;
 
 use crate::attack::{run::RunDir, AttackConfig, Trainer};
 use crate::config::{SceneConfig, Stage};
-use crate::detect::Detector;
-use anyhow::{bail, Result};
+use crate::detect::{labels, Detector};
+use crate::environment::ViewpointSet;
+use crate::eval::job::EvalJob;
+use crate::eval::run::ViewPlan;
+use crate::eval::Protocol;
+use anyhow::{bail, Context, Result};
 use burn::tensor::Device;
 use std::path::Path;
 
@@ -64,6 +68,37 @@ pub fn train_run(
         .map(|l| l.ms_render + l.ms_forward + l.ms_backward + l.ms_optimiser)
         .sum();
     Ok(ms / 1000.0)
+}
+
+/// The evaluation of a study's textures as `cac eval` judges them: `views` per brightness level
+/// and set of `sets`, view seed `seed`, targeted success for class `target`, one example view
+/// per group, written to `out/eval`.
+pub fn protocol_job(
+    scene: SceneConfig,
+    textures: Vec<String>,
+    (views, seed, sets): (usize, u64, Vec<ViewpointSet>),
+    target: &str,
+    out: &Path,
+) -> Result<EvalJob> {
+    let target =
+        labels::class_id(target).with_context(|| format!("unknown target class {target:?}"))?;
+    Ok(EvalJob {
+        scene,
+        textures,
+        plan: ViewPlan {
+            views_per_level: views,
+            seed,
+            sets,
+            ..Default::default()
+        },
+        protocol: Protocol {
+            target: Some(target),
+            ..Default::default()
+        },
+        examples_per_group: 1,
+        figures: vec![],
+        out: out.join("eval"),
+    })
 }
 
 /// Loaded detectors as the trait objects the trainer and the evaluation take.

@@ -5,17 +5,16 @@
 //! topn.html (the full evaluation report in OUT/eval/). A sweep runs it in parts: one training
 //! task per setting, evaluation shards, then the merge.
 
-use super::{refs, train_run};
+use super::{protocol_job, refs, train_run};
 use crate::attack::{loss::ProposalRule, AttackConfig};
 use crate::config::SceneConfig;
-use crate::detect::{self, labels};
+use crate::detect;
 use crate::environment::ViewpointSet;
-use crate::eval::job::{self, EvalJob, ShardOutcome};
-use crate::eval::run::ViewPlan;
+use crate::eval::job::{self, ShardOutcome};
 use crate::eval::shard::Shard;
-use crate::eval::{report, study, Protocol};
+use crate::eval::{report, study};
 use crate::report::Html;
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use burn::tensor::Device;
 use std::path::PathBuf;
 
@@ -140,25 +139,8 @@ impl TopnJob {
         if let Some(s) = self.eval_size {
             (eval_scene.render.width, eval_scene.render.height) = (s, s);
         }
-        let target = labels::class_id(&self.target)
-            .with_context(|| format!("unknown target class {:?}", self.target))?;
-        let job = EvalJob {
-            scene: eval_scene,
-            textures: specs,
-            plan: ViewPlan {
-                views_per_level: self.views,
-                seed: self.seed,
-                sets: self.sets.clone(),
-                ..Default::default()
-            },
-            protocol: Protocol {
-                target: Some(target),
-                ..Default::default()
-            },
-            examples_per_group: 1,
-            figures: vec![],
-            out: self.out.join("eval"),
-        };
+        let plan = (self.views, self.seed, self.sets.clone());
+        let job = protocol_job(eval_scene, specs, plan, &self.target, &self.out)?;
         let evals = detect::load_all(&self.eval_models, None, device)?;
         let refs = refs(&evals);
         println!(

@@ -88,3 +88,19 @@ pub fn cac_command() -> Command {
 pub fn cac(args: &[&str]) -> Output {
     cac_command().args(args).output().expect("cac runs")
 }
+
+/// Its stdout and stderr as text, `cac ... failed:` and that text when it exits with an error.
+pub fn ok_text(what: &str, out: &Output) -> String {
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success(), "cac {what} failed:\n{text}");
+    text
+}
+
+/// Runs `cac` on `args`, which must succeed; returns its stdout and stderr.
+pub fn cac_ok(args: &[&str]) -> String {
+    ok_text(&format!("{args:?}"), &cac(args))
+}

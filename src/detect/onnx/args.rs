@@ -4,7 +4,7 @@
 
 use super::model::{Attr, NodeDef};
 use super::value::{pad6, Dev, Val, MAX_RANK};
-use anyhow::{anyhow, bail, ensure, Result};
+use anyhow::{anyhow, ensure, Result};
 use burn::tensor::{Device, Tensor};
 
 /// A node's inputs and attributes, as the op implementations read them.
@@ -85,25 +85,7 @@ impl<'a> Args<'a> {
     }
 }
 
-/// numpy's broadcast of two shapes.
-pub fn broadcast(a: &[usize], b: &[usize]) -> Result<Vec<usize>> {
-    let r = a.len().max(b.len());
-    let at = |s: &[usize], k: usize| {
-        if k + s.len() >= r {
-            s[k + s.len() - r]
-        } else {
-            1
-        }
-    };
-    (0..r)
-        .map(|k| match (at(a, k), at(b, k)) {
-            (x, y) if x == y => Ok(x),
-            (1, y) => Ok(y),
-            (x, 1) => Ok(x),
-            _ => bail!("shapes {a:?} and {b:?} do not broadcast"),
-        })
-        .collect()
-}
+pub use crate::detect::kernels::broadcast_shape as broadcast;
 
 /// The physical tensor of `d` broadcast to logical shape `out`.
 pub fn expand(d: &Dev, out: &[usize]) -> Tensor<MAX_RANK> {

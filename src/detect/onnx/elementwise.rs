@@ -113,40 +113,30 @@ pub fn where_(a: &Args) -> Result<Val> {
     let (c, x, y) = (a.input(0)?, a.input(1)?, a.input(2)?);
     if let (Val::H(c), Val::H(x), Val::H(y)) = (c, x, y) {
         let out = broadcast(&broadcast(c.shape(), x.shape())?, y.shape())?;
-        let cb = c.as_f();
-        let cb = cb
-            .broadcast(IxDyn(&out))
-            .ok_or_else(|| anyhow!("broadcast"))?;
+        /// `c ? x : y` elementwise, all three broadcast to `out`.
+        fn pick<T: Copy>(
+            c: &ArrayD<f32>,
+            x: &ArrayD<T>,
+            y: &ArrayD<T>,
+            out: &[usize],
+        ) -> Result<ArrayD<T>> {
+            let b = |what: &str, s: &[usize]| {
+                anyhow!("Where: {what} {s:?} does not broadcast to {out:?}")
+            };
+            let cb = c
+                .broadcast(IxDyn(out))
+                .ok_or_else(|| b("condition", c.shape()))?;
+            let xb = x.broadcast(IxDyn(out)).ok_or_else(|| b("X", x.shape()))?;
+            let yb = y.broadcast(IxDyn(out)).ok_or_else(|| b("Y", y.shape()))?;
+            Ok(Zip::from(&cb)
+                .and(&xb)
+                .and(&yb)
+                .map_collect(|&c, &p, &q| if c != 0.0 { p } else { q }))
+        }
+        let c = c.as_f();
         return Ok(Val::H(match (x, y) {
-            (Host::I(x), Host::I(y)) => {
-                let xb = x
-                    .broadcast(IxDyn(&out))
-                    .ok_or_else(|| anyhow!("broadcast"))?;
-                let yb = y
-                    .broadcast(IxDyn(&out))
-                    .ok_or_else(|| anyhow!("broadcast"))?;
-                Host::I(
-                    Zip::from(&cb)
-                        .and(&xb)
-                        .and(&yb)
-                        .map_collect(|&c, &p, &q| if c != 0.0 { p } else { q }),
-                )
-            }
-            _ => {
-                let (x, y) = (x.as_f(), y.as_f());
-                let xb = x
-                    .broadcast(IxDyn(&out))
-                    .ok_or_else(|| anyhow!("broadcast"))?;
-                let yb = y
-                    .broadcast(IxDyn(&out))
-                    .ok_or_else(|| anyhow!("broadcast"))?;
-                Host::F(
-                    Zip::from(&cb)
-                        .and(&xb)
-                        .and(&yb)
-                        .map_collect(|&c, &p, &q| if c != 0.0 { p } else { q }),
-                )
-            }
+            (Host::I(x), Host::I(y)) => Host::I(pick(&c, x, y, &out)?),
+            _ => Host::F(pick(&c, &x.as_f(), &y.as_f(), &out)?),
         }));
     }
     let (c, x, y) = (c.dev(a.dev)?, x.dev(a.dev)?, y.dev(a.dev)?);

@@ -7,7 +7,7 @@
 
 use super::args::{axis, broadcast, expand, Args};
 use super::value::{pad6, Dev, Host, Val, MAX_RANK};
-use crate::detect::conv::{conv_im2col, IM2COL_MAX_CHANNELS};
+use crate::detect::kernels::{conv_im2col, IM2COL_MAX_CHANNELS};
 use crate::detect::nms::non_max_suppression as nms;
 use anyhow::{anyhow, bail, ensure, Result};
 use burn::tensor::module::{avg_pool2d, conv2d, max_pool2d};
@@ -682,10 +682,24 @@ pub fn non_max_suppression(a: &Args) -> Result<Val> {
 
 #[cfg(test)]
 mod tests {
+    //! Backward passes the ops above rely on (Resize/Gather/Slice by `select`, MaxPool).
+    use burn::tensor::module::max_pool2d;
+    use burn::tensor::ops::MaxPoolOptions;
     use burn::tensor::{Device, Int, Tensor, TensorData};
 
     fn dev() -> Device {
         Device::autodiff(Device::from(burn::backend::FlexDevice))
+    }
+
+    /// The gradient of `y.sum()` with respect to `x`, on the host.
+    fn grad_of<const D: usize, const E: usize>(x: &Tensor<D>, y: Tensor<E>) -> Vec<f32> {
+        let g = y.sum().backward();
+        x.grad(&g)
+            .unwrap()
+            .to_data()
+            .convert::<f32>()
+            .try_into_vec()
+            .unwrap()
     }
 
     #[test]
@@ -694,43 +708,19 @@ mod tests {
         let x = Tensor::<2>::from_data(TensorData::new(vec![1.0f32, 2.0, 3.0], [1, 3]), &d)
             .require_grad();
         let idx = Tensor::<1, Int>::from_data(TensorData::new(vec![0i64, 0, 1, 1, 2, 2], [6]), &d);
-        let y = x.clone().select(1, idx).sum();
-        let g = y.backward();
-        let gv: Vec<f32> = x
-            .grad(&g)
-            .unwrap()
-            .to_data()
-            .convert::<f32>()
-            .try_into_vec()
-            .unwrap();
-        assert_eq!(gv, vec![2.0, 2.0, 2.0]);
+        assert_eq!(grad_of(&x, x.clone().select(1, idx)), vec![2.0, 2.0, 2.0]);
     }
-}
-
-#[cfg(test)]
-mod pool_tests {
-    use burn::tensor::module::max_pool2d;
-    use burn::tensor::ops::MaxPoolOptions;
-    use burn::tensor::{Device, Tensor, TensorData};
 
     #[test]
     fn overlapping_max_pool_windows_add_their_gradients() {
-        let d = Device::autodiff(Device::from(burn::backend::FlexDevice));
         // 5x5 distinct values; windows 3x3, stride 2, pad 1 overlap on rows/cols 2.
         let v: Vec<f32> = (0..25).map(|i| ((i * 7) % 25) as f32).collect();
-        let x = Tensor::<4>::from_data(TensorData::new(v.clone(), [1, 1, 5, 5]), &d).require_grad();
+        let x =
+            Tensor::<4>::from_data(TensorData::new(v.clone(), [1, 1, 5, 5]), &dev()).require_grad();
         let o = MaxPoolOptions::new([3, 3])
             .with_stride([2, 2])
             .with_padding_pairs([(1, 1), (1, 1)]);
-        let y = max_pool2d(x.clone(), o);
-        let g = y.sum().backward();
-        let got: Vec<f32> = x
-            .grad(&g)
-            .unwrap()
-            .to_data()
-            .convert::<f32>()
-            .try_into_vec()
-            .unwrap();
+        let got = grad_of(&x, max_pool2d(x.clone(), o));
         let mut want = vec![0.0f32; 25];
         for oy in 0..3i32 {
             for ox in 0..3i32 {

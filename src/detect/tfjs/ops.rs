@@ -8,7 +8,7 @@
 
 use super::model::{HostData, HostTensor};
 use super::value::{pad4, FloatValue, Node, Value};
-use crate::detect::conv::{conv_im2col, IM2COL_MAX_CHANNELS};
+use crate::detect::kernels::{broadcast_shape, conv_im2col, IM2COL_MAX_CHANNELS};
 use crate::detect::preprocess::resize_bilinear;
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use burn::tensor::activation;
@@ -360,31 +360,6 @@ fn conv(
 }
 
 // ---------------------------------------------------------------- elementwise
-
-/// Numpy-style broadcast of two shapes.
-fn broadcast_shape(a: &[usize], b: &[usize]) -> Result<Vec<usize>> {
-    let r = a.len().max(b.len());
-    let mut out = vec![0; r];
-    for k in 0..r {
-        let da = if k + a.len() >= r {
-            a[k + a.len() - r]
-        } else {
-            1
-        };
-        let db = if k + b.len() >= r {
-            b[k + b.len() - r]
-        } else {
-            1
-        };
-        out[k] = match (da, db) {
-            (x, y) if x == y => x,
-            (1, y) => y,
-            (x, 1) => x,
-            _ => bail!("shapes {a:?} and {b:?} do not broadcast"),
-        };
-    }
-    Ok(out)
-}
 
 fn binary(dev: &Device, op: &str, a: &Value, b: &Value) -> Result<Value> {
     if let (Value::Host(x), Value::Host(y)) = (a, b) {

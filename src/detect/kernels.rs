@@ -1,15 +1,37 @@
-//! Convolution kernels shared by the TFJS and ONNX executors: the taps of a sliding window as
-//! strided views ([`taps`]) and im2col + one 1×1 convolution for the stems, layers with few input
-//! channels ([`conv_im2col`]), which burn's `conv2d` (Flex) runs tap by tap over the output. Same
-//! sums in another order: agrees with `conv2d` to float rounding (tested). Not here: layouts or
+//! What both graph executors (TFJS and ONNX) compute the same way: numpy broadcasting of two
+//! shapes ([`broadcast_shape`]), the taps of a sliding window as strided views ([`taps`]) and
+//! im2col + one 1×1 convolution for the stems, layers with few input channels
+//! ([`conv_im2col`]), which burn's `conv2d` (Flex) runs tap by tap over the output. Same sums in
+//! another order: agrees with `conv2d` to float rounding (tested). Not here: layouts or
 //! attribute parsing (the executors' own).
 
+use anyhow::{bail, Result};
 use burn::tensor::module::conv2d;
 use burn::tensor::ops::{ConvOptions, PadMode};
 use burn::tensor::{Slice, Tensor};
 
 /// The `k[0]·k[1]` taps of a sliding window over NCHW `x` zero-padded by `ph`, `pw`, as strided
 /// views (row-major tap order), each of the output's spatial size `out`.
+/// numpy's broadcast of two shapes (aligned at the last axis; a 1 stretches).
+pub fn broadcast_shape(a: &[usize], b: &[usize]) -> Result<Vec<usize>> {
+    let r = a.len().max(b.len());
+    let at = |s: &[usize], k: usize| {
+        if k + s.len() >= r {
+            s[k + s.len() - r]
+        } else {
+            1
+        }
+    };
+    (0..r)
+        .map(|k| match (at(a, k), at(b, k)) {
+            (x, y) if x == y => Ok(x),
+            (1, y) => Ok(y),
+            (x, 1) => Ok(x),
+            _ => bail!("shapes {a:?} and {b:?} do not broadcast"),
+        })
+        .collect()
+}
+
 pub fn taps(
     x: Tensor<4>,
     k: [usize; 2],
