@@ -3,7 +3,8 @@
 //! The class score is the largest pre-sigmoid logit of the class over all of the detector's
 //! dense outputs (the most confident candidate of that class). For a layer with activation
 //! `A` (`h × w × C`), its gradient `∂score/∂A` is taken by running the graph a second time with
-//! `A` re-injected as an autodiff leaf ([`CamGraph::run_cam`](crate::detect::CamGraph::run_cam), TFJS and ONNX graphs alike);
+//! `A` re-injected as an autodiff leaf ([`CamGraph::run_cam`](crate::detect::CamGraph::run_cam),
+//! TFJS and ONNX graphs alike);
 //! channel weights are the spatially averaged gradients `α_k = mean_ij ∂score/∂A_ijk`, the map is
 //! `ReLU(Σ_k α_k A_k)`, normalised to [0, 1] and bilinearly upsampled to the image.
 
