@@ -65,6 +65,9 @@ pub struct AttackConfig {
     pub batch: usize,
     pub iterations: usize,
     pub lr: f32,
+    /// How the learning rate changes over the run (runs written before the setting existed
+    /// used a constant one).
+    pub lr_decay: LrDecay,
     pub seed: u64,
     /// Write a checkpoint every this many iterations (0: only at the end).
     pub checkpoint_every: usize,
@@ -92,6 +95,7 @@ impl Default for AttackConfig {
             batch: 2,
             iterations: 200,
             lr: 0.02,
+            lr_decay: LrDecay::Constant,
             seed: 0,
             checkpoint_every: 10,
             viewpoints: ViewpointSet::Free,
@@ -99,6 +103,28 @@ impl Default for AttackConfig {
             scales: 1,
             patch_res: 128,
             patch_tiles: 4,
+        }
+    }
+}
+
+/// The learning-rate schedule over a run's iterations.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum LrDecay {
+    /// `lr` at every iteration.
+    #[default]
+    Constant,
+    /// Cosine annealing to zero (Loshchilov & Hutter 2017, without restarts):
+    /// `lr_i = lr · (1 + cos(π i / iterations)) / 2`. A run grown on resume stretches the rest
+    /// of its schedule to the new `iterations`.
+    Cosine,
+}
+
+impl LrDecay {
+    pub fn name(self) -> &'static str {
+        match self {
+            LrDecay::Constant => "constant",
+            LrDecay::Cosine => "cosine",
         }
     }
 }
@@ -134,6 +160,17 @@ fn hide_set(labels: &str) -> Result<ClassSet> {
 }
 
 impl AttackConfig {
+    /// The learning rate of iteration `i` (from 0) under [`Self::lr_decay`].
+    pub fn lr_at(&self, i: usize) -> f32 {
+        match self.lr_decay {
+            LrDecay::Constant => self.lr,
+            LrDecay::Cosine => {
+                let t = (i as f64 / self.iterations.max(1) as f64).min(1.0);
+                (self.lr as f64 * 0.5 * (1.0 + (std::f64::consts::PI * t).cos())) as f32
+            }
+        }
+    }
+
     pub fn goal(&self) -> Result<Goal> {
         if !self.method.is_targeted() {
             return Ok(Goal::Hide(ClassSet::ALL));
@@ -253,4 +290,30 @@ pub fn ensemble_loss(
         total.context("no detector")? / detectors.len() as f64,
         proposals,
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cosine_decay_starts_at_lr_halves_midway_and_ends_at_zero() {
+        let c = AttackConfig {
+            lr: 0.02,
+            lr_decay: LrDecay::Cosine,
+            iterations: 100,
+            ..Default::default()
+        };
+        assert_eq!(c.lr_at(0), 0.02);
+        assert!((c.lr_at(50) - 0.01).abs() < 1e-7, "{}", c.lr_at(50));
+        assert!(c.lr_at(99) > 0.0 && c.lr_at(99) < 1e-4);
+        assert_eq!(c.lr_at(100), 0.0);
+        assert_eq!(c.lr_at(500), 0.0, "past the end it stays at zero");
+        assert!((1..100).all(|i| c.lr_at(i) < c.lr_at(i - 1)), "decreasing");
+        let k = AttackConfig::default();
+        assert!((0..300).all(|i| k.lr_at(i) == k.lr), "constant by default");
+        // A run.json written before the setting existed reads as constant.
+        let old: AttackConfig = serde_json::from_str(r#"{"lr": 0.02}"#).unwrap();
+        assert_eq!(old.lr_decay, LrDecay::Constant);
+    }
 }

@@ -238,6 +238,7 @@ impl<'a> Trainer<'a> {
         }
         let t3 = Instant::now();
         let grad_norm = g.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
+        self.state.adam.lr = self.config.lr_at(i);
         self.update(&g);
         let log = IterationLog {
             iteration: i,

@@ -36,8 +36,8 @@ pub struct Args {
     #[arg(long, default_value_t = 200)]
     pub views: usize,
     /// Viewpoint sets: fv (free), rv (restricted side views), comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "fv,rv")]
-    pub sets: Vec<String>,
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "fv,rv")]
+    pub sets: Vec<ViewpointSet>,
     /// Seed of the views (and of the generated natural/naive/random textures).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -72,25 +72,6 @@ pub struct Args {
     pub merge: bool,
 }
 
-/// Parses `fv`/`rv` lists.
-pub fn parse_sets(s: &[String]) -> Result<Vec<ViewpointSet>> {
-    let mut out = vec![];
-    for x in s {
-        let v = match x.trim().to_ascii_lowercase().as_str() {
-            "fv" | "free" => ViewpointSet::Free,
-            "rv" | "restricted" => ViewpointSet::Restricted,
-            o => bail!("unknown viewpoint set {o:?}: use fv or rv"),
-        };
-        if !out.contains(&v) {
-            out.push(v);
-        }
-    }
-    if out.is_empty() {
-        bail!("--sets needs fv, rv or both");
-    }
-    Ok(out)
-}
-
 /// The evaluation job the arguments describe.
 pub fn job(a: &Args) -> Result<EvalJob> {
     let mut scene = match &a.config {
@@ -116,7 +97,7 @@ pub fn job(a: &Args) -> Result<EvalJob> {
         plan: ViewPlan {
             views_per_level: a.views,
             seed: a.seed,
-            sets: parse_sets(&a.sets)?,
+            sets: ViewpointSet::distinct(&a.sets),
             ..Default::default()
         },
         protocol: Protocol::from_labels(&a.true_classes, a.target.as_deref())?,

@@ -1,9 +1,10 @@
 //! `cac export` (bake a learned texture into 3MF / OBJ / paste-on sheets) and `cac bench export`
 //! (the bake's colour error against triangles and seconds). Parses, calls `cac::export`, prints.
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use cac::export::{
-    self, benchmark, BakeLimits, ExportOptions, Format, RepairMode, Scale, ThinPolicy,
+    self, benchmark, printability::BuildVolume, BakeLimits, ExportOptions, Format, RepairMode,
+    Scale, ThinPolicy,
 };
 use clap::Args as ClapArgs;
 use std::path::PathBuf;
@@ -64,7 +65,7 @@ pub struct Args {
     pub min_feature_mm: f32,
     /// Printer build volume XxYxZ in mm, or "none".
     #[arg(long, default_value = "256x256x256")]
-    pub build_volume: String,
+    pub build_volume: BuildVolume,
     /// Solidify grid spacing, mm at print scale (default: half the minimum wall, at most 600
     /// cells along the longest side).
     #[arg(long)]
@@ -72,25 +73,6 @@ pub struct Args {
     /// Light repair fills holes up to this perimeter, mm.
     #[arg(long, default_value_t = 20.0)]
     pub max_hole_mm: f32,
-}
-
-/// Parses `XxYxZ` (mm) or `none`.
-pub fn parse_build_volume(s: &str) -> Result<Option<[f32; 3]>> {
-    if s == "none" {
-        return Ok(None);
-    }
-    let v: Vec<f32> = s
-        .split(['x', 'X'])
-        .map(|x| x.trim().parse::<f32>())
-        .collect::<std::result::Result<_, _>>()
-        .with_context(|| {
-            format!("--build-volume '{s}': expected XxYxZ in mm, e.g. 256x256x256, or none")
-        })?;
-    anyhow::ensure!(
-        v.len() == 3 && v.iter().all(|x| *x > 0.0 && x.is_finite()),
-        "--build-volume '{s}': expected three positive sizes XxYxZ in mm"
-    );
-    Ok(Some([v[0], v[1], v[2]]))
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -107,7 +89,7 @@ pub fn run(a: Args) -> Result<()> {
     opts.limits.thin = a.thin;
     opts.limits.min_wall_mm = a.min_wall_mm;
     opts.limits.min_feature_mm = a.min_feature_mm;
-    opts.limits.build_volume_mm = parse_build_volume(&a.build_volume)?;
+    opts.limits.build_volume_mm = a.build_volume.0;
     opts.bake.max_edge_texels = a.max_edge_texels;
     if let Some(mm) = a.max_edge_mm {
         opts.bake.max_edge_mm = mm;

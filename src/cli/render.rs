@@ -34,28 +34,16 @@ pub struct Args {
     #[arg(long)]
     pub samples: Option<usize>,
     #[arg(long, value_enum, default_value = "bright")]
-    pub brightness: BrightnessArg,
+    pub brightness: Brightness,
     /// Render N sampled views (the environment distribution) in a grid instead of one view.
     #[arg(long)]
     pub contact_sheet: Option<usize>,
-    #[arg(long, value_enum, default_value = "free")]
-    pub viewpoints: ViewpointArg,
+    #[arg(long, value_enum, default_value = "fv")]
+    pub viewpoints: ViewpointSet,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     #[arg(long)]
     pub out: PathBuf,
-}
-
-#[derive(clap::ValueEnum, Clone, Copy, Debug)]
-pub enum BrightnessArg {
-    Bright,
-    Dark,
-}
-
-#[derive(clap::ValueEnum, Clone, Copy, Debug)]
-pub enum ViewpointArg {
-    Free,
-    Restricted,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -75,10 +63,6 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(s) = a.samples {
         cfg.render.samples = s;
     }
-    let brightness = match a.brightness {
-        BrightnessArg::Bright => Brightness::Bright,
-        BrightnessArg::Dark => Brightness::Dark,
-    };
     let Stage {
         renderer,
         env,
@@ -92,15 +76,11 @@ pub fn run(a: Args) -> Result<()> {
     let conds = match a.contact_sheet {
         Some(0) => bail!("--contact-sheet needs at least one view"),
         Some(n) => {
-            let set = match a.viewpoints {
-                ViewpointArg::Free => ViewpointSet::Free,
-                ViewpointArg::Restricted => ViewpointSet::Restricted,
-            };
-            env.sample_n(n, set, brightness, a.seed)
+            env.sample_n(n, a.viewpoints, a.brightness, a.seed)
         }
         None => vec![Condition::plain(
             Viewpoint::new(a.azimuth, a.elevation, a.distance),
-            brightness,
+            a.brightness,
         )],
     };
     let dev = device::inference();

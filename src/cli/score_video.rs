@@ -1,20 +1,14 @@
 //! `cac score-video INPUT`: offline scoring of a recorded video, image pattern or image folder
 //! against annotations or a turntable log (docs/video.md). Parse → `cac::video` → print.
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use cac::detect::{self, Detector};
 use cac::eval::Protocol;
 use cac::video::job::{LogCamera, LogTruth, Truth, VideoJob};
 use cac::video::log::LogSegments;
 use cac::video::{report, OpenOptions, Tools};
-use clap::{Args as ClapArgs, ValueEnum};
+use clap::Args as ClapArgs;
 use std::path::PathBuf;
-
-#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum SegArg {
-    Revolution,
-    Ratio,
-}
 
 #[derive(ClapArgs, Debug)]
 pub struct Args {
@@ -50,7 +44,7 @@ pub struct Args {
     pub at_log: bool,
     /// Segments of a logged session.
     #[arg(long, value_enum, default_value = "revolution")]
-    pub segments: SegArg,
+    pub segments: LogSegments,
     /// The twin's object (built-in name or mesh file) and vertical field of view, for --log.
     #[arg(long, default_value = "pickup")]
     pub mesh: String,
@@ -118,10 +112,7 @@ fn job(a: &Args) -> Result<VideoJob> {
                     calibration: a.calib.clone(),
                 },
             },
-            segments: match a.segments {
-                SegArg::Revolution => LogSegments::Revolution,
-                SegArg::Ratio => LogSegments::Ratio,
-            },
+            segments: a.segments,
             default_ratio: a.ratio,
             at_samples: a.at_log,
         }),
@@ -140,23 +131,9 @@ fn job(a: &Args) -> Result<VideoJob> {
         at: a.at.clone(),
         window: a.window,
         max_frames: a.max_frames,
-        protocol: protocol(a.target.as_deref())?,
+        protocol: Protocol::from_labels("car,truck", a.target.as_deref())?,
         annotated: a.annotated.clone(),
         tools: Tools::from_env(),
-    })
-}
-
-/// The protocol, with `--target`'s class.
-fn protocol(target: Option<&str>) -> Result<Protocol> {
-    let target = match target {
-        Some(t) => {
-            Some(detect::labels::class_id(t).with_context(|| format!("unknown COCO class {t:?}"))?)
-        }
-        None => None,
-    };
-    Ok(Protocol {
-        target,
-        ..Default::default()
     })
 }
 

@@ -55,6 +55,9 @@ pub struct Args {
     pub iterations: usize,
     #[arg(long, default_value_t = 0.02)]
     pub lr: f32,
+    /// Learning-rate schedule: constant, or cosine (annealed from --lr to 0 over --iterations).
+    #[arg(long, value_enum, default_value_t = cac::attack::LrDecay::Constant)]
+    pub lr_decay: cac::attack::LrDecay,
     /// Levels of the atlas's multi-scale parameterisation: 1 optimises texel by texel; K adds
     /// K-1 coarser levels (each half the side of the last) whose sum is the atlas.
     #[arg(long, default_value_t = 1)]
@@ -155,6 +158,7 @@ fn attack_config(a: &Args) -> AttackConfig {
         batch: a.batch,
         iterations: a.iterations,
         lr: a.lr,
+        lr_decay: a.lr_decay,
         seed: a.seed,
         checkpoint_every: a.checkpoint_every,
         viewpoints: if a.restricted {

@@ -26,18 +26,33 @@ use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::sync::Arc;
 
-/// Where the camera may be.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+/// Where the camera may be (on the command line `fv`/`free` or `rv`/`restricted`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum ViewpointSet {
     /// Anywhere on the upper half of the viewing sphere within the elevation range.
+    #[value(name = "fv", alias = "free")]
     Free,
     /// Side views only: azimuth within ±α/2 of either side (α = 120° by default).
+    #[value(name = "rv", alias = "restricted")]
     Restricted,
 }
 
+impl ViewpointSet {
+    /// `sets` without repeats, in the order given (a command line may name a set twice).
+    pub fn distinct(sets: &[ViewpointSet]) -> Vec<ViewpointSet> {
+        let mut out: Vec<ViewpointSet> = Vec::with_capacity(2);
+        for s in sets {
+            if !out.contains(s) {
+                out.push(*s);
+            }
+        }
+        out
+    }
+}
+
 /// Scene brightness level.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Brightness {
     Bright,

@@ -71,6 +71,32 @@ impl Default for PrintLimits {
     }
 }
 
+/// A printer's build volume as a command line writes it: `XxYxZ` in mm (`256x256x256`), or
+/// `none` (unchecked).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BuildVolume(pub Option<[f32; 3]>);
+
+impl std::str::FromStr for BuildVolume {
+    type Err = anyhow::Error;
+    fn from_str(s: &str) -> anyhow::Result<BuildVolume> {
+        if s.trim().eq_ignore_ascii_case("none") {
+            return Ok(BuildVolume(None));
+        }
+        let v: Vec<f32> = s
+            .split(['x', 'X'])
+            .map(|x| x.trim().parse::<f32>())
+            .collect::<Result<_, _>>()
+            .map_err(|_| {
+                anyhow::anyhow!("build volume '{s}': expected XxYxZ in mm, e.g. 256x256x256, or none")
+            })?;
+        anyhow::ensure!(
+            v.len() == 3 && v.iter().all(|x| *x > 0.0 && x.is_finite()),
+            "build volume '{s}': expected three positive sizes XxYxZ in mm"
+        );
+        Ok(BuildVolume(Some([v[0], v[1], v[2]])))
+    }
+}
+
 /// The triangles' corners, for building an index.
 pub fn corners(mesh: &PrintMesh, which: impl Fn(usize) -> bool) -> (Vec<[Vec3; 3]>, Vec<u32>) {
     let mut t = vec![];
@@ -484,6 +510,18 @@ pub fn check(mesh: &PrintMesh, a: &Analysis, limits: &PrintLimits) -> Printabili
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn build_volumes_parse_or_are_refused_with_the_text() {
+        let v = |s: &str| s.parse::<BuildVolume>();
+        assert_eq!(v("256x256x256").unwrap(), BuildVolume(Some([256.0; 3])));
+        assert_eq!(v("180X180x 180").unwrap(), BuildVolume(Some([180.0; 3])));
+        assert_eq!(v("none").unwrap(), BuildVolume(None));
+        for bad in ["256x256", "0x1x1", "ax1x1", "inf x1x1", "-1x2x3", ""] {
+            let e = v(bad).unwrap_err().to_string();
+            assert!(e.contains(&format!("'{bad}'")), "{bad}: {e}");
+        }
+    }
 
     #[test]
     fn build_volume_fit_allows_a_quarter_turn() {

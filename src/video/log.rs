@@ -200,7 +200,7 @@ fn unit(field: &str) -> &'static str {
 }
 
 /// How frames of a logged session are grouped for P@0.5 ± std.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum LogSegments {
     /// One segment per distance ratio (and repeat).
     Ratio,

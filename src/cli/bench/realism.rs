@@ -95,21 +95,8 @@ pub fn run(a: Args) -> Result<()> {
         "P@0.5 = car/truck at IoU >= 0.5, conf >= 0.3; {}² px, {} spp (cac), {} spp (Blender); {} views per row; photometric transforms {}",
         a.size, a.samples, a.blender_samples, a.views, if a.photometric { "on" } else { "off" }
     );
-    println!(
-        "{:<16} {:<8} {:<9} {:<10} {:<6} {:>8} {:>10} {:>8} {:>8} {:>10} {:>8} {:>6}",
-        "mesh",
-        "renderer",
-        "texture",
-        "set",
-        "light",
-        "nanodet",
-        "conf",
-        "target",
-        "centernet",
-        "conf",
-        "target",
-        "s"
-    );
+    // The columns of `print_row`.
+    println!("mesh             renderer texture   set        light   nanodet       conf   target centernet       conf   target      s");
     let job = RealismJob {
         meshes: a.meshes.clone(),
         sets: a.sets.clone(),

@@ -1,7 +1,8 @@
 //! `cac study methods`: parses the arguments into a `cac::study::methods::MethodsJob` (CAC and
 //! the paper's baselines trained alike and judged by the protocol), runs it, prints its table.
 
-use crate::cli::{device, eval::parse_sets};
+use crate::cli::device;
+use cac::environment::ViewpointSet;
 use anyhow::Result;
 use cac::attack::Method;
 use cac::config::SceneConfig;
@@ -51,8 +52,8 @@ pub struct Args {
     /// Evaluation views per brightness level and set.
     #[arg(long, default_value_t = 50)]
     pub views: usize,
-    #[arg(long, value_delimiter = ',', default_value = "fv,rv")]
-    pub sets: Vec<String>,
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "fv,rv")]
+    pub sets: Vec<ViewpointSet>,
     /// Seed of the training runs.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -79,7 +80,7 @@ pub fn run(a: Args) -> Result<()> {
         batch: a.batch,
         textures: a.textures,
         views: a.views,
-        sets: parse_sets(&a.sets)?,
+        sets: ViewpointSet::distinct(&a.sets),
         seed: a.seed,
         eval_seed: a.eval_seed,
         out: a.out.clone(),

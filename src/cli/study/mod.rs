@@ -7,7 +7,8 @@
 
 mod methods;
 
-use super::{device, eval::parse_sets};
+use super::device;
+use cac::environment::ViewpointSet;
 use anyhow::Result;
 use cac::config::SceneConfig;
 use cac::study::topn::{Part, TopnJob, TopnOutcome};
@@ -49,8 +50,8 @@ pub struct TopnArgs {
     #[arg(long, default_value_t = 6)]
     pub views: usize,
     /// Evaluation viewpoint sets (fv, rv).
-    #[arg(long, value_delimiter = ',', default_value = "fv")]
-    pub sets: Vec<String>,
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "fv")]
+    pub sets: Vec<ViewpointSet>,
     /// Evaluation image side (default: the config's).
     #[arg(long)]
     pub size: Option<usize>,
@@ -92,7 +93,7 @@ fn topn(a: TopnArgs) -> Result<()> {
         iterations: a.iterations,
         batch: a.batch,
         views: a.views,
-        sets: parse_sets(&a.sets)?,
+        sets: ViewpointSet::distinct(&a.sets),
         eval_size: a.size,
         seed: a.seed,
         out: a.out.clone(),
