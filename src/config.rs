@@ -61,6 +61,11 @@ pub struct SceneConfig {
 }
 
 impl SceneConfig {
+    /// The config in `path` when one is given, else the `preset`.
+    pub fn from_file_or(path: Option<&Path>, preset: fn() -> SceneConfig) -> Result<SceneConfig> {
+        path.map_or_else(|| Ok(preset()), SceneConfig::from_file)
+    }
+
     /// Reads a TOML config; errors name the file and the offending key.
     pub fn from_file(path: &Path) -> Result<SceneConfig> {
         let text = std::fs::read_to_string(path)

@@ -74,10 +74,7 @@ pub struct Args {
 
 /// The evaluation job the arguments describe.
 pub fn job(a: &Args) -> Result<EvalJob> {
-    let mut scene = match &a.config {
-        Some(p) => SceneConfig::from_file(p)?,
-        None => SceneConfig::default(),
-    };
+    let mut scene = SceneConfig::from_file_or(a.config.as_deref(), SceneConfig::default)?;
     if let Some(o) = &a.object {
         scene.object.mesh = o.clone();
     }
@@ -119,7 +116,7 @@ pub fn job(a: &Args) -> Result<EvalJob> {
 pub fn run(a: Args) -> Result<()> {
     let job = job(&a)?;
     let dets = train::load_detectors(&a.models)?;
-    let refs: Vec<&dyn cac::detect::Detector> = dets.iter().map(|d| d.as_ref()).collect();
+    let refs = cac::detect::refs(&dets);
     let pb = ProgressBar::new(0);
     pb.set_style(
         ProgressStyle::with_template("{bar:30} {pos}/{len} images, {per_sec}, ETA {eta}")

@@ -47,10 +47,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let mut cfg = match &a.config {
-        Some(p) => SceneConfig::from_file(p)?,
-        None => SceneConfig::default(),
-    };
+    let mut cfg = SceneConfig::from_file_or(a.config.as_deref(), SceneConfig::default)?;
     if let Some(m) = &a.mesh {
         cfg.object.mesh = m.clone();
     }
@@ -75,9 +72,7 @@ pub fn run(a: Args) -> Result<()> {
     };
     let conds = match a.contact_sheet {
         Some(0) => bail!("--contact-sheet needs at least one view"),
-        Some(n) => {
-            env.sample_n(n, a.viewpoints, a.brightness, a.seed)
-        }
+        Some(n) => env.sample_n(n, a.viewpoints, a.brightness, a.seed),
         None => vec![Condition::plain(
             Viewpoint::new(a.azimuth, a.elevation, a.distance),
             a.brightness,

@@ -2,7 +2,7 @@
 //! against annotations or a turntable log (docs/video.md). Parse → `cac::video` → print.
 
 use anyhow::{bail, Result};
-use cac::detect::{self, Detector};
+use cac::detect;
 use cac::eval::Protocol;
 use cac::video::job::{LogCamera, LogTruth, Truth, VideoJob};
 use cac::video::log::LogSegments;
@@ -90,7 +90,7 @@ pub fn run(a: Args) -> Result<()> {
     let opened = job.open()?;
     let device = super::device::inference();
     let dets = detect::load_all(&a.models, a.models_dir.as_deref(), &device)?;
-    let refs: Vec<&dyn Detector> = dets.iter().map(|d| d.as_ref()).collect();
+    let refs = cac::detect::refs(&dets);
     println!("scoring {}", opened.source());
     println!("ground truth: {}", opened.truth());
     let o = opened.run(&refs, &a.models, &device)?;

@@ -107,7 +107,7 @@ pub fn run(a: Args) -> Result<()> {
         None => stage.original.clone(),
     };
     let dets = load_detectors(&run.attack.models)?;
-    let dets_ref: Vec<&dyn Detector> = dets.iter().map(|d| d.as_ref()).collect();
+    let dets_ref = cac::detect::refs(&dets);
     let tr = Trainer::new(
         run.attack.clone(),
         &stage.renderer,
@@ -131,10 +131,7 @@ pub fn run(a: Args) -> Result<()> {
 
 /// The scene of a new run: the config file or the training preset, `--texture-res` applied.
 fn scene_config(a: &Args) -> Result<SceneConfig> {
-    let mut cfg = match &a.config {
-        Some(p) => SceneConfig::from_file(p)?,
-        None => SceneConfig::training(),
-    };
+    let mut cfg = SceneConfig::from_file_or(a.config.as_deref(), SceneConfig::training)?;
     if let Some(r) = a.texture_res {
         cfg.render.atlas_res = r;
     }

@@ -307,6 +307,11 @@ pub fn load(spec: &str, dir: &Path, device: &Device) -> Result<Box<dyn Detector>
     })
 }
 
+/// Loaded detectors as the trait objects the trainer and the evaluation take.
+pub fn refs(boxes: &[Box<dyn Detector>]) -> Vec<&dyn Detector> {
+    boxes.iter().map(|d| d.as_ref()).collect()
+}
+
 /// Loads detectors by spec (see [`load`]) on `device`. The TFJS model files come from `dir`, or,
 /// when it is `None`, from the cache (fetched once on first use, and only when a spec needs
 /// them); the specs are checked first, so a misspelt name fails before anything is fetched.

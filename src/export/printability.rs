@@ -87,7 +87,9 @@ impl std::str::FromStr for BuildVolume {
             .map(|x| x.trim().parse::<f32>())
             .collect::<Result<_, _>>()
             .map_err(|_| {
-                anyhow::anyhow!("build volume '{s}': expected XxYxZ in mm, e.g. 256x256x256, or none")
+                anyhow::anyhow!(
+                    "build volume '{s}': expected XxYxZ in mm, e.g. 256x256x256, or none"
+                )
             })?;
         anyhow::ensure!(
             v.len() == 3 && v.iter().all(|x| *x > 0.0 && x.is_finite()),

@@ -65,7 +65,7 @@ impl DemoJob {
         let eval_renderer = Renderer::new(renderer.scene.clone(), settings)?;
         println!("loading detectors (fetched once into the cache on first use) ...");
         let dets = detect::load_all(&["nanodet", "centernet"], None, device)?;
-        let all = super::refs(&dets);
+        let all = detect::refs(&dets);
         let attack = self.attack_config();
         let proto = Protocol::from_labels("car,truck", Some(&attack.target))?;
         let plan = ViewPlan {

@@ -6,7 +6,7 @@
 //! job's proposal rule; each baseline keeps its own paper's choice of what it attacks. Each
 //! entry of `hide` adds a CAC row in hide mode.
 
-use super::{protocol_job, refs, train_run};
+use super::{protocol_job, train_run};
 use crate::attack::{loss::ProposalRule, AttackConfig, Method};
 use crate::config::SceneConfig;
 use crate::detect;
@@ -121,7 +121,7 @@ impl MethodsJob {
         let rows = self.rows()?;
         let stage = self.scene.stage()?;
         let sources = detect::load_all(&self.models, None, device)?;
-        let src = refs(&sources);
+        let src = detect::refs(&sources);
         let mut trained = vec![];
         for r in &rows {
             let dir = self.out.join(&r.dir);
@@ -144,7 +144,7 @@ impl MethodsJob {
         let job = protocol_job(scene, specs, plan, &self.target, &self.out)?;
         let evals = detect::load_all(&self.eval_models, None, device)?;
         println!("evaluating {} textures ...", job.textures.len());
-        let o = job::run(&job, &refs(&evals), device, &mut |_, _| {})?;
+        let o = job::run(&job, &detect::refs(&evals), device, &mut |_, _| {})?;
         let mut table_rows: Vec<(String, Option<f64>)> = o
             .info
             .textures

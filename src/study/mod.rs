@@ -100,8 +100,3 @@ pub fn protocol_job(
         out: out.join("eval"),
     })
 }
-
-/// Loaded detectors as the trait objects the trainer and the evaluation take.
-fn refs(boxes: &[Box<dyn Detector>]) -> Vec<&dyn Detector> {
-    boxes.iter().map(|d| d.as_ref()).collect()
-}

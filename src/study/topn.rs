@@ -5,7 +5,7 @@
 //! topn.html (the full evaluation report in OUT/eval/). A sweep runs it in parts: one training
 //! task per setting, evaluation shards, then the merge.
 
-use super::{protocol_job, refs, train_run};
+use super::{protocol_job, train_run};
 use crate::attack::{loss::ProposalRule, AttackConfig};
 use crate::config::SceneConfig;
 use crate::detect;
@@ -92,7 +92,7 @@ impl TopnJob {
     fn train_runs(&self, device: &Device) -> Result<Vec<String>> {
         let stage = self.scene.stage()?;
         let sources = detect::load_all(&self.models, None, device)?;
-        let src = refs(&sources);
+        let src = detect::refs(&sources);
         let mut specs = vec!["original".to_string()];
         let task = match self.part {
             Part::Task(k) => Some(k),
@@ -142,7 +142,7 @@ impl TopnJob {
         let plan = (self.views, self.seed, self.sets.clone());
         let job = protocol_job(eval_scene, specs, plan, &self.target, &self.out)?;
         let evals = detect::load_all(&self.eval_models, None, device)?;
-        let refs = refs(&evals);
+        let refs = detect::refs(&evals);
         println!(
             "evaluating {} textures on {} ...",
             job.textures.len(),

@@ -6,7 +6,6 @@
 use crate::cli::{device, train};
 use anyhow::{bail, Result};
 use cac::config::SceneConfig;
-use cac::detect::Detector;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -39,7 +38,7 @@ pub fn run(a: Args) -> Result<()> {
     (cfg.render.width, cfg.render.height, cfg.render.samples) = (a.size, a.size, a.samples);
     let stage = cfg.stage()?;
     let dets = train::load_detectors(&a.models)?;
-    let refs: Vec<&dyn Detector> = dets.iter().map(|d| d.as_ref()).collect();
+    let refs = cac::detect::refs(&dets);
     let dev = device::inference();
     let t = cac::eval::bench::throughput(&stage, &refs, a.images, (a.size, a.samples), &dev)?;
     println!(

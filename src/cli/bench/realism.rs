@@ -10,7 +10,7 @@
 use crate::cli::device;
 use anyhow::Result;
 use cac::config::SceneConfig;
-use cac::detect::{self, Detector};
+use cac::detect;
 use cac::eval::realism::{self, RealismJob, Row, ViewSet, Which};
 use cac::eval::{blender, Protocol};
 use cac::render::RenderSettings;
@@ -72,10 +72,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let mut cfg = match &a.config {
-        Some(p) => SceneConfig::from_file(p)?,
-        None => SceneConfig::default(),
-    };
+    let mut cfg = SceneConfig::from_file_or(a.config.as_deref(), SceneConfig::default)?;
     cfg.render = RenderSettings {
         width: a.size,
         height: a.size,
@@ -110,7 +107,7 @@ pub fn run(a: Args) -> Result<()> {
         save: a.save.clone(),
         protocol: Protocol::from_labels("car,truck", a.target.as_deref())?,
     };
-    let all: Vec<&dyn Detector> = dets.iter().map(|d| d.as_ref()).collect();
+    let all = cac::detect::refs(&dets);
     let t = realism::run(&job, &all, &dev, &mut print_row)?;
     cac::io::write_atomic(&a.csv, t.rows.csv().as_bytes())?;
     if let Some(p) = &a.per_view {

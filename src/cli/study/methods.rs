@@ -2,10 +2,10 @@
 //! the paper's baselines trained alike and judged by the protocol), runs it, prints its table.
 
 use crate::cli::device;
-use cac::environment::ViewpointSet;
 use anyhow::Result;
 use cac::attack::Method;
 use cac::config::SceneConfig;
+use cac::environment::ViewpointSet;
 use cac::study::methods::MethodsJob;
 use std::path::PathBuf;
 
@@ -66,10 +66,7 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<()> {
     let job = MethodsJob {
-        scene: match &a.config {
-            Some(p) => SceneConfig::from_file(p)?,
-            None => SceneConfig::training(),
-        },
+        scene: SceneConfig::from_file_or(a.config.as_deref(), SceneConfig::training)?,
         methods: a.methods,
         hide: a.hide,
         proposals: a.proposals,

@@ -8,9 +8,9 @@
 mod methods;
 
 use super::device;
-use cac::environment::ViewpointSet;
 use anyhow::Result;
 use cac::config::SceneConfig;
+use cac::environment::ViewpointSet;
 use cac::study::topn::{Part, TopnJob, TopnOutcome};
 use std::path::PathBuf;
 
@@ -81,10 +81,7 @@ pub fn run(c: Cmd) -> Result<()> {
 
 fn topn(a: TopnArgs) -> Result<()> {
     let job = TopnJob {
-        scene: match &a.config {
-            Some(p) => SceneConfig::from_file(p)?,
-            None => TopnJob::default_scene(),
-        },
+        scene: SceneConfig::from_file_or(a.config.as_deref(), TopnJob::default_scene)?,
         n: a.n.clone(),
         proposals: a.proposals,
         models: a.models.clone(),
