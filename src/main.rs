@@ -19,8 +19,32 @@ fn tune_allocator() {
     }
 }
 
+/// `cac detect ... | head`: once the reader of standard output is gone, `println!` panics with
+/// "failed printing to stdout: Broken pipe". Exit quietly with the status a filter killed by
+/// SIGPIPE has (128 + 13) instead of printing a panic. Restoring SIGPIPE's default action would
+/// do the same, but it would also kill cac without a word where it writes video frames into an
+/// ffmpeg that exited, where the write error now says what happened.
+fn quiet_when_stdout_closes() {
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let p = info.payload();
+        let msg = p
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| p.downcast_ref::<&str>().copied())
+            .unwrap_or("");
+        if msg.starts_with("failed printing to stdout")
+            && msg.contains(&format!("(os error {})", libc::EPIPE))
+        {
+            std::process::exit(128 + libc::SIGPIPE);
+        }
+        default(info)
+    }));
+}
+
 fn main() {
     tune_allocator();
+    quiet_when_stdout_closes();
     let args = cli::Cli::parse();
     if let Err(e) = cli::run(args) {
         eprintln!("error: {e:#}");

@@ -1,0 +1,22 @@
+//! The command line as a shell uses it.
+
+mod support;
+
+/// `cac ... | head` closes the pipe early: cac stops quietly with a filter's SIGPIPE status
+/// instead of a panic message.
+#[test]
+fn a_closed_stdout_ends_cac_quietly() {
+    let (reader, writer) = std::io::pipe().expect("pipe");
+    drop(reader);
+    let out = support::cac_command()
+        .arg("config")
+        .stdout(writer)
+        .output()
+        .expect("run cac");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("panicked"), "stderr: {err}");
+    assert_eq!(out.status.code(), Some(141), "stderr: {err}");
+    // An open pipe still gets the whole output.
+    let toml = support::cac_ok(&["config"]);
+    assert!(toml.contains("[render]"), "{toml}");
+}
