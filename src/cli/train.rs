@@ -27,7 +27,7 @@ pub struct Args {
     #[arg(long)]
     pub resume: Option<PathBuf>,
     /// Source detectors, comma-separated (an ensemble when several).
-    #[arg(long, default_value = "nanodet", value_delimiter = ',')]
+    #[arg(long, default_value = "nanodet", value_delimiter = ',', value_parser = super::detect::MODEL_SPECS)]
     pub models: Vec<String>,
     /// Target COCO class.
     #[arg(long, default_value = "person")]

@@ -23,25 +23,17 @@ pub struct Args {
     /// `+` (e.g. car+bus+truck). Repeat for several rows.
     #[arg(long)]
     pub hide: Vec<String>,
-    /// CAC's proposals: `overlap` (on the object) or `topn` (the paper's literal rule).
-    #[arg(long, value_enum, default_value_t = cac::attack::loss::ProposalRule::Overlap)]
-    pub proposals: cac::attack::loss::ProposalRule,
+    #[command(flatten)]
+    pub source: super::SourceArgs,
     /// Training scene config (default: `SceneConfig::training()`, the protocol's distribution).
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Source detectors, comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "nanodet")]
-    pub models: Vec<String>,
     /// Detectors the textures are judged by (those not among --models measure transfer).
-    #[arg(long, value_delimiter = ',', default_value = "nanodet,centernet")]
+    #[arg(long, value_delimiter = ',', value_parser = crate::cli::detect::MODEL_SPECS, default_value = "nanodet,centernet")]
     pub eval_models: Vec<String>,
-    #[arg(long, default_value = "person")]
-    pub target: String,
     /// Training iterations per method (the same budget for all).
     #[arg(long, default_value_t = 600)]
     pub iterations: usize,
-    #[arg(long, default_value_t = 2)]
-    pub batch: usize,
     /// Textures evaluated beside the learned ones (see `cac eval --texture`).
     #[arg(
         long,
@@ -69,12 +61,12 @@ pub fn run(a: Args) -> Result<()> {
         scene: SceneConfig::from_file_or(a.config.as_deref(), SceneConfig::training)?,
         methods: a.methods,
         hide: a.hide,
-        proposals: a.proposals,
-        models: a.models,
+        proposals: a.source.proposals,
+        models: a.source.models,
         eval_models: a.eval_models,
-        target: a.target,
+        target: a.source.target,
         iterations: a.iterations,
-        batch: a.batch,
+        batch: a.source.batch,
         textures: a.textures,
         views: a.views,
         sets: ViewpointSet::distinct(&a.sets),
