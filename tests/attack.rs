@@ -258,7 +258,8 @@ fn loss_and_gradients_stay_finite_at_environment_extremes() {
                 let sel =
                     attack::loss::select_overlapping(&cand, &[plan.object_box], 300, 0.5).unwrap();
                 assert!(!sel[0].is_empty() || plan.object_box.is_none());
-                attack::loss::proposals_loss_per_image(cand.logits.clone(), &sel, goal).unwrap()
+                attack::loss::proposals_loss_per_image(cand.logits.clone(), &sel, goal, 2.0)
+                    .unwrap()
             };
             let v = l
                 .clone()

@@ -275,11 +275,18 @@ pub fn proposals_loss(logits: Tensor<3>, sel: &[Vec<usize>], goal: Goal) -> Resu
 
 /// The per-image-mean loss of [`ProposalRule::Overlap`]: each image's proposals averaged, then
 /// the images that have any (module docs). Empty everywhere: a zero loss (zero gradient).
+/// `power` p ≠ 1 takes the images' power mean `(1/|B'| Σ_b L_b^p)^(1/p)` instead of their mean:
+/// p > 1 weighs each image's gradient by `(L_b / L)^(p−1)`, so the views the texture fails on
+/// most (far, dark) pull harder; p = 1 is the plain mean, computed as before.
 pub fn proposals_loss_per_image(
     logits: Tensor<3>,
     sel: &[Vec<usize>],
     goal: Goal,
+    power: f32,
 ) -> Result<Tensor<1>> {
+    if power != 1.0 {
+        return power_mean_per_image(logits, sel, goal, power);
+    }
     let [b, n, classes] = logits.dims();
     if sel.len() != b {
         bail!("{} proposal sets for {b} images", sel.len());
@@ -302,6 +309,60 @@ pub fn proposals_loss_per_image(
     let per = per_proposal(z, goal)?; // [m, 1]
     let w = Tensor::<2>::from_data(TensorData::new(weights, [m, 1]), (&device, per.dtype()));
     Ok((per * w).sum())
+}
+
+/// [`proposals_loss_per_image`] with `power` ≠ 1: the per-image means `L_b` as a `[B', 1]`
+/// product of a selection-weight matrix with the per-proposal losses, then their power mean.
+fn power_mean_per_image(
+    logits: Tensor<3>,
+    sel: &[Vec<usize>],
+    goal: Goal,
+    power: f32,
+) -> Result<Tensor<1>> {
+    let [b, n, classes] = logits.dims();
+    if sel.len() != b {
+        bail!("{} proposal sets for {b} images", sel.len());
+    }
+    if !(power.is_finite() && power >= 1.0) {
+        bail!("the images' power mean needs a finite power >= 1, got {power}");
+    }
+    let rows: Vec<i64> = sel
+        .iter()
+        .enumerate()
+        .flat_map(|(k, s)| s.iter().map(move |&i| (k * n + i) as i64))
+        .collect();
+    if rows.is_empty() {
+        return Ok(logits.sum() * 0.0);
+    }
+    let (m, device) = (rows.len(), logits.device());
+    let images: Vec<&Vec<usize>> = sel.iter().filter(|s| !s.is_empty()).collect();
+    let mut w = vec![0f32; images.len() * m];
+    let mut col = 0;
+    for (r, s) in images.iter().enumerate() {
+        for _ in s.iter() {
+            w[r * m + col] = 1.0 / s.len() as f32;
+            col += 1;
+        }
+    }
+    let idx = Tensor::<1, Int>::from_data(TensorData::new(rows, [m]), &device);
+    let z = logits.reshape([b * n, classes]).select(0, idx);
+    let per = per_proposal(z, goal)?; // [m, 1], positive
+    let w = Tensor::<2>::from_data(
+        TensorData::new(w, [images.len(), m]),
+        (&device, per.dtype()),
+    );
+    let l_b = w.matmul(per); // [B', 1]
+                             // Scaled by the largest L_b (a constant: the power mean is homogeneous of degree 1, so value
+                             // and gradient are unchanged) so that L_b^p cannot overflow for large losses and powers.
+    let top = host(&l_b)?.into_iter().fold(0f32, f32::max);
+    if !top.is_finite() {
+        bail!("a per-image loss is not finite ({top})");
+    }
+    if top == 0.0 {
+        return Ok(l_b.sum() * 0.0); // every image won outright: zero loss, zero gradient
+    }
+    let mean = (l_b / top as f64).powf_scalar(power).mean();
+    Ok(mean.powf_scalar(1.0 / power) * top as f64)
 }
 
 #[cfg(test)]
@@ -420,7 +481,8 @@ mod tests {
         // Target class 1. Image 0 has two proposals, image 1 one: each image's mean, then the
         // mean of images.
         let got =
-            proposals_loss_per_image(t.clone(), &[vec![0, 1], vec![1]], Goal::Targeted(1)).unwrap();
+            proposals_loss_per_image(t.clone(), &[vec![0, 1], vec![1]], Goal::Targeted(1), 1.0)
+                .unwrap();
         let want = ((l(2.0, -1.0) + l(0.5, 8.0)) / 2.0 + l(-2.0, 1.0)) / 2.0;
         let v = got
             .clone()
@@ -435,11 +497,68 @@ mod tests {
             .into_data()
             .convert::<f32>();
         assert!(g.try_to_vec::<f32>().unwrap().iter().all(|v| v.is_finite()));
-        let e = proposals_loss_per_image(t, &[vec![], vec![]], Goal::Hide(ClassSet::ALL)).unwrap();
+        let e =
+            proposals_loss_per_image(t, &[vec![], vec![]], Goal::Hide(ClassSet::ALL), 1.0).unwrap();
         assert_eq!(
             e.into_data().convert::<f32>().try_to_vec::<f32>().unwrap()[0],
             0.0
         );
+    }
+
+    #[test]
+    fn power_mean_over_images_weighs_the_harder_image_more() {
+        let d = dev();
+        let z = vec![2.0f32, -1.0, 0.5, 8.0, -1e4, 3.0, -2.0, 1.0];
+        let t = Tensor::<3>::from_data(TensorData::new(z, [2, 2, 2]), &d).require_grad();
+        let l = |a: f64, b: f64| sp(a) + sp(b) - b;
+        let sel = [vec![0, 1], vec![1]];
+        let (l0, l1) = ((l(2.0, -1.0) + l(0.5, 8.0)) / 2.0, l(-2.0, 1.0));
+        for p in [1.0f32, 2.0, 4.0] {
+            let got = proposals_loss_per_image(t.clone(), &sel, Goal::Targeted(1), p).unwrap();
+            let pf = p as f64;
+            let want = ((l0.powf(pf) + l1.powf(pf)) / 2.0).powf(1.0 / pf);
+            let v = scalar(&got);
+            assert!((v - want).abs() / want < 1e-5, "p {p}: {v} vs {want}");
+            let g = grad(&t, got);
+            // dL/dL_b = (L_b / L)^(p-1) / |B'|: the ratio of the two images' weights.
+            let w = |lb: f64| (lb / want).powf(pf - 1.0) / 2.0;
+            // Image 1's only proposal, target logit: dL_1/dz = σ(z) − 1 at z = 1.
+            let dz = 1.0 / (1.0 + (-1.0f64).exp()) - 1.0;
+            let want_g = w(l1) * dz;
+            assert!(
+                (g[7] as f64 - want_g).abs() < 1e-5,
+                "p {p}: {} vs {want_g}",
+                g[7]
+            );
+            assert!(g.iter().all(|v| v.is_finite()));
+        }
+        // The plain path and the power path agree at p = 1 (the matrix form is the same mean).
+        let a = scalar(&proposals_loss_per_image(t.clone(), &sel, Goal::Targeted(1), 1.0).unwrap());
+        let b = scalar(&power_mean_per_image(t.clone(), &sel, Goal::Targeted(1), 1.0).unwrap());
+        assert!((a - b).abs() < 1e-6 * a, "{a} vs {b}");
+        // Huge logits stay finite; no proposals give zero; p < 1 is refused.
+        let h = Tensor::<3>::from_data(
+            TensorData::new(vec![1e4f32, -1e4, -1e4, 1e4], [2, 1, 2]),
+            &d,
+        );
+        for p in [3.0, 16.0] {
+            let l = proposals_loss_per_image(h.clone(), &[vec![0], vec![0]], Goal::Targeted(1), p)
+                .unwrap();
+            // Image 0: z = (1e4, −1e4) gives L_0 = 2e4; image 1: (−1e4, 1e4) gives L_1 = 0.
+            let (v, want) = (scalar(&l), 2e4 * 0.5f64.powf(1.0 / p as f64));
+            assert!((v - want).abs() / want < 1e-4, "p {p}: {v} vs {want}");
+        }
+        // Both images won outright: zero.
+        let won = proposals_loss_per_image(h.clone(), &[vec![], vec![0]], Goal::Targeted(1), 2.0);
+        assert_eq!(scalar(&won.unwrap()), 0.0);
+        assert_eq!(
+            scalar(
+                &proposals_loss_per_image(h.clone(), &[vec![], vec![]], Goal::Targeted(1), 2.0)
+                    .unwrap()
+            ),
+            0.0
+        );
+        assert!(proposals_loss_per_image(h, &[vec![0], vec![0]], Goal::Targeted(1), 0.5).is_err());
     }
 
     #[test]

@@ -72,6 +72,10 @@ pub struct AttackConfig {
     /// Write a checkpoint every this many iterations (0: only at the end).
     pub checkpoint_every: usize,
     pub viewpoints: ViewpointSet,
+    /// Power of the mean over images of the per-image losses (`overlap` rule; 1: the mean, > 1
+    /// weighs the images the texture fails on more; [`loss::proposals_loss_per_image`]).
+    #[serde(default = "one_power")]
+    pub image_power: f32,
     /// Levels of the atlas's multi-scale parameterisation (1: texel by texel; [`pyramid`]).
     #[serde(default = "one_scale")]
     pub scales: usize,
@@ -101,6 +105,7 @@ impl Default for AttackConfig {
             viewpoints: ViewpointSet::Free,
             method: Method::Cac,
             scales: 1,
+            image_power: 1.0,
             patch_res: 128,
             patch_tiles: 4,
         }
@@ -127,6 +132,10 @@ impl LrDecay {
             LrDecay::Cosine => "cosine",
         }
     }
+}
+
+fn one_power() -> f32 {
+    1.0
 }
 
 fn one_scale() -> usize {
@@ -193,6 +202,9 @@ impl AttackConfig {
         }
         if !(self.overlap_iou > 0.0 && self.overlap_iou <= 1.0) {
             bail!("--overlap-iou must be in (0, 1], got {}", self.overlap_iou);
+        }
+        if !(self.image_power >= 1.0 && self.image_power <= 16.0) {
+            bail!("--image-power must be in [1, 16], got {}", self.image_power);
         }
         if !(self.lr > 0.0 && self.lr.is_finite()) {
             bail!("learning rate must be positive");
@@ -276,6 +288,7 @@ pub fn ensemble_loss(
         nms_iou: config.nms_iou,
         overlap_iou: config.overlap_iou,
         objects,
+        image_power: config.image_power,
     };
     for det in detectors {
         let c = det.candidates(images.clone())?;

@@ -58,6 +58,10 @@ pub struct Args {
     /// Learning-rate schedule: constant, or cosine (annealed from --lr to 0 over --iterations).
     #[arg(long, value_enum, default_value_t = cac::attack::LrDecay::Constant)]
     pub lr_decay: cac::attack::LrDecay,
+    /// Power of the mean over images of their losses (overlap rule): 1 is the mean, p > 1
+    /// weighs the views the texture fails on more (docs/attack.md).
+    #[arg(long, default_value_t = 1.0)]
+    pub image_power: f32,
     /// Levels of the atlas's multi-scale parameterisation: 1 optimises texel by texel; K adds
     /// K-1 coarser levels (each half the side of the last) whose sum is the atlas.
     #[arg(long, default_value_t = 1)]
@@ -151,6 +155,7 @@ fn attack_config(a: &Args) -> AttackConfig {
         proposals: a.proposals,
         overlap_iou: a.overlap_iou,
         scales: a.scales,
+        image_power: a.image_power,
         top_n: a.top_n,
         batch: a.batch,
         iterations: a.iterations,

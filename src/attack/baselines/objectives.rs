@@ -42,6 +42,8 @@ pub struct Selection<'a> {
     /// Least IoU with the object's box of [`ProposalRule::Overlap`].
     pub overlap_iou: f64,
     pub objects: &'a [Option<[f32; 4]>],
+    /// Power of the images' power mean under [`ProposalRule::Overlap`] (1: the mean).
+    pub image_power: f32,
 }
 
 /// The method's loss for one detector's candidates, and the number of candidates it scored.
@@ -57,7 +59,10 @@ pub fn objective(
         Method::Cac if sel.rule == ProposalRule::Overlap => {
             let p = select_overlapping(&c, sel.objects, top_n, sel.overlap_iou)?;
             let n = p.iter().map(Vec::len).sum();
-            Ok((loss::proposals_loss_per_image(c.logits, &p, goal)?, n))
+            Ok((
+                loss::proposals_loss_per_image(c.logits, &p, goal, sel.image_power)?,
+                n,
+            ))
         }
         Method::Cac | Method::Shapeshifter => {
             if method == Method::Shapeshifter && matches!(goal, Goal::Hide(_)) {
