@@ -251,25 +251,40 @@ pub fn softplus<const D: usize>(x: Tensor<D>) -> Tensor<D> {
     x.clone().clamp_min(0.0) + x.abs().neg().exp().log1p()
 }
 
-/// The dense-proposals loss over the fixed proposals `sel` of `logits` (`[B, N, C]`).
-pub fn proposals_loss(logits: Tensor<3>, sel: &[Vec<usize>], goal: Goal) -> Result<Tensor<1>> {
-    let [b, n, classes] = logits.dims();
-    if sel.len() != b {
-        bail!("{} proposal sets for {b} images", sel.len());
-    }
+/// Row `k·N + i` of a `[B·N, ·]` view of per-candidate tensors for proposal `i` of image `k`, in
+/// the order of `sel`, as an index tensor; `None` when `sel` holds no proposal.
+pub fn proposal_rows(
+    sel: &[Vec<usize>],
+    n: usize,
+    device: &burn::tensor::Device,
+) -> Option<Tensor<1, Int>> {
     let rows: Vec<i64> = sel
         .iter()
         .enumerate()
         .flat_map(|(k, s)| s.iter().map(move |&i| (k * n + i) as i64))
         .collect();
-    let device = logits.device();
-    if rows.is_empty() {
+    let m = rows.len();
+    (m > 0).then(|| Tensor::<1, Int>::from_data(TensorData::new(rows, [m]), device))
+}
+
+/// The fixed proposals' logits (`[m, C]`, in the order of `sel`) out of `logits` (`[B, N, C]`);
+/// `None` when `sel` holds none.
+fn gather(logits: &Tensor<3>, sel: &[Vec<usize>]) -> Result<Option<Tensor<2>>> {
+    let [b, n, classes] = logits.dims();
+    if sel.len() != b {
+        bail!("{} proposal sets for {b} images", sel.len());
+    }
+    Ok(proposal_rows(sel, n, &logits.device())
+        .map(|idx| logits.clone().reshape([b * n, classes]).select(0, idx)))
+}
+
+/// The dense-proposals loss over the fixed proposals `sel` of `logits` (`[B, N, C]`).
+pub fn proposals_loss(logits: Tensor<3>, sel: &[Vec<usize>], goal: Goal) -> Result<Tensor<1>> {
+    let Some(z) = gather(&logits, sel)? else {
         // No proposal at all: a zero loss that still depends on the logits (zero gradient).
         return Ok(logits.sum() * 0.0);
-    }
-    let m = rows.len();
-    let idx = Tensor::<1, Int>::from_data(TensorData::new(rows, [m]), &device);
-    let z = logits.reshape([b * n, classes]).select(0, idx);
+    };
+    let m = z.dims()[0];
     Ok(per_proposal(z, goal)?.sum() / m as f64)
 }
 
@@ -277,65 +292,31 @@ pub fn proposals_loss(logits: Tensor<3>, sel: &[Vec<usize>], goal: Goal) -> Resu
 /// the images that have any (module docs). Empty everywhere: a zero loss (zero gradient).
 /// `power` p ≠ 1 takes the images' power mean `(1/|B'| Σ_b L_b^p)^(1/p)` instead of their mean:
 /// p > 1 weighs each image's gradient by `(L_b / L)^(p−1)`, so the views the texture fails on
-/// most (far, dark) pull harder; p = 1 is the plain mean, computed as before.
+/// most (far, dark) pull harder; p = 1 is the plain mean.
 pub fn proposals_loss_per_image(
     logits: Tensor<3>,
     sel: &[Vec<usize>],
     goal: Goal,
     power: f32,
 ) -> Result<Tensor<1>> {
-    if power != 1.0 {
-        return power_mean_per_image(logits, sel, goal, power);
-    }
-    let [b, n, classes] = logits.dims();
-    if sel.len() != b {
-        bail!("{} proposal sets for {b} images", sel.len());
-    }
-    let images = sel.iter().filter(|s| !s.is_empty()).count();
-    let (mut rows, mut weights) = (Vec::new(), Vec::new());
-    for (k, s) in sel.iter().enumerate() {
-        for &i in s {
-            rows.push((k * n + i) as i64);
-            weights.push(1.0 / (s.len() * images) as f32);
-        }
-    }
-    if rows.is_empty() {
-        return Ok(logits.sum() * 0.0);
-    }
-    let m = rows.len();
-    let device = logits.device();
-    let idx = Tensor::<1, Int>::from_data(TensorData::new(rows, [m]), &device);
-    let z = logits.reshape([b * n, classes]).select(0, idx);
-    let per = per_proposal(z, goal)?; // [m, 1]
-    let w = Tensor::<2>::from_data(TensorData::new(weights, [m, 1]), (&device, per.dtype()));
-    Ok((per * w).sum())
-}
-
-/// [`proposals_loss_per_image`] with `power` ≠ 1: the per-image means `L_b` as a `[B', 1]`
-/// product of a selection-weight matrix with the per-proposal losses, then their power mean.
-fn power_mean_per_image(
-    logits: Tensor<3>,
-    sel: &[Vec<usize>],
-    goal: Goal,
-    power: f32,
-) -> Result<Tensor<1>> {
-    let [b, n, classes] = logits.dims();
-    if sel.len() != b {
-        bail!("{} proposal sets for {b} images", sel.len());
-    }
     if !(power.is_finite() && power >= 1.0) {
         bail!("the images' power mean needs a finite power >= 1, got {power}");
     }
-    let rows: Vec<i64> = sel
-        .iter()
-        .enumerate()
-        .flat_map(|(k, s)| s.iter().map(move |&i| (k * n + i) as i64))
-        .collect();
-    if rows.is_empty() {
+    let Some(z) = gather(&logits, sel)? else {
         return Ok(logits.sum() * 0.0);
-    }
-    let (m, device) = (rows.len(), logits.device());
+    };
+    let per = per_proposal(z, goal)?; // [m, 1], positive
+    let (m, device) = (per.dims()[0], logits.device());
     let images: Vec<&Vec<usize>> = sel.iter().filter(|s| !s.is_empty()).collect();
+    if power == 1.0 {
+        let weights: Vec<f32> = images
+            .iter()
+            .flat_map(|s| std::iter::repeat_n(1.0 / (s.len() * images.len()) as f32, s.len()))
+            .collect();
+        let w = Tensor::<2>::from_data(TensorData::new(weights, [m, 1]), (&device, per.dtype()));
+        return Ok((per * w).sum());
+    }
+    // The per-image means L_b as a [B', m] selection-weight matrix times the per-proposal losses.
     let mut w = vec![0f32; images.len() * m];
     let mut col = 0;
     for (r, s) in images.iter().enumerate() {
@@ -344,9 +325,6 @@ fn power_mean_per_image(
             col += 1;
         }
     }
-    let idx = Tensor::<1, Int>::from_data(TensorData::new(rows, [m]), &device);
-    let z = logits.reshape([b * n, classes]).select(0, idx);
-    let per = per_proposal(z, goal)?; // [m, 1], positive
     let w = Tensor::<2>::from_data(
         TensorData::new(w, [images.len(), m]),
         (&device, per.dtype()),
@@ -532,10 +510,6 @@ mod tests {
             );
             assert!(g.iter().all(|v| v.is_finite()));
         }
-        // The plain path and the power path agree at p = 1 (the matrix form is the same mean).
-        let a = scalar(&proposals_loss_per_image(t.clone(), &sel, Goal::Targeted(1), 1.0).unwrap());
-        let b = scalar(&power_mean_per_image(t.clone(), &sel, Goal::Targeted(1), 1.0).unwrap());
-        assert!((a - b).abs() < 1e-6 * a, "{a} vs {b}");
         // Huge logits stay finite; no proposals give zero; p < 1 is refused.
         let h = Tensor::<3>::from_data(
             TensorData::new(vec![1e4f32, -1e4, -1e4, 1e4], [2, 1, 2]),

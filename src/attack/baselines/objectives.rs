@@ -26,7 +26,7 @@ use crate::attack::loss::{
 };
 use crate::detect::Candidates;
 use anyhow::{bail, Result};
-use burn::tensor::{activation::sigmoid, Int, Tensor, TensorData};
+use burn::tensor::{activation::sigmoid, Tensor, TensorData};
 
 /// COCO-80 ids of the vehicle ("true") classes the hiding objectives suppress: car, bus, truck.
 pub const VEHICLE_CLASSES: [usize; 3] = [2, 5, 7];
@@ -129,17 +129,11 @@ pub fn upc_loss(c: &Candidates, sel: &[Vec<usize>], target: usize) -> Result<Ten
         bail!("target class {target} is out of range for {classes} classes");
     }
     let cls = loss::proposals_loss(c.logits.clone(), sel, Goal::Targeted(target))?;
-    let rows: Vec<i64> = sel
-        .iter()
-        .enumerate()
-        .flat_map(|(k, s)| s.iter().map(move |&i| (k * n + i) as i64))
-        .collect();
-    if rows.is_empty() {
-        return Ok(cls);
-    }
-    let m = rows.len();
     let device = c.logits.device();
-    let idx = Tensor::<1, Int>::from_data(TensorData::new(rows, [m]), &device);
+    let Some(idx) = loss::proposal_rows(sel, n, &device) else {
+        return Ok(cls);
+    };
+    let m = idx.dims()[0];
     let z = c
         .logits
         .clone()
