@@ -10,13 +10,14 @@
 # evaluation summary (FV/RV x bright/dark, 50 views per level and set, seed EVAL_SEED, NanoDet and
 # CenterNet). The run folder stays in runs/ship-OBJECT-TARGET (resumable); the evaluation report in
 # runs/ship-OBJECT-TARGET-eval. Needs a release build (cargo build --release) and python3.
+# TRAIN_SIZE=512 renders the training views at 512² (default 320², the training preset).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 object=${1:?object (pickup, jeep, barrel, container)}
 target=${2:?target COCO class, e.g. person or "stop sign"}
 iterations=${3:-1200}
 eval_seed=${4:-31}
-invocation="tools/ship_texture.sh $*"
+invocation="${TRAIN_SIZE:+TRAIN_SIZE=$TRAIN_SIZE }tools/ship_texture.sh $*"
 shift $(( $# < 4 ? $# : 4 ))
 slug=$(echo "$target" | tr ' ' '_')
 cac=target/release/cac
@@ -25,8 +26,9 @@ run=runs/ship-$object-$slug
 ev=runs/ship-$object-$slug-eval
 mkdir -p runs
 "$cac" config > "$run.toml.tmp"
-sed -e "s/^mesh = .*/mesh = \"$object\"/" -e 's/^width = 512/width = 320/' \
-    -e 's/^height = 512/height = 320/' -e 's/^samples = 4/samples = 1/' \
+size=${TRAIN_SIZE:-320}
+sed -e "s/^mesh = .*/mesh = \"$object\"/" -e "s/^width = 512/width = $size/" \
+    -e "s/^height = 512/height = $size/" -e 's/^samples = 4/samples = 1/' \
     -e 's/^atlas_res = 512/atlas_res = 256/' "$run.toml.tmp" > "$run.toml"
 rm "$run.toml.tmp"
 train=("$cac" train --config "$run.toml" --target "$target" --iterations "$iterations" --seed 0 "$@")
