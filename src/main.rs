@@ -25,6 +25,10 @@ fn tune_allocator() {
 /// do the same, but it would also kill cac without a word where it writes video frames into an
 /// ffmpeg that exited, where the write error now says what happened.
 fn quiet_when_stdout_closes() {
+    #[cfg(unix)]
+    let epipe = format!("(os error {})", libc::EPIPE);
+    #[cfg(not(unix))]
+    let epipe = String::from("\u{0}never");
     let default = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {
         let p = info.payload();
@@ -33,10 +37,8 @@ fn quiet_when_stdout_closes() {
             .map(String::as_str)
             .or_else(|| p.downcast_ref::<&str>().copied())
             .unwrap_or("");
-        if msg.starts_with("failed printing to stdout")
-            && msg.contains(&format!("(os error {})", libc::EPIPE))
-        {
-            std::process::exit(128 + libc::SIGPIPE);
+        if msg.starts_with("failed printing to stdout") && msg.contains(&epipe) {
+            std::process::exit(141); // 128 + SIGPIPE (13)
         }
         default(info)
     }));

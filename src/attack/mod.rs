@@ -206,6 +206,16 @@ impl AttackConfig {
         if !(self.image_power >= 1.0 && self.image_power <= 16.0) {
             bail!("--image-power must be in [1, 16], got {}", self.image_power);
         }
+        if self.image_power != 1.0
+            && (self.method != Method::Cac || self.proposals != ProposalRule::Overlap)
+        {
+            bail!(
+                "--image-power weighs the per-image losses of the overlap rule: it needs --method cac \
+                 --proposals overlap (got {} with {})",
+                self.method.name(),
+                self.proposals.name()
+            );
+        }
         if !(self.lr > 0.0 && self.lr.is_finite()) {
             bail!("learning rate must be positive");
         }
@@ -310,7 +320,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn cosine_decay_starts_at_lr_halves_midway_and_ends_at_zero() {
+    fn cosine_decay_and_image_power_are_checked() {
         let c = AttackConfig {
             lr: 0.02,
             lr_decay: LrDecay::Cosine,
@@ -325,6 +335,21 @@ mod tests {
         assert!((1..100).all(|i| c.lr_at(i) < c.lr_at(i - 1)), "decreasing");
         let k = AttackConfig::default();
         assert!((0..300).all(|i| k.lr_at(i) == k.lr), "constant by default");
+        // --image-power: in [1, 16], and only where there are per-image losses to weigh.
+        let p = |image_power, proposals| AttackConfig {
+            image_power,
+            proposals,
+            ..Default::default()
+        };
+        assert!(p(3.0, ProposalRule::Overlap).validate().is_ok());
+        for bad in [0.5, f32::NAN, 17.0] {
+            assert!(p(bad, ProposalRule::Overlap).validate().is_err(), "{bad}");
+        }
+        let e = p(2.0, ProposalRule::TopN)
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--proposals overlap"), "{e}");
         // A run.json written before the setting existed reads as constant.
         let old: AttackConfig = serde_json::from_str(r#"{"lr": 0.02}"#).unwrap();
         assert_eq!(old.lr_decay, LrDecay::Constant);
