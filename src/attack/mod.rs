@@ -76,6 +76,11 @@ pub struct AttackConfig {
     /// weighs the images the texture fails on more; [`loss::proposals_loss_per_image`]).
     #[serde(default = "one_power")]
     pub image_power: f32,
+    /// Free viewpoints: the share of training views drawn within 30° of the front or the back
+    /// (`None`: azimuth uniform, a share of 1/3; [`crate::environment::azimuth_with_front_back_share`]).
+    /// The evaluation's views stay uniform.
+    #[serde(default)]
+    pub front_back_share: Option<f32>,
     /// Levels of the atlas's multi-scale parameterisation (1: texel by texel; [`pyramid`]).
     #[serde(default = "one_scale")]
     pub scales: usize,
@@ -106,6 +111,7 @@ impl Default for AttackConfig {
             method: Method::Cac,
             scales: 1,
             image_power: 1.0,
+            front_back_share: None,
             patch_res: 128,
             patch_tiles: 4,
         }
@@ -216,6 +222,14 @@ impl AttackConfig {
                 self.proposals.name()
             );
         }
+        if let Some(share) = self.front_back_share {
+            if !(0.0..=1.0).contains(&share) {
+                bail!("--front-back-share must be in [0, 1], got {share}");
+            }
+            if self.viewpoints != ViewpointSet::Free {
+                bail!("--front-back-share weighs the free viewpoints' azimuth: it cannot be used with --restricted");
+            }
+        }
         if !(self.lr > 0.0 && self.lr.is_finite()) {
             bail!("learning rate must be positive");
         }
@@ -275,7 +289,12 @@ pub fn draw_conditions(env: &Environment, config: &AttackConfig, i: usize) -> Ve
             } else {
                 Brightness::Dark
             };
-            env.sample(config.viewpoints, b, &mut rng)
+            let mut c = env.sample(config.viewpoints, b, &mut rng);
+            if let Some(share) = config.front_back_share {
+                c.viewpoint.azimuth_deg =
+                    crate::environment::azimuth_with_front_back_share(share, &mut rng);
+            }
+            c
         })
         .collect()
 }
@@ -353,5 +372,39 @@ mod tests {
         // A run.json written before the setting existed reads as constant.
         let old: AttackConfig = serde_json::from_str(r#"{"lr": 0.02}"#).unwrap();
         assert_eq!(old.lr_decay, LrDecay::Constant);
+        assert_eq!(old.front_back_share, None);
+    }
+
+    #[test]
+    fn front_back_share_sets_the_share_of_end_on_views() {
+        use crate::environment::azimuth_with_front_back_share as draw;
+        let near_ends = |a: f32| {
+            let d = (a.rem_euclid(180.0) - 90.0).abs(); // 90 at front/back, 0 at the sides
+            d > 60.0
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        for share in [0.0f32, 1.0 / 3.0, 0.6, 1.0] {
+            let n = 20_000;
+            let az: Vec<f32> = (0..n).map(|_| draw(share, &mut rng)).collect();
+            assert!(az.iter().all(|a| (0.0..360.0).contains(a)), "{share}");
+            let f = az.iter().filter(|&&a| near_ends(a)).count() as f32 / n as f32;
+            assert!((f - share).abs() < 0.015, "share {share}: {f}");
+            // Both ends and both sides are drawn alike.
+            let back = az.iter().filter(|&&a| (90.0..270.0).contains(&a)).count() as f32;
+            assert!(
+                (back / n as f32 - 0.5).abs() < 0.015,
+                "share {share}: back {back}"
+            );
+        }
+        // Off by default (no extra draws: the runs of before are unchanged), checked when set.
+        let c = |share, viewpoints| AttackConfig {
+            front_back_share: share,
+            viewpoints,
+            ..Default::default()
+        };
+        assert!(c(Some(0.5), ViewpointSet::Free).validate().is_ok());
+        assert!(c(Some(1.5), ViewpointSet::Free).validate().is_err());
+        assert!(c(Some(f32::NAN), ViewpointSet::Free).validate().is_err());
+        assert!(c(Some(0.5), ViewpointSet::Restricted).validate().is_err());
     }
 }

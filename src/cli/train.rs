@@ -27,7 +27,7 @@ pub struct Args {
     #[arg(long)]
     pub resume: Option<PathBuf>,
     /// Source detectors, comma-separated (an ensemble when several).
-    #[arg(long, default_value = "nanodet", value_delimiter = ',', value_parser = super::detect::MODEL_SPECS)]
+    #[arg(long, default_value = "nanodet", value_delimiter = ',', value_parser = cac::detect::spec::MODEL_SPECS)]
     pub models: Vec<String>,
     /// Target COCO class.
     #[arg(long, default_value = "person")]
@@ -62,6 +62,9 @@ pub struct Args {
     /// weighs the views the texture fails on more (docs/attack.md).
     #[arg(long, default_value_t = 1.0)]
     pub image_power: f32,
+    /// Share of the training views drawn within 30° of the front or back (uniform azimuth: 1/3).
+    #[arg(long)]
+    pub front_back_share: Option<f32>,
     /// Levels of the atlas's multi-scale parameterisation: 1 optimises texel by texel; K adds
     /// K-1 coarser levels (each half the side of the last) whose sum is the atlas.
     #[arg(long, default_value_t = 1)]
@@ -156,6 +159,7 @@ fn attack_config(a: &Args) -> AttackConfig {
         overlap_iou: a.overlap_iou,
         scales: a.scales,
         image_power: a.image_power,
+        front_back_share: a.front_back_share,
         top_n: a.top_n,
         batch: a.batch,
         iterations: a.iterations,

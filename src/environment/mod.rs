@@ -221,6 +221,20 @@ impl Condition {
     }
 }
 
+/// A free viewpoint's azimuth (degrees) drawn within 30° of the front (0°) or the back (180°)
+/// with probability `share`, and on the sides (30°–150°, 210°–330°) otherwise; uniform within
+/// each sector. `share` = 1/3 is the uniform azimuth of [`Environment::sample`]'s free set.
+pub fn azimuth_with_front_back_share(share: f32, rng: &mut impl Rng) -> f32 {
+    let ends = rng.random_bool(share.clamp(0.0, 1.0) as f64);
+    let far = rng.random_bool(0.5);
+    if ends {
+        let a = rng.random_range(-30.0f32..30.0) + if far { 180.0 } else { 0.0 };
+        a.rem_euclid(360.0)
+    } else {
+        rng.random_range(30.0f32..150.0) + if far { 180.0 } else { 0.0 }
+    }
+}
+
 /// Street-level views: `n` azimuths evenly around the object, elevations cycling through
 /// 5–15°, at one distance ratio, plain photometrics.
 pub fn street_views(n: usize, distance_ratio: f32, brightness: Brightness) -> Vec<Condition> {
