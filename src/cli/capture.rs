@@ -10,30 +10,11 @@ use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The rig file (calib/rig.toml is an example).
-    #[arg(long)]
-    pub rig: PathBuf,
-    /// Camouflage atlas painted on the object (the twin renders it; recorded in the session).
-    #[arg(long)]
-    pub texture: Option<PathBuf>,
-    /// Distance ratios, comma separated (default: the rig file's).
-    #[arg(long)]
-    pub ratios: Option<String>,
-    /// Table angles: START:END:STEP (END exclusive) or a comma list, degrees.
-    #[arg(long, default_value = "0:360:15")]
-    pub angles: String,
-    /// Captures of every (ratio, angle).
-    #[arg(long, default_value_t = 5)]
-    pub repeats: usize,
-    /// Session folder.
-    #[arg(long)]
-    pub out: PathBuf,
+    #[command(flatten)]
+    pub job: CaptureJob,
     /// Simulated firmware (pseudo-terminal) and digital-twin camera.
     #[arg(long)]
     pub simulate: bool,
-    /// Continue the session in --out, capturing only missing frames.
-    #[arg(long)]
-    pub resume: bool,
     /// Serial port of the turntable (real rig).
     #[arg(long)]
     pub port: Option<String>,
@@ -47,16 +28,14 @@ pub struct Args {
     /// Simulated faults: none, drops, garbles, delays, resets, disconnects, mix.
     #[arg(long, default_value = "none")]
     pub faults: String,
-    /// Seed of the simulated faults and of the twin's sensor noise.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
     /// How much faster simulated time runs than real time.
     #[arg(long, default_value_t = 40.0)]
     pub speedup: f64,
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let device = if a.simulate {
+    let mut job = a.job;
+    job.device = if a.simulate {
         Device::Simulated {
             faults: a.faults.clone(),
             speedup: a.speedup,
@@ -72,17 +51,6 @@ pub fn run(a: Args) -> Result<()> {
             port: port.clone(),
             camera: a.camera.clone().filter(|_| !a.twin_camera),
         }
-    };
-    let job = CaptureJob {
-        rig: a.rig,
-        texture: a.texture,
-        ratios: a.ratios,
-        angles: a.angles,
-        repeats: a.repeats,
-        out: a.out,
-        resume: a.resume,
-        device,
-        seed: a.seed,
     };
     let o = job.run()?;
     let s = &o.summary;

@@ -6,59 +6,8 @@
 
 use anyhow::{bail, Result};
 use cac::detect::{self, Detection};
-use clap::builder::{PossibleValue, TypedValueParser};
-use clap::error::ErrorKind;
 use clap::Args;
 use std::path::{Path, PathBuf};
-
-/// The detector catalogue ([`detect::MODELS`]) as clap's value list.
-fn catalogue() -> impl Iterator<Item = PossibleValue> {
-    detect::MODELS
-        .iter()
-        .map(|m| PossibleValue::new(m.name).help(m.about))
-}
-
-/// A detector spec, checked by [`detect::check_spec`] with the catalogue listed in the help:
-/// `NAME`, `MODEL=FILE` for a checkpoint model, or `onnx:MODEL.onnx[:CONFIG.toml]`
-/// (`--models`: [`MODEL_SPECS`]). [`MODEL_NAME`] also takes a checkpoint model's bare name (`cac detect --model`,
-/// whose weights come from `--weights`).
-#[derive(Clone, Copy, Debug)]
-pub struct ModelSpec {
-    bare_checkpoints: bool,
-}
-
-/// `--models`' parser.
-pub const MODEL_SPECS: ModelSpec = ModelSpec {
-    bare_checkpoints: false,
-};
-
-/// `cac detect --model`'s parser.
-pub const MODEL_NAME: ModelSpec = ModelSpec {
-    bare_checkpoints: true,
-};
-
-impl TypedValueParser for ModelSpec {
-    type Value = String;
-
-    fn parse_ref(
-        &self,
-        _cmd: &clap::Command,
-        _arg: Option<&clap::Arg>,
-        value: &std::ffi::OsStr,
-    ) -> std::result::Result<String, clap::Error> {
-        let s = value.to_string_lossy();
-        let bare = detect::model_info(&s).is_some_and(|m| m.weights == detect::Weights::Checkpoint);
-        if !(self.bare_checkpoints && bare) {
-            detect::check_spec(&s)
-                .map_err(|e| clap::Error::raw(ErrorKind::InvalidValue, format!("{e}\n")))?;
-        }
-        Ok(s.into_owned())
-    }
-
-    fn possible_values(&self) -> Option<Box<dyn Iterator<Item = PossibleValue> + '_>> {
-        Some(Box::new(catalogue()))
-    }
-}
 
 #[derive(Args, Debug)]
 pub struct DetectArgs {
@@ -66,7 +15,7 @@ pub struct DetectArgs {
     #[arg(required = true)]
     pub images: Vec<PathBuf>,
     /// A catalogue name, or your ONNX detector as onnx:MODEL.onnx[:CONFIG.toml].
-    #[arg(long, default_value = "centernet", value_parser = MODEL_NAME)]
+    #[arg(long, default_value = "centernet", value_parser = detect::spec::MODEL_NAME)]
     pub model: String,
     /// NanoDet only: @vladmandic/human's pre-/post-processing (RGB/255 input, argmax boxes),
     /// for parity checks; the default is the model's real BGR mean/std input and DFL decoding.

@@ -30,7 +30,7 @@ pub struct Args {
     )]
     pub textures: Vec<String>,
     /// Detectors, comma-separated (column groups).
-    #[arg(long, value_delimiter = ',', value_parser = crate::cli::detect::MODEL_SPECS, default_value = "centernet,nanodet")]
+    #[arg(long, value_delimiter = ',', value_parser = cac::detect::spec::MODEL_SPECS, default_value = "centernet,nanodet")]
     pub models: Vec<String>,
     /// Views per brightness level in each viewpoint set (the paper: 200).
     #[arg(long, default_value_t = 200)]

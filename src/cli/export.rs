@@ -130,59 +130,24 @@ pub fn run(a: Args) -> Result<()> {
 /// Measure the bake's colour error against triangle count and seconds for several limits.
 #[derive(ClapArgs, Debug)]
 pub struct BenchArgs {
-    /// The object (file or default name).
-    #[arg(long, default_value = "jeep")]
-    pub mesh: PathBuf,
-    /// The texture; default: a synthetic camouflage at --res.
-    #[arg(long)]
-    pub texture: Option<PathBuf>,
-    /// Resolution of the synthetic camouflage.
-    #[arg(long, default_value_t = 512)]
-    pub res: usize,
-    #[arg(long, default_value = "1:24")]
-    pub scale: Scale,
-    /// Edge limits in texels to try.
-    #[arg(long, value_delimiter = ',', default_value = "16,8,4,2,1,0.5")]
-    pub texels: Vec<f32>,
-    /// Edge limits in mm to try (texel limit off), e.g. 2,1,0.5.
-    #[arg(long, value_delimiter = ',')]
-    pub mm: Vec<f32>,
-    /// Random surface samples for the error.
-    #[arg(long, default_value_t = 200_000)]
-    pub samples: usize,
+    #[command(flatten)]
+    pub bench: benchmark::ExportBench,
     /// CSV output.
     #[arg(long, default_value = "bench_export.csv")]
     pub csv: PathBuf,
-    /// Also solidify at these grid spacings (mm), e.g. 1.6,0.8,0.4,0.2: error against time.
-    #[arg(long, value_delimiter = ',')]
-    pub solid_voxels: Vec<f32>,
-    /// Subdivide the mesh to at least this many triangles before solidifying (0: as loaded).
-    #[arg(long, default_value_t = 0)]
-    pub solid_input_triangles: usize,
     /// CSV output of the solidify table.
     #[arg(long, default_value = "bench_solid.csv")]
     pub solid_csv: PathBuf,
 }
 
 pub fn bench(a: BenchArgs) -> Result<()> {
-    let o = benchmark::ExportBench {
-        mesh: a.mesh.clone(),
-        texture: a.texture.clone(),
-        res: a.res,
-        scale: a.scale,
-        texels: a.texels.clone(),
-        mm: a.mm.clone(),
-        samples: a.samples,
-        solid_voxels: a.solid_voxels.clone(),
-        solid_input_triangles: a.solid_input_triangles,
-    }
-    .run()?;
+    let o = a.bench.run()?;
     let mesh = &o.mesh;
     if let Some(s) = &o.solid {
         println!(
             "solidify {} at 1:{} ({} triangles, {:.1} x {:.1} x {:.1} mm)",
             mesh.name,
-            a.scale.denominator,
+            a.bench.scale.denominator,
             s.input.tris.len(),
             s.input.report.size_mm[0],
             s.input.report.size_mm[1],
@@ -196,11 +161,11 @@ pub fn bench(a: BenchArgs) -> Result<()> {
     println!(
         "object {} at {} ({} triangles), texture {}x{}, {} samples",
         mesh.name,
-        a.scale.denominator,
+        a.bench.scale.denominator,
         mesh.tris.len(),
         o.texture.0,
         o.texture.1,
-        a.samples
+        a.bench.samples
     );
     print!("{}", benchmark::markdown(rows));
     cac::io::write_atomic(&a.csv, benchmark::csv(rows).as_bytes())?;

@@ -33,7 +33,7 @@ pub struct Cli {
 #[derive(Subcommand, Debug)]
 pub enum Command {
     /// Run the main job on the embedded defaults.
-    Demo(demo::Args),
+    Demo(cac::study::demo::DemoJob),
     /// Learn a coated adversarial camouflage (the dense-proposals attack).
     Train(train::Args),
     /// Write a simple baseline texture (natural, naive, random) as a PNG.

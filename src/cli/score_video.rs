@@ -18,7 +18,7 @@ pub struct Args {
     #[arg(long)]
     pub out: PathBuf,
     /// Detectors, comma-separated.
-    #[arg(long, value_delimiter = ',', value_parser = super::detect::MODEL_SPECS, default_value = "nanodet,centernet")]
+    #[arg(long, value_delimiter = ',', value_parser = cac::detect::spec::MODEL_SPECS, default_value = "nanodet,centernet")]
     pub models: Vec<String>,
     /// Ground truth: annotation CSV or COCO JSON (docs/video.md).
     #[arg(long, conflicts_with = "log")]

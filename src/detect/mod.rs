@@ -4,10 +4,11 @@
 //! state_dicts (matched to torchvision).
 //!
 //! What is here: the [`Detector`] interface the attack and the evaluation use, the detector
-//! catalogue ([`MODELS`], [`load`], [`load_all`]: the one place a detector is named and loaded),
-//! the detectors, a general TFJS graph-model importer ([`tfjs`]), the pre-processing, tfjs NMS,
-//! COCO labels and the model fetcher, and users' own ONNX detectors ([`onnx`]). Not here:
-//! rendering, losses, training loops, and the choice of compute device (callers pass one).
+//! catalogue ([`MODELS`], [`load`], [`load_all`]: the one place a detector is named and loaded;
+//! [`spec`] makes it clap's value parser), the detectors, a general TFJS graph-model importer
+//! ([`tfjs`]), the pre-processing, tfjs NMS, COCO labels and the model fetcher, and users' own
+//! ONNX detectors ([`onnx`]). Not here: rendering, losses, training loops, and the choice of
+//! compute device (callers pass one).
 //!
 //! Images go in as `[B, 3, H, W]` floats in [0, 1] on any device; the detector resizes them
 //! inside (differentiably), so gradients of any output reach the input image.
@@ -26,6 +27,7 @@ pub mod nms;
 pub mod onnx;
 pub mod preprocess;
 pub mod raw;
+pub mod spec;
 pub mod tfjs;
 
 use anyhow::Result;

@@ -21,18 +21,23 @@ use std::fmt::Write;
 use std::path::PathBuf;
 use std::time::Instant;
 
-/// The demo's settings.
-#[derive(Debug, Clone)]
+/// The demo's settings (also `cac demo`'s flags).
+#[derive(Debug, Clone, clap::Args)]
 pub struct DemoJob {
     /// Output folder.
+    #[arg(long, default_value = "demo-out")]
     pub out: PathBuf,
     /// Seed of the training run.
+    #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Attack iterations (batch 2).
+    #[arg(long, default_value_t = 400)]
     pub iterations: usize,
-    /// Protocol views per brightness level and viewpoint set.
+    /// Protocol views per brightness level and viewpoint set (4 groups: FV/RV × bright/dark).
+    #[arg(long, default_value_t = 16)]
     pub views: usize,
-    /// Seed of the protocol views.
+    /// Seed of the protocol views (not the training seed: the texture never saw these views).
+    #[arg(long, default_value_t = 2026)]
     pub view_seed: u64,
 }
 

@@ -7,7 +7,7 @@
 //! entry of `hide` adds a CAC row in hide mode.
 
 use super::{protocol_job, train_run};
-use crate::attack::{loss::ProposalRule, AttackConfig, Method};
+use crate::attack::{AttackConfig, Method};
 use crate::config::SceneConfig;
 use crate::detect;
 use crate::environment::ViewpointSet;
@@ -26,15 +26,12 @@ pub struct MethodsJob {
     /// Hide-mode rows: `all`, or COCO labels joined by `+`.
     pub hide: Vec<String>,
     /// CAC's proposal rule.
-    pub proposals: ProposalRule,
-    /// Source detectors.
-    pub models: Vec<String>,
+    /// What the attacks train against and for.
+    pub source: super::Source,
     /// Detectors the textures are judged by.
     pub eval_models: Vec<String>,
-    pub target: String,
     /// Training iterations per method.
     pub iterations: usize,
-    pub batch: usize,
     /// Textures evaluated beside the learned ones (`cac eval --texture` specs).
     pub textures: Vec<String>,
     /// Evaluation views per brightness level and set.
@@ -68,16 +65,7 @@ fn display(m: Method) -> &'static str {
 impl MethodsJob {
     /// The rows to train, each checked.
     fn rows(&self) -> Result<Vec<Row>> {
-        let base = AttackConfig {
-            models: self.models.clone(),
-            target: self.target.clone(),
-            proposals: self.proposals,
-            batch: self.batch,
-            iterations: self.iterations,
-            seed: self.seed,
-            checkpoint_every: 10,
-            ..Default::default()
-        };
+        let base = self.source.attack(self.iterations, self.seed);
         let mut out: Vec<Row> = self
             .methods
             .iter()
@@ -120,7 +108,7 @@ impl MethodsJob {
         }
         let rows = self.rows()?;
         let stage = self.scene.stage()?;
-        let sources = detect::load_all(&self.models, None, device)?;
+        let sources = detect::load_all(&self.source.models, None, device)?;
         let src = detect::refs(&sources);
         let mut trained = vec![];
         for r in &rows {
@@ -141,7 +129,7 @@ impl MethodsJob {
                 .map(|(n, _, d)| format!("{n}={}", d.display())),
         );
         let plan = (self.views, self.eval_seed, self.sets.clone());
-        let job = protocol_job(scene, specs, plan, &self.target, &self.out)?;
+        let job = protocol_job(scene, specs, plan, &self.source.target, &self.out)?;
         let evals = detect::load_all(&self.eval_models, None, device)?;
         println!("evaluating {} textures ...", job.textures.len());
         let o = job::run(&job, &detect::refs(&evals), device, &mut |_, _| {})?;
@@ -154,15 +142,15 @@ impl MethodsJob {
             .collect();
         table_rows.extend(trained.iter().map(|(n, s, _)| (n.clone(), Some(*s))));
         let (models, sets) = (&o.info.models, &job.plan.sets);
-        let t = study::methods_table(&o.records, &table_rows, models, &self.models, sets);
+        let t = study::methods_table(&o.records, &table_rows, models, &self.source.models, sets);
         let md = format!(
             "# Methods under the protocol\n\n```\n{}\ntraining: {} iterations, batch {}, sources {}, target {:?}, CAC proposals {}, seed {}; train (s) = the logged iteration times\n```\n\n{}",
             report::protocol_text(&o.info),
             self.iterations,
-            self.batch,
-            self.models.join(", "),
-            self.target,
-            self.proposals.name(),
+            self.source.batch,
+            self.source.models.join(", "),
+            self.source.target,
+            self.source.proposals.name(),
             self.seed,
             t.markdown()
         );

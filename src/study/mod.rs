@@ -10,7 +10,7 @@ pub mod demo;
 pub mod methods;
 pub mod topn;
 
-use crate::attack::{run::RunDir, AttackConfig, Trainer};
+use crate::attack::{loss::ProposalRule, run::RunDir, AttackConfig, Trainer};
 use crate::config::{SceneConfig, Stage};
 use crate::detect::{labels, Detector};
 use crate::environment::ViewpointSet;
@@ -20,6 +20,40 @@ use crate::eval::Protocol;
 use anyhow::{bail, Context, Result};
 use burn::tensor::Device;
 use std::path::Path;
+
+/// What a study's attacks train against and for (`cac study topn` and `methods` share these
+/// flags).
+#[derive(Clone, Debug, clap::Args)]
+pub struct Source {
+    /// Which candidates are fixed: `overlap` (on the object, the n best) or `topn` (the paper's
+    /// literal rule: the top n after NMS over the whole image).
+    #[arg(long, value_enum, default_value_t = ProposalRule::Overlap)]
+    pub proposals: ProposalRule,
+    /// Source detectors the attacks train against, comma-separated.
+    #[arg(long, value_delimiter = ',', value_parser = crate::detect::spec::MODEL_SPECS, default_value = "nanodet")]
+    pub models: Vec<String>,
+    /// COCO class the proposals are pushed towards.
+    #[arg(long, default_value = "person")]
+    pub target: String,
+    #[arg(long, default_value_t = 2)]
+    pub batch: usize,
+}
+
+impl Source {
+    /// The attack settings these give, for `iterations` from `seed` (checkpoints every 10).
+    pub fn attack(&self, iterations: usize, seed: u64) -> AttackConfig {
+        AttackConfig {
+            models: self.models.clone(),
+            target: self.target.clone(),
+            proposals: self.proposals,
+            batch: self.batch,
+            iterations,
+            seed,
+            checkpoint_every: 10,
+            ..Default::default()
+        }
+    }
+}
 
 /// Trains (resuming a checkpoint) the run in `dir` up to `ac.iterations` on the autodiff device
 /// over `device`, or only reads it when it is finished; with `read_only` (the hint of the

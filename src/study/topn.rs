@@ -6,7 +6,7 @@
 //! task per setting, evaluation shards, then the merge.
 
 use super::{protocol_job, train_run};
-use crate::attack::{loss::ProposalRule, AttackConfig};
+use crate::attack::AttackConfig;
 use crate::config::SceneConfig;
 use crate::detect;
 use crate::environment::ViewpointSet;
@@ -38,14 +38,11 @@ pub struct TopnJob {
     pub scene: SceneConfig,
     /// The values of n.
     pub n: Vec<usize>,
-    pub proposals: ProposalRule,
-    /// Source detectors.
-    pub models: Vec<String>,
+    /// What the attacks train against and for.
+    pub source: super::Source,
     /// Detectors the textures are evaluated on.
     pub eval_models: Vec<String>,
-    pub target: String,
     pub iterations: usize,
-    pub batch: usize,
     /// Evaluation views per brightness level and set.
     pub views: usize,
     pub sets: Vec<ViewpointSet>,
@@ -91,7 +88,7 @@ impl TopnJob {
     /// the evaluation, the original first.
     fn train_runs(&self, device: &Device) -> Result<Vec<String>> {
         let stage = self.scene.stage()?;
-        let sources = detect::load_all(&self.models, None, device)?;
+        let sources = detect::load_all(&self.source.models, None, device)?;
         let src = detect::refs(&sources);
         let mut specs = vec!["original".to_string()];
         let task = match self.part {
@@ -112,16 +109,9 @@ impl TopnJob {
             }
             let dir = self.out.join(format!("n{n}"));
             let ac = AttackConfig {
-                models: self.models.clone(),
-                target: self.target.clone(),
-                proposals: self.proposals,
                 top_n: n,
-                batch: self.batch,
-                iterations: self.iterations,
-                seed: self.seed,
-                checkpoint_every: 10,
                 viewpoints: ViewpointSet::Free,
-                ..Default::default()
+                ..self.source.attack(self.iterations, self.seed)
             };
             let read_only =
                 matches!(self.part, Part::Shard(_) | Part::Merge).then(|| format!("--task {k}"));
@@ -140,7 +130,7 @@ impl TopnJob {
             (eval_scene.render.width, eval_scene.render.height) = (s, s);
         }
         let plan = (self.views, self.seed, self.sets.clone());
-        let job = protocol_job(eval_scene, specs, plan, &self.target, &self.out)?;
+        let job = protocol_job(eval_scene, specs, plan, &self.source.target, &self.out)?;
         let evals = detect::load_all(&self.eval_models, None, device)?;
         let refs = detect::refs(&evals);
         println!(
@@ -156,17 +146,17 @@ impl TopnJob {
             Part::Merge => job::merge(&job, &refs, device)?,
             _ => job::run(&job, &refs, device, &mut |_, _| {})?,
         };
-        let t = study::topn_table(&o.records, &self.n, &o.info.models, &self.models);
-        let img = study::topn_plot(&o.records, &self.n, &o.info.models, &self.models)?;
+        let t = study::topn_table(&o.records, &self.n, &o.info.models, &self.source.models);
+        let img = study::topn_plot(&o.records, &self.n, &o.info.models, &self.source.models)?;
         crate::io::save_png_atomic(&self.out.join("topn.png"), &img)?;
         crate::io::write_atomic(&self.out.join("topn.csv"), t.csv().as_bytes())?;
         let md = format!(
             "# Top-n denseness study\n\n```\n{}\ntraining: {} iterations, batch {}, sources {}, target {:?}, seed {}\n```\n\n{}",
             report::protocol_text(&o.info),
             self.iterations,
-            self.batch,
-            self.models.join(", "),
-            self.target,
+            self.source.batch,
+            self.source.models.join(", "),
+            self.source.target,
             self.seed,
             t.markdown()
         );

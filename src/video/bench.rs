@@ -14,14 +14,19 @@ use anyhow::Result;
 use burn::tensor::Device;
 use std::path::Path;
 
-/// The rendered sequence and the codecs.
-#[derive(Clone, Debug)]
+/// The rendered sequence and the codecs (also `cac bench video`'s flags).
+#[derive(Clone, Debug, clap::Args)]
 pub struct VideoBench {
+    /// Frame size of the rendered sequence.
+    #[arg(long, default_value_t = 640)]
     pub width: usize,
+    #[arg(long, default_value_t = 480)]
     pub height: usize,
     /// Frames (one turn of the turntable).
+    #[arg(long, default_value_t = 24)]
     pub frames: usize,
-    /// h264, hevc, mjpeg.
+    /// Codecs, comma-separated (h264, hevc, mjpeg).
+    #[arg(long, value_delimiter = ',', default_value = "h264,hevc,mjpeg")]
     pub codecs: Vec<String>,
 }
 

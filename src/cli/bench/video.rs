@@ -14,20 +14,11 @@ use std::path::PathBuf;
 
 #[derive(ClapArgs, Debug)]
 pub struct Args {
-    /// Frame size of the rendered sequence.
-    #[arg(long, default_value_t = 640)]
-    pub width: usize,
-    #[arg(long, default_value_t = 480)]
-    pub height: usize,
-    /// Frames (one turn of the turntable).
-    #[arg(long, default_value_t = 24)]
-    pub frames: usize,
+    #[command(flatten)]
+    pub bench: VideoBench,
     /// Detectors, comma-separated.
-    #[arg(long, value_delimiter = ',', value_parser = crate::cli::detect::MODEL_SPECS, default_value = "nanodet,centernet")]
+    #[arg(long, value_delimiter = ',', value_parser = cac::detect::spec::MODEL_SPECS, default_value = "nanodet,centernet")]
     pub models: Vec<String>,
-    /// Codecs, comma-separated (h264, hevc, mjpeg).
-    #[arg(long, value_delimiter = ',', default_value = "h264,hevc,mjpeg")]
-    pub codecs: Vec<String>,
     /// CSV output file.
     #[arg(long, default_value = "bench-video.csv")]
     pub csv: PathBuf,
@@ -44,13 +35,7 @@ pub fn run(a: Args) -> Result<()> {
         .zip(&dets)
         .map(|(m, d)| (m.as_str(), d.as_ref()))
         .collect();
-    let bench = VideoBench {
-        width: a.width,
-        height: a.height,
-        frames: a.frames,
-        codecs: a.codecs.clone(),
-    };
-    let t = bench.run(&tools, &named, &device)?;
+    let t = a.bench.run(&tools, &named, &device)?;
     print!("{}", t.markdown());
     cac::io::write_atomic(&a.csv, t.csv().as_bytes())?;
     println!("wrote {}", a.csv.display());

@@ -24,12 +24,12 @@ pub struct Args {
     #[arg(long)]
     pub hide: Vec<String>,
     #[command(flatten)]
-    pub source: super::SourceArgs,
+    pub source: cac::study::Source,
     /// Training scene config (default: `SceneConfig::training()`, the protocol's distribution).
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Detectors the textures are judged by (those not among --models measure transfer).
-    #[arg(long, value_delimiter = ',', value_parser = crate::cli::detect::MODEL_SPECS, default_value = "nanodet,centernet")]
+    #[arg(long, value_delimiter = ',', value_parser = cac::detect::spec::MODEL_SPECS, default_value = "nanodet,centernet")]
     pub eval_models: Vec<String>,
     /// Training iterations per method (the same budget for all).
     #[arg(long, default_value_t = 600)]
@@ -61,12 +61,9 @@ pub fn run(a: Args) -> Result<()> {
         scene: SceneConfig::from_file_or(a.config.as_deref(), SceneConfig::training)?,
         methods: a.methods,
         hide: a.hide,
-        proposals: a.source.proposals,
-        models: a.source.models,
+        source: a.source,
         eval_models: a.eval_models,
-        target: a.source.target,
         iterations: a.iterations,
-        batch: a.source.batch,
         textures: a.textures,
         views: a.views,
         sets: ViewpointSet::distinct(&a.sets),

@@ -22,34 +22,18 @@ pub enum Cmd {
     Methods(methods::Args),
 }
 
-/// What a study's attacks train against and for (shared by `topn` and `methods`).
-#[derive(clap::Args, Debug)]
-pub struct SourceArgs {
-    /// Which candidates are fixed: `overlap` (on the object, the n best) or `topn` (the paper's
-    /// literal rule: the top n after NMS over the whole image).
-    #[arg(long, value_enum, default_value_t = cac::attack::loss::ProposalRule::Overlap)]
-    pub proposals: cac::attack::loss::ProposalRule,
-    /// Source detectors the attacks train against, comma-separated.
-    #[arg(long, value_delimiter = ',', value_parser = super::detect::MODEL_SPECS, default_value = "nanodet")]
-    pub models: Vec<String>,
-    #[arg(long, default_value = "person")]
-    pub target: String,
-    #[arg(long, default_value_t = 2)]
-    pub batch: usize,
-}
-
 #[derive(clap::Args, Debug)]
 pub struct TopnArgs {
     /// Values of n, comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "1,4,16,64")]
     pub n: Vec<usize>,
     #[command(flatten)]
-    pub source: SourceArgs,
+    pub source: cac::study::Source,
     /// Scene config (default: the demo's scene, the pickup at street level, 320² renders).
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Detectors the textures are evaluated on (those not among --models measure transfer).
-    #[arg(long, value_delimiter = ',', value_parser = super::detect::MODEL_SPECS, default_value = "centernet,nanodet")]
+    #[arg(long, value_delimiter = ',', value_parser = cac::detect::spec::MODEL_SPECS, default_value = "centernet,nanodet")]
     pub eval_models: Vec<String>,
     /// Training iterations per run.
     #[arg(long, default_value_t = 30)]
@@ -91,12 +75,9 @@ fn topn(a: TopnArgs) -> Result<()> {
     let job = TopnJob {
         scene: SceneConfig::from_file_or(a.config.as_deref(), TopnJob::default_scene)?,
         n: a.n.clone(),
-        proposals: a.source.proposals,
-        models: a.source.models.clone(),
+        source: a.source.clone(),
         eval_models: a.eval_models.clone(),
-        target: a.source.target.clone(),
         iterations: a.iterations,
-        batch: a.source.batch,
         views: a.views,
         sets: ViewpointSet::distinct(&a.sets),
         eval_size: a.size,
