@@ -35,58 +35,86 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-/// Attack settings (the `[attack]` table; `cac train --help` documents each flag).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// Attack settings: a run's `attack` in run.json, and `cac train`'s flags (each field's doc is its
+/// help text).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, clap::Args)]
 #[serde(deny_unknown_fields, default)]
 pub struct AttackConfig {
-    /// The attack: CAC (this paper) or a baseline (`docs/attack.md` says how each is realised).
+    /// The attack: cac (this paper) or a baseline (advpat, shapeshifter: 2D patch tiled on the
+    /// object; upc, camou: full atlas in 3D). See docs/attack.md.
+    #[arg(long, value_enum, default_value_t = Method::Cac)]
     pub method: Method,
-    /// Source detectors (an ensemble when several).
+    /// Source detectors, comma-separated (an ensemble when several).
+    #[arg(long, default_value = "nanodet", value_delimiter = ',', value_parser = crate::detect::spec::MODEL_SPECS)]
     pub models: Vec<String>,
-    /// COCO class every proposal is pushed towards; ignored with `hide`.
+    /// Target COCO class every proposal is pushed towards; ignored with --hide.
+    #[arg(long, default_value = "person")]
     pub target: String,
-    /// Non-targeted mode: suppress the `hide_classes` in the proposals.
+    /// Non-targeted mode: hide the object (suppress --hide-classes in the proposals).
+    #[arg(long)]
     pub hide: bool,
-    /// The classes hide mode suppresses: comma-separated COCO labels (default the vehicle
-    /// classes P@0.5 counts, `car,bus,truck`), or `all`. Runs written before the setting existed
-    /// suppressed every class, so a run.json without it reads as `all`.
+    /// The classes --hide suppresses: comma-separated COCO labels (default the vehicle classes
+    /// P@0.5 counts), or `all` (every class; it does not hide the pickup: docs/attack.md).
+    // Runs written before the setting existed suppressed every class: a run.json without it
+    // reads as `all`.
     #[serde(default = "all_classes")]
+    #[arg(long, default_value = "car,bus,truck")]
     pub hide_classes: String,
-    /// Which candidates become the fixed proposals (`loss` module docs). Runs written before
-    /// the rule existed used top-n, so a run.json without it reads as `topn`.
+    /// Which candidates the loss fixes: `overlap` (those on the object's box, IoU >=
+    /// --overlap-iou) or `topn` (the top n after NMS over the whole image); see docs/attack.md.
+    // Runs written before the rule existed used top-n: a run.json without it reads as `topn`.
     #[serde(default = "legacy_rule")]
+    #[arg(long, value_enum, default_value_t = ProposalRule::Overlap)]
     pub proposals: ProposalRule,
     /// Fixed proposals per image at most (the paper's n).
+    #[arg(long, default_value_t = 300)]
     pub top_n: usize,
     /// IoU of the class-agnostic NMS that picks the `topn` proposals.
+    #[arg(skip = 0.7)]
     pub nms_iou: f64,
     /// Least IoU with the object's box of an `overlap` proposal.
+    #[arg(long, default_value_t = 0.5)]
     pub overlap_iou: f64,
+    #[arg(long, default_value_t = 2)]
     pub batch: usize,
+    #[arg(long, default_value_t = 200)]
     pub iterations: usize,
+    #[arg(long, default_value_t = 0.02)]
     pub lr: f32,
-    /// How the learning rate changes over the run (runs written before the setting existed
-    /// used a constant one).
+    /// Learning-rate schedule: constant, or cosine (annealed from --lr to 0 over --iterations).
+    // Runs written before the setting existed used a constant one (the default).
+    #[arg(long, value_enum, default_value_t = LrDecay::Constant)]
     pub lr_decay: LrDecay,
+    #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Write a checkpoint every this many iterations (0: only at the end).
+    #[arg(long, default_value_t = 10)]
     pub checkpoint_every: usize,
+    /// Where the training views are drawn (`cac train --restricted`: side views only).
+    #[arg(skip = ViewpointSet::Free)]
     pub viewpoints: ViewpointSet,
-    /// Power of the mean over images of the per-image losses (`overlap` rule; 1: the mean, > 1
-    /// weighs the images the texture fails on more; [`loss::proposals_loss_per_image`]).
+    /// Power of the mean over images of their losses (overlap rule): 1 is the mean, p > 1
+    /// weighs the views the texture fails on more ([`loss::proposals_loss_per_image`],
+    /// docs/attack.md).
     #[serde(default = "one_power")]
+    #[arg(long, default_value_t = 1.0)]
     pub image_power: f32,
-    /// Free viewpoints: the share of training views drawn within 30° of the front or the back
-    /// (`None`: azimuth uniform, a share of 1/3; [`crate::environment::azimuth_with_front_back_share`]).
-    /// The evaluation's views stay uniform.
+    /// Share of the training views drawn within 30° of the front or the back (free viewpoints;
+    /// default: azimuth uniform, a share of 1/3; the evaluation's views stay uniform;
+    /// [`crate::environment::azimuth_with_front_back_share`]).
     #[serde(default)]
+    #[arg(long)]
     pub front_back_share: Option<f32>,
-    /// Levels of the atlas's multi-scale parameterisation (1: texel by texel; [`pyramid`]).
+    /// Levels of the atlas's multi-scale parameterisation: 1 optimises texel by texel; K adds
+    /// K-1 coarser levels (each half the side of the last) whose sum is the atlas ([`pyramid`]).
     #[serde(default = "one_scale")]
+    #[arg(long, default_value_t = 1)]
     pub scales: usize,
     /// 2D methods: side of the trained patch in texels.
+    #[arg(long, default_value_t = 128)]
     pub patch_res: usize,
-    /// 2D methods: tiles of the patch across the atlas side when it is put on the object.
+    /// 2D methods: copies of the patch across the atlas side when it is put on the object.
+    #[arg(long, default_value_t = 4)]
     pub patch_tiles: usize,
 }
 
@@ -373,6 +401,22 @@ mod tests {
         let old: AttackConfig = serde_json::from_str(r#"{"lr": 0.02}"#).unwrap();
         assert_eq!(old.lr_decay, LrDecay::Constant);
         assert_eq!(old.front_back_share, None);
+    }
+
+    #[test]
+    fn the_flags_defaults_are_the_configs() {
+        #[derive(clap::Parser)]
+        struct Line {
+            #[command(flatten)]
+            attack: AttackConfig,
+        }
+        use clap::Parser;
+        let parsed = Line::try_parse_from(["cac train"]).unwrap().attack;
+        assert_eq!(parsed, AttackConfig::default());
+        let c = Line::try_parse_from(["t", "--lr", "0.04", "--front-back-share", "0.5"])
+            .unwrap()
+            .attack;
+        assert_eq!((c.lr, c.front_back_share), (0.04, Some(0.5)));
     }
 
     #[test]
