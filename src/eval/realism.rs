@@ -36,24 +36,46 @@ pub enum Which {
     Blender,
 }
 
-/// Everything the benchmark needs besides the detectors (NanoDet, then CenterNet).
-#[derive(Clone, Debug)]
+/// Everything the benchmark needs besides the detectors (NanoDet, then CenterNet); the flags
+/// of `cac bench realism` but the scene config, Blender's settings and the protocol, which the
+/// command builds from its others.
+#[derive(Clone, Debug, clap::Args)]
 pub struct RealismJob {
-    /// Built-in object names or mesh files.
+    /// Built-in object names or mesh files (OBJ/glTF/GLB).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "pickup,jeep,../shared/meshes/CesiumMilkTruck/CesiumMilkTruck.glb"
+    )]
     pub meshes: Vec<String>,
+    /// Viewpoint sets.
+    #[arg(long, value_delimiter = ',', default_value = "street,free,hemisphere")]
     pub sets: Vec<ViewSet>,
     /// Views per set and brightness level.
+    #[arg(long, default_value_t = 12)]
     pub views: usize,
     /// The scene config with the render size and samples already set.
+    #[arg(skip)]
     pub cfg: SceneConfig,
-    /// original, natural, naive, random, or image files.
+    /// Textures: original, natural, naive, random (simple textures on the paintable texels), or
+    /// image files (PNG/JPEG atlases).
+    #[arg(long, value_delimiter = ',', default_value = "original")]
     pub textures: Vec<String>,
+    /// Renderers.
+    #[arg(long, value_delimiter = ',', default_value = "cac")]
     pub renderers: Vec<Which>,
+    #[arg(skip)]
     pub blender: blender::BlenderSettings,
+    /// Apply the sampled photometric transforms (lighten/darken, print error, noise) too.
+    #[arg(long)]
     pub photometric: bool,
+    /// Seed of the sampled viewpoint sets.
+    #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Save every rendered view under this folder.
+    #[arg(long)]
     pub save: Option<PathBuf>,
+    #[arg(skip)]
     pub protocol: Protocol,
 }
 

@@ -11,26 +11,14 @@ use crate::cli::device;
 use anyhow::Result;
 use cac::config::SceneConfig;
 use cac::detect;
-use cac::eval::realism::{self, RealismJob, Row, ViewSet, Which};
+use cac::eval::realism::{self, RealismJob, Row, Which};
 use cac::eval::{blender, Protocol};
-use cac::render::RenderSettings;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Built-in object names or mesh files (OBJ/glTF/GLB).
-    #[arg(
-        long,
-        value_delimiter = ',',
-        default_value = "pickup,jeep,../shared/meshes/CesiumMilkTruck/CesiumMilkTruck.glb"
-    )]
-    pub meshes: Vec<String>,
-    /// Viewpoint sets.
-    #[arg(long, value_delimiter = ',', default_value = "street,free,hemisphere")]
-    pub sets: Vec<ViewSet>,
-    /// Views per set and brightness level.
-    #[arg(long, default_value_t = 12)]
-    pub views: usize,
+    #[command(flatten)]
+    pub job: RealismJob,
     /// Image side (pixels).
     #[arg(long, default_value_t = 416)]
     pub size: usize,
@@ -40,25 +28,9 @@ pub struct Args {
     /// Scene config whose [render] field of view and [environment] are used (default: defaults).
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Textures: original, natural, naive, random (simple textures on the paintable texels), or
-    /// image files (PNG/JPEG atlases).
-    #[arg(long, value_delimiter = ',', default_value = "original")]
-    pub textures: Vec<String>,
-    /// Renderers.
-    #[arg(long, value_delimiter = ',', default_value = "cac")]
-    pub renderers: Vec<Which>,
     /// Cycles samples per pixel for the Blender renderer.
     #[arg(long, default_value_t = 32)]
     pub blender_samples: usize,
-    /// Apply the sampled photometric transforms (lighten/darken, print error, noise) too.
-    #[arg(long)]
-    pub photometric: bool,
-    /// Seed of the sampled viewpoint sets.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-    /// Save every rendered view under this folder.
-    #[arg(long)]
-    pub save: Option<PathBuf>,
     /// CSV output file.
     #[arg(long, default_value = "bench-realism.csv")]
     pub csv: PathBuf,
@@ -72,41 +44,23 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let mut cfg = SceneConfig::from_file_or(a.config.as_deref(), SceneConfig::default)?;
-    cfg.render = RenderSettings {
-        width: a.size,
-        height: a.size,
-        samples: a.samples,
-        ..cfg.render
-    };
+    let mut job = a.job;
+    job.cfg = SceneConfig::from_file_or(a.config.as_deref(), SceneConfig::default)?;
+    let r = &mut job.cfg.render;
+    (r.width, r.height, r.samples) = (a.size, a.size, a.samples);
+    job.blender.samples = a.blender_samples;
+    job.protocol = Protocol::from_labels("car,truck", a.target.as_deref())?;
     let dev = device::inference();
     let dets = detect::load_all(&["nanodet", "centernet"], None, &dev)?;
-    let bs = blender::BlenderSettings {
-        samples: a.blender_samples,
-        ..Default::default()
-    };
-    if a.renderers.contains(&Which::Blender) {
-        println!("renderer 2: {}", blender::check(&bs)?);
+    if job.renderers.contains(&Which::Blender) {
+        println!("renderer 2: {}", blender::check(&job.blender)?);
     }
     println!(
         "P@0.5 = car/truck at IoU >= 0.5, conf >= 0.3; {}² px, {} spp (cac), {} spp (Blender); {} views per row; photometric transforms {}",
-        a.size, a.samples, a.blender_samples, a.views, if a.photometric { "on" } else { "off" }
+        a.size, a.samples, a.blender_samples, job.views, if job.photometric { "on" } else { "off" }
     );
     // The columns of `print_row`.
     println!("mesh             renderer texture   set        light   nanodet       conf   target centernet       conf   target      s");
-    let job = RealismJob {
-        meshes: a.meshes.clone(),
-        sets: a.sets.clone(),
-        views: a.views,
-        cfg,
-        textures: a.textures.clone(),
-        renderers: a.renderers.clone(),
-        blender: bs,
-        photometric: a.photometric,
-        seed: a.seed,
-        save: a.save.clone(),
-        protocol: Protocol::from_labels("car,truck", a.target.as_deref())?,
-    };
     let all = cac::detect::refs(&dets);
     let t = realism::run(&job, &all, &dev, &mut print_row)?;
     cac::io::write_atomic(&a.csv, t.rows.csv().as_bytes())?;
