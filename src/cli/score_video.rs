@@ -65,15 +65,8 @@ pub struct Args {
     /// Stop after this many scored frames.
     #[arg(long)]
     pub max_frames: Option<usize>,
-    /// Frame rate of image folders and patterns.
-    #[arg(long, default_value_t = 30.0)]
-    pub fps: f64,
-    /// Counter-clockwise rotation (0, 90, 180, 270) overriding the video's metadata.
-    #[arg(long)]
-    pub rotate: Option<u32>,
-    /// Decode codecs other than H.264, HEVC, MJPEG and PNG (tolerances not measured).
-    #[arg(long)]
-    pub any_codec: bool,
+    #[command(flatten)]
+    pub open: OpenOptions,
     /// Annotated output: a video (.mp4/.mkv/.avi) or a folder of PNGs.
     #[arg(long)]
     pub annotated: Option<PathBuf>,
@@ -122,11 +115,7 @@ fn job(a: &Args) -> Result<VideoJob> {
         input: a.input.clone(),
         out: a.out.clone(),
         truth,
-        open: OpenOptions {
-            rotate_ccw: a.rotate,
-            fps: a.fps,
-            allow_any_codec: a.any_codec,
-        },
+        open: a.open.clone(),
         every: a.every,
         at: a.at.clone(),
         window: a.window,

@@ -43,14 +43,17 @@ pub trait FrameStream {
     }
 }
 
-/// How to open an input.
-#[derive(Clone, Debug)]
+/// How to open an input (also `cac score-video`'s flags).
+#[derive(Clone, Debug, clap::Args)]
 pub struct OpenOptions {
-    /// Counter-clockwise degrees overriding the probed display rotation.
+    /// Counter-clockwise rotation (0, 90, 180, 270) overriding the video's metadata.
+    #[arg(long = "rotate", value_name = "DEGREES")]
     pub rotate_ccw: Option<u32>,
     /// Frame rate of image folders and patterns (their frames carry no times).
+    #[arg(long, default_value_t = 30.0)]
     pub fps: f64,
-    /// Decode codecs outside [`SUPPORTED_CODECS`] too (their tolerances are not measured).
+    /// Decode codecs other than H.264, HEVC, MJPEG and PNG (tolerances not measured).
+    #[arg(long = "any-codec")]
     pub allow_any_codec: bool,
 }
 
