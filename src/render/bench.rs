@@ -106,6 +106,7 @@ pub fn rays_table(scenes: &[RayScene]) -> Table {
         "embree_build_ms",
         "embree_mrays_per_s",
         "embree_hits",
+        "cac_over_embree",
     ]);
     for s in scenes {
         let (eb, er, eh) = s
@@ -126,6 +127,9 @@ pub fn rays_table(scenes: &[RayScene]) -> Table {
                 eb.clone(),
                 er.clone(),
                 eh.clone(),
+                s.embree.map_or(String::new(), |(_, er, _)| {
+                    format!("{:.2}", r.mrays_per_s() * 1e6 / er)
+                }),
             ]);
         }
     }
