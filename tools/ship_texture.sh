@@ -17,6 +17,8 @@ object=${1:?object (pickup, jeep, barrel, container)}
 target=${2:?target COCO class, e.g. person or "stop sign"}
 iterations=${3:-1200}
 eval_seed=${4:-31}
+size=${TRAIN_SIZE:-320}
+[[ $size =~ ^[1-9][0-9]*$ ]] || { echo "TRAIN_SIZE must be a positive number of pixels, got '$size'" >&2; exit 2; }
 invocation="${TRAIN_SIZE:+TRAIN_SIZE=$TRAIN_SIZE }tools/ship_texture.sh $*"
 shift $(( $# < 4 ? $# : 4 ))
 slug=$(echo "$target" | tr ' ' '_')
@@ -26,7 +28,6 @@ run=runs/ship-$object-$slug
 ev=runs/ship-$object-$slug-eval
 mkdir -p runs
 "$cac" config > "$run.toml.tmp"
-size=${TRAIN_SIZE:-320}
 sed -e "s/^mesh = .*/mesh = \"$object\"/" -e "s/^width = 512/width = $size/" \
     -e "s/^height = 512/height = $size/" -e 's/^samples = 4/samples = 1/' \
     -e 's/^atlas_res = 512/atlas_res = 256/' "$run.toml.tmp" > "$run.toml"

@@ -228,8 +228,14 @@ pub fn azimuth_with_front_back_share(share: f32, rng: &mut impl Rng) -> f32 {
     let ends = rng.random_bool(share.clamp(0.0, 1.0) as f64);
     let far = rng.random_bool(0.5);
     if ends {
-        let a = rng.random_range(-30.0f32..30.0) + if far { 180.0 } else { 0.0 };
-        a.rem_euclid(360.0)
+        let a =
+            (rng.random_range(-30.0f32..30.0) + if far { 180.0 } else { 0.0 }).rem_euclid(360.0);
+        // rem_euclid rounds a tiny negative angle up to 360.0 in f32: that is the front.
+        if a >= 360.0 {
+            0.0
+        } else {
+            a
+        }
     } else {
         rng.random_range(30.0f32..150.0) + if far { 180.0 } else { 0.0 }
     }

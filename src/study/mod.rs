@@ -40,7 +40,9 @@ pub struct Source {
 }
 
 impl Source {
-    /// The attack settings these give, for `iterations` from `seed` (checkpoints every 10).
+    /// The attack settings these give, for `iterations` from `seed` (checkpoints every 10). The
+    /// four flags repeat [`AttackConfig`]'s (a study takes a subset of `cac train`'s, with its own
+    /// `--n` and `--hide`); a unit test keeps their defaults equal.
     pub fn attack(&self, iterations: usize, seed: u64) -> AttackConfig {
         AttackConfig {
             models: self.models.clone(),
@@ -133,4 +135,26 @@ pub fn protocol_job(
         figures: vec![],
         out: out.join("eval"),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn a_studys_source_defaults_are_train_defaults() {
+        #[derive(clap::Parser)]
+        struct Line {
+            #[command(flatten)]
+            source: super::Source,
+        }
+        use clap::Parser;
+        let s = Line::try_parse_from(["cac study"]).unwrap().source;
+        let d = crate::attack::AttackConfig::default();
+        assert_eq!(
+            s.attack(d.iterations, d.seed),
+            crate::attack::AttackConfig {
+                checkpoint_every: 10,
+                ..d
+            }
+        );
+    }
 }

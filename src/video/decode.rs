@@ -405,6 +405,26 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_flags_defaults_are_open_options_default() {
+        #[derive(clap::Parser)]
+        struct Line {
+            #[command(flatten)]
+            open: OpenOptions,
+        }
+        use clap::Parser;
+        let o = Line::try_parse_from(["score-video"]).unwrap().open;
+        let d = OpenOptions::default();
+        assert_eq!(
+            (o.rotate_ccw, o.fps, o.allow_any_codec),
+            (d.rotate_ccw, d.fps, d.allow_any_codec)
+        );
+        let o = Line::try_parse_from(["s", "--rotate", "90", "--any-codec"])
+            .unwrap()
+            .open;
+        assert_eq!((o.rotate_ccw, o.allow_any_codec), (Some(90), true));
+    }
+
+    #[test]
     fn showinfo_lines() {
         let l = "[Parsed_showinfo_0 @ 0x5] n:   3 pts:   3072 pts_time:0.3     pos: 4 fmt:yuv420p";
         assert_eq!(parse_pts_time(l), Some(0.3));
