@@ -10,7 +10,7 @@
 //! `io` and `report` are the shared floor (files, tables, plots, HTML, drawn labels); `config`
 //! holds the scene config and the named presets; `study` holds the experiments that train with
 //! `attack` and judge with `eval` (the studies, the demo, the attack benchmark); `sim` is the
-//! simulated turntable firmware that `physical`'s driver talks to; `video` scores recordings
+//! simulated turntable firmware that `physical`'s driver talks to, and the simulated rig around it; `video` scores recordings
 //! with the detectors and the protocol.
 //!
 //! Library code never names a concrete compute backend: tensors live on a [`burn::tensor::Device`]

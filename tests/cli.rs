@@ -20,3 +20,22 @@ fn a_closed_stdout_ends_cac_quietly() {
     let toml = support::cac_ok(&["config"]);
     assert!(toml.contains("[render]"), "{toml}");
 }
+
+/// A malformed flag value is refused by the parser, naming the value and the expected form,
+/// before anything is written.
+#[test]
+fn a_figure_without_a_caption_is_refused_before_anything_is_written() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("eval");
+    let o = support::cac(&[
+        "eval",
+        "--figure",
+        "plot.png",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(err.contains("\"plot.png\": expected CAPTION=PNG"), "{err}");
+    assert!(!out.exists(), "nothing written");
+}

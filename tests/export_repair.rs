@@ -140,6 +140,16 @@ fn messy_meshes_become_printable_solids() {
             };
             let s = export::export(&mesh, &tex, &out, &o).unwrap();
             assert_eq!(s.report.shells, 1, "{:?}", s.report);
+            // What `cac export` prints: the mesh as loaded (two shells) and as written (one).
+            let text = s.to_string();
+            assert!(
+                text.contains(", 2 shells, ") && text.contains(" 1 shells, size "),
+                "{text}"
+            );
+            assert!(
+                text.contains("wrote ") && text.contains("two_boxes_texture.3mf"),
+                "{text}"
+            );
             let union = cube * (2.0 - 0.125);
             assert!((s.report.volume_mm3 - union).abs() / union < 0.02);
             assert_printable(&s, &out.join("two_boxes_texture.3mf"));

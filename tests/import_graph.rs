@@ -17,13 +17,7 @@ use std::path::{Path, PathBuf};
 
 /// Imports against the stage order that are known and allowed, each with its reason:
 /// (from module, to module, file, reason).
-const EXCEPTIONS: &[(&str, &str, &str, &str)] = &[(
-    "physical",
-    "sim",
-    "src/physical/simrig.rs",
-    "the simulated rig wires the simulator to the driver; it moves to `sim` with the turntable \
-     firmware work (issue 15, item 5)",
-)];
+const EXCEPTIONS: &[(&str, &str, &str, &str)] = &[];
 
 fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))

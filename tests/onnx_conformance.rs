@@ -950,6 +950,12 @@ fn the_cli_inspects_detects_trains_and_evaluates_with_an_onnx_model() {
     assert_eq!(lines.len(), want.len(), "{text}");
     for (l, d) in lines.iter().zip(&want) {
         assert_eq!(l["label"], d.label);
+        assert_eq!(l["class_id"], d.class_id);
+        let near = |v: &serde_json::Value, x: f32| (v.as_f64().unwrap() - x as f64).abs() < 1e-3;
+        assert!(
+            near(&l["score"], d.score) && near(&l["box"][2], d.bbox[2]),
+            "{l}"
+        );
     }
 
     // A source of cac train and a column of cac eval.

@@ -530,6 +530,10 @@ fn cli_scores_a_video_and_writes_report_and_annotated_video() {
         String::from_utf8_lossy(&run.stderr)
     );
     assert!(text.contains("| nanodet | 2 |"), "{text}");
+    assert!(
+        text.contains(" 2 scored, ") && text.contains("ground truth; wrote "),
+        "{text}"
+    );
     let csv = std::fs::read_to_string(o.join("report/frames.csv")).unwrap();
     assert_eq!(csv.lines().count(), 3, "frames 0 and 6");
     let seg = std::fs::read_to_string(o.join("report/segments.csv")).unwrap();

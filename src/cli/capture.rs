@@ -2,10 +2,11 @@
 //! manifest line; `--resume` continues a killed session; `--simulate` runs the simulated
 //! firmware on a pseudo-terminal and the digital twin camera; `--twin-camera` keeps the real
 //! `--port` (a board, or the firmware in an emulator) and renders the frames with the digital
-//! twin posed from what the driver reports. Parse → `cac::physical::capture::CaptureJob` → print.
+//! twin posed from what the driver reports. Parse → `cac::physical::capture::CaptureJob` (a real
+//! rig) or `cac::sim::rig::capture` (the simulated one) → print.
 
 use anyhow::{bail, Result};
-use cac::physical::capture::{CaptureJob, Device};
+use cac::physical::capture::{CaptureJob, CaptureOutcome};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -34,12 +35,9 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let mut job = a.job;
-    job.device = if a.simulate {
-        Device::Simulated {
-            faults: a.faults.clone(),
-            speedup: a.speedup,
-        }
+    let job = &a.job;
+    let o = if a.simulate {
+        simulated(job, &a.faults, a.speedup)?
     } else {
         let Some(port) = &a.port else {
             bail!("--port is required with a real rig (or pass --simulate)");
@@ -47,12 +45,8 @@ pub fn run(a: Args) -> Result<()> {
         if a.camera.is_none() && !a.twin_camera {
             bail!("--camera (or --twin-camera) is required with a real rig (or pass --simulate)")
         }
-        Device::Serial {
-            port: port.clone(),
-            camera: a.camera.clone().filter(|_| !a.twin_camera),
-        }
+        job.run(port, a.camera.as_deref().filter(|_| !a.twin_camera))?
     };
-    let o = job.run()?;
     let s = &o.summary;
     if s.dropped_bytes > 0 {
         println!(
@@ -68,4 +62,14 @@ pub fn run(a: Args) -> Result<()> {
     );
     println!("{}", o.device);
     Ok(())
+}
+
+#[cfg(unix)]
+fn simulated(job: &CaptureJob, faults: &str, speedup: f64) -> Result<CaptureOutcome> {
+    cac::sim::rig::capture(job, faults, speedup)
+}
+
+#[cfg(not(unix))]
+fn simulated(_: &CaptureJob, _: &str, _: f64) -> Result<CaptureOutcome> {
+    bail!("the simulated rig needs a pseudo-terminal (Unix)")
 }

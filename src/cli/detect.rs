@@ -94,31 +94,11 @@ pub fn run(a: DetectArgs) -> Result<()> {
 }
 
 fn print_detections(image: &Path, dets: &[Detection], json: bool) {
+    let image = image.display().to_string();
     for d in dets {
-        if json {
-            let o = serde_json::json!({
-                "image": image.display().to_string(),
-                "label": d.label,
-                "class_id": d.class_id,
-                "score": d.score,
-                "box": d.bbox,
-            });
-            println!("{o}");
-        } else {
-            let b = d.bbox;
-            println!(
-                "{}: {} {:.3} [{:.1}, {:.1}, {:.1}, {:.1}]",
-                image.display(),
-                d.label,
-                d.score,
-                b[0],
-                b[1],
-                b[2],
-                b[3]
-            );
-        }
+        println!("{}", d.line(&image, json));
     }
     if dets.is_empty() && !json {
-        println!("{}: no detections", image.display());
+        println!("{image}: no detections");
     }
 }

@@ -57,8 +57,8 @@ pub struct Args {
     #[arg(long, default_value_t = 1)]
     pub examples: usize,
     /// Extra figure for the HTML report, CAPTION=PNG (e.g. "Top-n study=study-topn/topn.png").
-    #[arg(long = "figure")]
-    pub figures: Vec<String>,
+    #[arg(long = "figure", value_parser = job::parse_figure)]
+    pub figures: Vec<(String, PathBuf)>,
     /// Output folder (finished textures are reused from its cache/ on a rerun).
     #[arg(long, default_value = "eval-out")]
     pub out: PathBuf,
@@ -99,15 +99,7 @@ pub fn job(a: &Args) -> Result<EvalJob> {
         },
         protocol: Protocol::from_labels(&a.true_classes, a.target.as_deref())?,
         examples_per_group: a.examples,
-        figures: a
-            .figures
-            .iter()
-            .map(|f| {
-                f.split_once('=')
-                    .map(|(c, p)| (c.to_string(), PathBuf::from(p)))
-                    .ok_or_else(|| anyhow::anyhow!("--figure {f:?}: expected CAPTION=PNG"))
-            })
-            .collect::<Result<_>>()?,
+        figures: a.figures.clone(),
         out: a.out.clone(),
     };
     Ok(job)
@@ -129,7 +121,7 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(shard) = a.shard {
         let o = job::run_shard(&job, shard, &refs, &device::inference(), &mut bar)?;
         pb.finish_and_clear();
-        print_shard(&o);
+        print!("{o}");
         return Ok(());
     }
     let o = if a.merge {
@@ -138,47 +130,6 @@ pub fn run(a: Args) -> Result<()> {
         job::run(&job, &refs, &device::inference(), &mut bar)?
     };
     pb.finish_and_clear();
-    let md = std::fs::read_to_string(a.out.join("report.md")).unwrap_or_default();
-    println!("{md}");
-    if !o.reused.is_empty() {
-        println!(
-            "reused from {}/cache: {}",
-            a.out.display(),
-            o.reused.join(", ")
-        );
-    }
-    for (t, n) in &o.merged {
-        println!(
-            "{t}: assembled from {n} shard(s) in {}/cache",
-            a.out.display()
-        );
-    }
-    if o.info.skipped.iter().any(|&s| s > 0) {
-        println!(
-            "views without a visible object (excluded), per texture: {:?}",
-            o.info.skipped
-        );
-    }
-    println!(
-        "wrote {} ({} files: report.md, report.html, CSV tables, results.json, plots) in {:.0} s",
-        a.out.display(),
-        o.files.len(),
-        o.info.seconds
-    );
+    print!("{o}");
     Ok(())
-}
-
-/// What a shard did, one line per texture.
-pub fn print_shard(o: &job::ShardOutcome) {
-    for (t, f) in &o.written {
-        println!("shard {}: {t} -> {}", o.shard, f.display());
-    }
-    if !o.reused.is_empty() {
-        println!("shard {}: already done: {}", o.shard, o.reused.join(", "));
-    }
-    println!(
-        "shard {} finished: {} images scored in {:.1} s; run the same command with --merge \
-         instead of --shard once every shard is done",
-        o.shard, o.images_scored, o.seconds
-    );
 }

@@ -96,34 +96,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     opts.sheets.paper = a.paper;
     opts.sheets.dpi = a.dpi;
-    let s = export::export(&a.mesh, &a.texture, &a.out, &opts)?;
-    let r = &s.report;
-    let i = &s.input_report;
-    println!(
-        "input: {} triangles, {} vertices after welding, {} shells, {}",
-        i.triangles,
-        i.welded_vertices,
-        i.shells,
-        if i.is_closed() {
-            "closed".to_string()
-        } else {
-            i.problems()
-        }
-    );
-    println!(
-        "mesh: {} triangles, {} vertices after welding ({} before), {} shells, size {:.1} x {:.1} x {:.1} mm, volume {:.1} mm3, {} open edges",
-        r.triangles, r.welded_vertices, r.input_vertices, r.shells, r.size_mm[0], r.size_mm[1], r.size_mm[2], r.volume_mm3, r.open_edges
-    );
-    for n in &s.notes {
-        println!("{n}");
-    }
-    if let (Some(t), Some(e), Some(de)) = (s.baked_triangles, s.bake_rmse_8bit, s.bake_mean_delta_e)
-    {
-        println!("bake: {t} triangles, colour RMSE {e:.2} (8-bit), mean dE76 {de:.2}");
-    }
-    for f in &s.files {
-        println!("wrote {}", f.display());
-    }
+    print!("{}", export::export(&a.mesh, &a.texture, &a.out, &opts)?);
     Ok(())
 }
 

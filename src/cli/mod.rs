@@ -121,3 +121,13 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Bench(BenchCmd::Realism(a)) => bench::realism::run(a),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    /// clap's own checks of every subcommand's flags (see Cargo.toml: they run in release too).
+    #[test]
+    fn the_command_line_is_well_formed() {
+        use clap::CommandFactory;
+        super::Cli::command().debug_assert();
+    }
+}

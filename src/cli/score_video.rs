@@ -6,7 +6,7 @@ use cac::detect;
 use cac::eval::Protocol;
 use cac::video::job::{LogCamera, LogTruth, Truth, VideoJob};
 use cac::video::log::LogSegments;
-use cac::video::{report, OpenOptions, Tools};
+use cac::video::{OpenOptions, Tools};
 use clap::Args as ClapArgs;
 use std::path::PathBuf;
 
@@ -87,7 +87,11 @@ pub fn run(a: Args) -> Result<()> {
     println!("scoring {}", opened.source());
     println!("ground truth: {}", opened.truth());
     let o = opened.run(&refs, &a.models, &device)?;
-    print_scores(&a, &o.scores, &o.notes)
+    print!("{o}");
+    if o.scores.frames.is_empty() {
+        bail!("no frame was scored: check the ground truth covers the sampled frames");
+    }
+    Ok(())
 }
 
 /// The library job the flags describe.
@@ -124,26 +128,4 @@ fn job(a: &Args) -> Result<VideoJob> {
         annotated: a.annotated.clone(),
         tools: Tools::from_env(),
     })
-}
-
-/// Prints the summary table and notes; fails when no frame was scored.
-fn print_scores(a: &Args, scores: &cac::video::VideoScores, notes: &[String]) -> Result<()> {
-    print!("{}", report::summary_table(scores).markdown());
-    for n in notes {
-        println!("{n}");
-    }
-    if !scores.missed_times.is_empty() {
-        println!("times outside the video: {:?}", scores.missed_times);
-    }
-    println!(
-        "{} frames decoded, {} scored, {} sampled without ground truth; wrote {}",
-        scores.decoded,
-        scores.frames.len(),
-        scores.unannotated,
-        a.out.display()
-    );
-    if scores.frames.is_empty() {
-        bail!("no frame was scored: check the ground truth covers the sampled frames");
-    }
-    Ok(())
 }

@@ -33,21 +33,8 @@ pub struct Args {
     /// Evaluation shards (array tasks).
     #[arg(long, default_value_t = 4)]
     pub shards: usize,
-    /// Slurm partition (default: the cluster's default).
-    #[arg(long)]
-    pub partition: Option<String>,
-    /// Wall-time limit per task (sbatch --time, e.g. 2:00:00).
-    #[arg(long)]
-    pub time: Option<String>,
-    /// CPUs per task (sbatch --cpus-per-task; also the task's thread count).
-    #[arg(long, default_value_t = 1)]
-    pub cpus_per_task: usize,
-    /// Memory per task (sbatch --mem, e.g. 4G).
-    #[arg(long)]
-    pub mem: Option<String>,
-    /// Further #SBATCH option, verbatim (repeatable), e.g. --sbatch-arg=--account=lab.
-    #[arg(long = "sbatch-arg", allow_hyphen_values = true)]
-    pub sbatch_args: Vec<String>,
+    #[command(flatten)]
+    pub batch: Batch,
     /// Print the scripts and the sbatch commands; write and submit nothing.
     #[arg(long)]
     pub dry_run: bool,
@@ -70,15 +57,18 @@ struct TopnLine {
     a: study::TopnArgs,
 }
 
+/// Parses the command line after `--` as `cac NAME` would.
+fn parse<P: Parser>(name: &str, args: &[String]) -> Result<P> {
+    P::try_parse_from(std::iter::once(name.to_string()).chain(args.iter().cloned()))
+        .map_err(|e| anyhow::anyhow!("the {name} arguments after --: {e}"))
+}
+
 pub fn run(c: Cmd) -> Result<()> {
     let exe = std::env::current_exe().context("cannot find the cac binary")?;
     let exe = exe.display().to_string();
     match c {
         Cmd::Eval(a) => {
-            let line = EvalLine::try_parse_from(
-                std::iter::once("cac eval".to_string()).chain(a.args.iter().cloned()),
-            )
-            .map_err(|e| anyhow::anyhow!("the cac eval arguments after --: {e}"))?;
+            let line: EvalLine = parse("cac eval", &a.args)?;
             if line.a.shard.is_some() || line.a.merge {
                 bail!("leave --shard and --merge to cac slurm: pass the plain cac eval arguments after --");
             }
@@ -89,10 +79,7 @@ pub fn run(c: Cmd) -> Result<()> {
             submit(&a, &line.a.out, shards_then_merge(&base, a.shards)?)
         }
         Cmd::Study(StudyCmd::Topn(a)) => {
-            let line = TopnLine::try_parse_from(
-                std::iter::once("cac study topn".to_string()).chain(a.args.iter().cloned()),
-            )
-            .map_err(|e| anyhow::anyhow!("the cac study topn arguments after --: {e}"))?;
+            let line: TopnLine = parse("cac study topn", &a.args)?;
             if line.a.task.is_some() || line.a.shard.is_some() || line.a.merge {
                 bail!("leave --task, --shard and --merge to cac slurm: pass the plain cac study topn arguments after --");
             }
@@ -102,34 +89,19 @@ pub fn run(c: Cmd) -> Result<()> {
                 .collect();
             let mut stages = vec![Stage {
                 name: "train".into(),
-                tasks: Some(line.a.n.len()),
+                tasks: Some(line.a.job.n.len()),
                 argv: with(&base, &["--task", "{task}"]),
             }];
             stages.extend(shards_then_merge(&base, a.shards)?);
-            submit(&a, &line.a.out, stages)
+            submit(&a, &line.a.job.out, stages)
         }
     }
 }
 
 fn submit(a: &Args, out: &Path, stages: Vec<Stage>) -> Result<()> {
-    let batch = Batch {
-        partition: a.partition.clone(),
-        time: a.time.clone(),
-        cpus_per_task: a.cpus_per_task,
-        mem: a.mem.clone(),
-        extra: a.sbatch_args.clone(),
-    };
-    let sweep = Sweep::new(out, stages, &batch)?;
+    let sweep = Sweep::new(out, stages, &a.batch)?;
     if a.dry_run {
-        let mut prev: Option<String> = None;
-        for (k, s) in sweep.stages.iter().enumerate() {
-            let (path, text) = &sweep.scripts[k];
-            println!("# {}\n{text}", path.display());
-            let c = sweep.command(k, prev.as_deref());
-            println!("# submit: sbatch {}\n", c.join(" "));
-            prev = Some(format!("${}_JOB", s.name.to_uppercase()));
-        }
-        println!("(dry run: nothing written, nothing submitted)");
+        print!("{}", sweep.dry_run());
         return Ok(());
     }
     for (s, id) in sweep.stages.iter().zip(sweep.submit()?) {

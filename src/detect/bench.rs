@@ -158,14 +158,14 @@ impl TfjsRow {
 /// Times each TFJS detector of the catalogue (their own files, not the parity variants) at
 /// batch 1 and 4, fastest of `runs`, beside the TFJS runner at `runner` (default:
 /// `$CAC_TFJS_RUNNER`, else `target/tfjsref`) on `image` (default: a reference image from
-/// `../shared`, else a synthetic one). `on_row` sees each row as it is measured; returns the
+/// `../shared`, else a synthetic one). `on_row` sees the table after each row; returns the
 /// CSV table.
 pub fn tfjs_models(
     runner: Option<&Path>,
     image: Option<&Path>,
     runs: usize,
     (inference, training): (&Device, &Device),
-    on_row: &mut dyn FnMut(&TfjsRow),
+    on_row: &mut dyn FnMut(&Table),
 ) -> Result<Table> {
     let models = super::fetch::ensure_models()?;
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -215,7 +215,6 @@ pub fn tfjs_models(
                 backward_ms: bwd,
                 tfjs_ms: if batch == 1 { tfjs } else { None },
             };
-            on_row(&row);
             rows.row([
                 name.to_string(),
                 batch.to_string(),
@@ -224,6 +223,7 @@ pub fn tfjs_models(
                 na(row.tfjs_ms, 2),
                 na(row.ratio(), 4),
             ]);
+            on_row(&rows);
         }
     }
     Ok(rows)
@@ -250,14 +250,14 @@ impl FrcnnRow {
 }
 
 /// Times the three torchvision Faster R-CNN models (synthetic weights), fastest of `runs`, beside
-/// PyTorch run by `python` on `torch` (`(threads, "cpu" | "cuda")`); `on_row` sees each row as
-/// it is measured; returns the CSV table.
+/// PyTorch run by `python` on `torch` (`(threads, "cpu" | "cuda")`); `on_row` sees the table
+/// after each row; returns the CSV table.
 pub fn frcnn_models(
     runs: usize,
     python: &str,
     torch: (usize, &str),
     (inference, training): (&Device, &Device),
-    on_row: &mut dyn FnMut(&FrcnnRow),
+    on_row: &mut dyn FnMut(&Table),
 ) -> Result<Table> {
     let mut rows = Table::new([
         "model",
@@ -279,7 +279,6 @@ pub fn frcnn_models(
             backward_ms: bwd,
             torch: torch_ms(python, name, torch, runs, (h, w)),
         };
-        on_row(&row);
         let (rf, rb) = row.ratios();
         rows.row([
             name.to_string(),
@@ -292,6 +291,7 @@ pub fn frcnn_models(
             na(rf, 4),
             na(rb, 4),
         ]);
+        on_row(&rows);
     }
     Ok(rows)
 }
@@ -361,14 +361,14 @@ impl OnnxRow {
 
 /// Times each ONNX detector `files` (specs as `onnx:` takes them, without the prefix) at batch
 /// 1, fastest of `runs`, beside onnxruntime run by `python` with `threads` threads; `on_row`
-/// sees each row as it is measured; returns the CSV table.
+/// sees the table after each row; returns the CSV table.
 pub fn onnx_models(
     files: &[String],
     runs: usize,
     python: &str,
     threads: usize,
     (inference, training): (&Device, &Device),
-    on_row: &mut dyn FnMut(&OnnxRow),
+    on_row: &mut dyn FnMut(&Table),
 ) -> Result<Table> {
     let mut rows = Table::new([
         "model",
@@ -404,7 +404,6 @@ pub fn onnx_models(
             backward_ms: bwd,
             ort_ms: ort_ms(python, &path, &input, [1, 3, h, w], threads, runs.max(3)),
         };
-        on_row(&row);
         let (rf, rb) = row.ratios();
         rows.row([
             row.name.clone(),
@@ -417,6 +416,7 @@ pub fn onnx_models(
             na(rf, 4),
             na(rb, 4),
         ]);
+        on_row(&rows);
     }
     Ok(rows)
 }

@@ -60,6 +60,23 @@ pub struct Detection {
     pub bbox: [f32; 4],
 }
 
+impl Detection {
+    /// `cac detect`'s line for this detection in `image`: `image: label score [x1, y1, x2, y2]`,
+    /// or with `json` one object `{image, label, class_id, score, box}`.
+    pub fn line(&self, image: &str, json: bool) -> String {
+        let [x1, y1, x2, y2] = self.bbox;
+        if json {
+            let (label, class_id, score) = (self.label, self.class_id, self.score);
+            serde_json::json!({"image": image, "label": label, "class_id": class_id,
+                "score": score, "box": self.bbox})
+            .to_string()
+        } else {
+            let (label, score) = (self.label, self.score);
+            format!("{image}: {label} {score:.3} [{x1:.1}, {y1:.1}, {x2:.1}, {y2:.1}]")
+        }
+    }
+}
+
 /// A detector's graph as attention maps (Grad-CAM) need it: the graph, its inputs for one image
 /// batch, the outputs holding the pre-sigmoid class logits, and a default layer.
 pub struct CamIo<'a> {

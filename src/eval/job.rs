@@ -34,6 +34,13 @@ pub struct EvalJob {
     pub out: PathBuf,
 }
 
+/// Parses an extra figure `CAPTION=PNG` (clap's value parser for `--figure`).
+pub fn parse_figure(s: &str) -> Result<(String, PathBuf), String> {
+    s.split_once('=')
+        .map(|(c, p)| (c.to_string(), PathBuf::from(p)))
+        .ok_or_else(|| format!("{s:?}: expected CAPTION=PNG"))
+}
+
 /// What a finished evaluation wrote and measured.
 pub struct Outcome {
     pub info: EvalInfo,
@@ -45,6 +52,37 @@ pub struct Outcome {
     pub reused: Vec<String>,
     /// Textures assembled from shard files in this call, with their shard count N.
     pub merged: Vec<(String, usize)>,
+    /// The output folder and the text of its report.md.
+    pub out: PathBuf,
+    pub report_md: String,
+}
+
+/// What `cac eval` prints: the report, then what was reused, merged, skipped and written.
+impl std::fmt::Display for Outcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let out = self.out.display();
+        writeln!(f, "{}", self.report_md)?;
+        if !self.reused.is_empty() {
+            writeln!(f, "reused from {out}/cache: {}", self.reused.join(", "))?;
+        }
+        for (t, n) in &self.merged {
+            writeln!(f, "{t}: assembled from {n} shard(s) in {out}/cache")?;
+        }
+        if self.info.skipped.iter().any(|&s| s > 0) {
+            let s = &self.info.skipped;
+            writeln!(
+                f,
+                "views without a visible object (excluded), per texture: {s:?}"
+            )?;
+        }
+        writeln!(
+            f,
+            "wrote {out} ({} files: report.md, report.html, CSV tables, results.json, plots) in \
+             {:.0} s",
+            self.files.len(),
+            self.info.seconds
+        )
+    }
 }
 
 /// What a shard wrote.
@@ -58,6 +96,25 @@ pub struct ShardOutcome {
     /// Images rendered and scored in this call.
     pub images_scored: usize,
     pub seconds: f64,
+}
+
+/// What a shard did, one line per texture.
+impl std::fmt::Display for ShardOutcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let k = self.shard;
+        for (t, file) in &self.written {
+            writeln!(f, "shard {k}: {t} -> {}", file.display())?;
+        }
+        if !self.reused.is_empty() {
+            writeln!(f, "shard {k}: already done: {}", self.reused.join(", "))?;
+        }
+        writeln!(
+            f,
+            "shard {k} finished: {} images scored in {:.1} s; run the same command with --merge \
+             instead of --shard once every shard is done",
+            self.images_scored, self.seconds
+        )
+    }
 }
 
 /// Which part of the job a call does.
@@ -285,7 +342,7 @@ fn report_part(
         reused: reused.clone(),
         seconds: start.elapsed().as_secs_f64(),
     };
-    let mut files = vec![];
+    let (mut files, mut report_md) = (vec![], String::new());
     let extra = job
         .figures
         .iter()
@@ -293,6 +350,9 @@ fn report_part(
         .collect::<Result<Vec<_>>>()?;
     for (name, bytes) in report::files(&info, &records, &examples, &extra)? {
         crate::io::write_atomic(&job.out.join(&name), &bytes)?;
+        if name == "report.md" {
+            report_md = String::from_utf8_lossy(&bytes).into_owned();
+        }
         files.push(name);
     }
     Ok(Outcome {
@@ -302,5 +362,7 @@ fn report_part(
         images_scored: scored,
         reused,
         merged,
+        out: job.out.clone(),
+        report_md,
     })
 }

@@ -9,16 +9,23 @@ use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// `#SBATCH` settings shared by every stage.
-#[derive(Clone, Debug, Default)]
+/// `#SBATCH` settings shared by every stage; `cac slurm`'s flags.
+#[derive(Clone, Debug, clap::Args)]
 pub struct Batch {
+    /// Slurm partition (default: the cluster's default).
+    #[arg(long)]
     pub partition: Option<String>,
-    /// Wall-time limit (`--time`, e.g. `2:00:00`).
+    /// Wall-time limit per task (sbatch --time, e.g. 2:00:00).
+    #[arg(long)]
     pub time: Option<String>,
+    /// CPUs per task (sbatch --cpus-per-task; also the task's thread count).
+    #[arg(long, default_value_t = 1)]
     pub cpus_per_task: usize,
-    /// Memory per task (`--mem`, e.g. `4G`).
+    /// Memory per task (sbatch --mem, e.g. 4G).
+    #[arg(long)]
     pub mem: Option<String>,
-    /// Further `#SBATCH` options, verbatim (e.g. `--account=lab`).
+    /// Further #SBATCH option, verbatim (repeatable), e.g. --sbatch-arg=--account=lab.
+    #[arg(long = "sbatch-arg", allow_hyphen_values = true)]
     pub extra: Vec<String>,
 }
 
@@ -208,6 +215,20 @@ impl Sweep {
         c
     }
 
+    /// What `--dry-run` prints: each script, then the sbatch command that would submit it (the
+    /// previous stage's job id as a shell variable).
+    pub fn dry_run(&self) -> String {
+        let mut text = String::new();
+        let mut prev: Option<String> = None;
+        for (k, s) in self.stages.iter().enumerate() {
+            let (path, script) = &self.scripts[k];
+            let c = self.command(k, prev.as_deref()).join(" ");
+            text += &format!("# {}\n{script}\n# submit: sbatch {c}\n\n", path.display());
+            prev = Some(format!("${}_JOB", s.name.to_uppercase()));
+        }
+        text + "(dry run: nothing written, nothing submitted)\n"
+    }
+
     /// Writes the scripts and submits the stages in order, each after the previous; returns the
     /// job ids. Refuses while jobs of a sweep into the same folder are queued or running.
     pub fn submit(&self) -> Result<Vec<String>> {
@@ -281,8 +302,9 @@ mod tests {
         let b = Batch {
             partition: Some("gpu".into()),
             cpus_per_task: 2,
+            time: None,
+            mem: None,
             extra: vec!["--account=lab".into()],
-            ..Default::default()
         };
         let s = script(&st, "cac-x", &b, Path::new("/w"), Path::new("/w/out/slurm"));
         for want in [
@@ -304,5 +326,28 @@ mod tests {
         };
         let s = script(&m, "cac-x", &b, Path::new("/w"), Path::new("/l"));
         assert!(s.contains("--output=/l/merge-%j.log") && s.contains("--kill-on-invalid-dep=yes"));
+    }
+
+    #[test]
+    fn a_dry_run_chains_each_stage_after_the_previous() {
+        let base: Vec<String> = ["cac", "eval"].map(String::from).to_vec();
+        let stages = shards_then_merge(&base, 2).unwrap();
+        let b = Batch {
+            partition: None,
+            time: None,
+            cpus_per_task: 1,
+            mem: None,
+            extra: vec![],
+        };
+        let sweep = Sweep::new(Path::new("/w/out"), stages, &b).unwrap();
+        let text = sweep.dry_run();
+        let shard = text.find("# submit: sbatch --parsable --array=0-1 /w/out/slurm/");
+        let merge = text.find("--dependency=afterok:$");
+        assert!(
+            shard.is_some() && merge.is_some() && shard < merge,
+            "{text}"
+        );
+        assert!(text.contains("#SBATCH --kill-on-invalid-dep=yes"), "{text}");
+        assert!(text.ends_with("(dry run: nothing written, nothing submitted)\n"));
     }
 }

@@ -379,6 +379,48 @@ pub struct ExportSummary {
     pub printability: Option<Printability>,
 }
 
+/// What `cac export` prints: the mesh as loaded and as written, the repair notes, the bake's
+/// colour error and the files written.
+impl std::fmt::Display for ExportSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (i, r) = (&self.input_report, &self.report);
+        let state = if i.is_closed() {
+            "closed".to_string()
+        } else {
+            i.problems()
+        };
+        writeln!(
+            f,
+            "input: {} triangles, {} vertices after welding, {} shells, {state}",
+            i.triangles, i.welded_vertices, i.shells
+        )?;
+        let [x, y, z] = r.size_mm;
+        writeln!(
+            f,
+            "mesh: {} triangles, {} vertices after welding ({} before), {} shells, size {x:.1} x \
+             {y:.1} x {z:.1} mm, volume {:.1} mm3, {} open edges",
+            r.triangles, r.welded_vertices, r.input_vertices, r.shells, r.volume_mm3, r.open_edges
+        )?;
+        for n in &self.notes {
+            writeln!(f, "{n}")?;
+        }
+        if let (Some(t), Some(e), Some(de)) = (
+            self.baked_triangles,
+            self.bake_rmse_8bit,
+            self.bake_mean_delta_e,
+        ) {
+            writeln!(
+                f,
+                "bake: {t} triangles, colour RMSE {e:.2} (8-bit), mean dE76 {de:.2}"
+            )?;
+        }
+        for p in &self.files {
+            writeln!(f, "wrote {}", p.display())?;
+        }
+        Ok(())
+    }
+}
+
 /// The solidify grid spacing for a print of `size_mm`: half the minimum wall (so walls are
 /// resolved), but no finer than 1/600 of the longest side (bounded time and memory).
 pub fn auto_voxel(size_mm: [f32; 3], limits: &PrintLimits) -> f32 {

@@ -1,8 +1,9 @@
 //! One capture session run end to end (`cac capture`): load the rig, plan the session, set up the
-//! stage and the camera — the simulated firmware on a pseudo-terminal with the digital twin
-//! camera, or a real turntable on a serial port with a V4L2 camera or the twin posed from what
-//! the driver reports — prepare (or resume) the session folder and capture
-//! ([`super::session::capture`]). [`CaptureJob::run`] returns what the caller prints.
+//! stage and the camera — a real turntable on a serial port with a V4L2 camera or the twin posed
+//! from what the driver reports — prepare (or resume) the session folder and capture
+//! ([`super::session::capture`]). [`CaptureJob::run`] returns what the caller prints. The same
+//! job on the simulated rig (firmware on a pseudo-terminal, the twin as camera) is
+//! `crate::sim::rig::capture`, built from [`CaptureJob::prepare`] and [`CaptureJob::info`].
 
 use super::camera::FrameSource;
 use super::rig::Rig;
@@ -16,20 +17,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
-/// Where the frames and the table moves come from.
-#[derive(Clone, Debug)]
-pub enum Device {
-    /// The simulated firmware (pseudo-terminal) with faults by name, and the digital twin camera.
-    Simulated { faults: String, speedup: f64 },
-    /// A turntable on a serial port, with a V4L2 camera device or (`None`) the digital twin posed
-    /// from the angle and rail position the driver reports.
-    Serial {
-        port: String,
-        camera: Option<PathBuf>,
-    },
-}
-
-/// Everything a capture needs (its flags are `cac capture`'s; the device comes from the others).
+/// Everything a capture needs but the device (its flags are `cac capture`'s).
 #[derive(Clone, Debug, clap::Args)]
 pub struct CaptureJob {
     /// The rig file (calib/rig.toml is an example).
@@ -54,8 +42,6 @@ pub struct CaptureJob {
     /// Continue the session in --out, capturing only missing frames.
     #[arg(long)]
     pub resume: bool,
-    #[arg(skip = Device::Simulated { faults: "none".into(), speedup: 40.0 })]
-    pub device: Device,
     /// Seed of the simulated faults and of the twin's sensor noise.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -69,9 +55,16 @@ pub struct CaptureOutcome {
 }
 
 impl CaptureJob {
-    /// Captures the session (a progress bar on stderr; an operator prompt on the terminal when
-    /// no rail moves the camera).
-    pub fn run(&self) -> Result<CaptureOutcome> {
+    /// Captures the session with the turntable on serial `port` and the V4L2 `camera`, or
+    /// (`None`) the digital twin posed from the angle and rail position the driver reports (a
+    /// progress bar on stderr; an operator prompt on the terminal when no rail moves the camera).
+    pub fn run(&self, port: &str, camera: Option<&std::path::Path>) -> Result<CaptureOutcome> {
+        let (rig, plan, atlas) = self.prepare()?;
+        self.serial(&rig, plan, &atlas, port, camera)
+    }
+
+    /// The rig, the session plan and the atlas the twin paints.
+    pub fn prepare(&self) -> Result<(Arc<Rig>, SessionPlan, Texture)> {
         let rig = Arc::new(Rig::load(&self.rig)?);
         let ratios = match &self.ratios {
             Some(s) => SessionPlan::parse_ratios(s)?,
@@ -89,58 +82,7 @@ impl CaptureJob {
                 .scene
                 .initial_atlas(rig.renderer.settings.atlas_res),
         };
-        match &self.device {
-            Device::Simulated { faults, speedup } => {
-                self.simulated(&rig, plan, &atlas, faults, *speedup)
-            }
-            Device::Serial { port, camera } => {
-                self.serial(&rig, plan, &atlas, port, camera.as_deref())
-            }
-        }
-    }
-
-    #[cfg(unix)]
-    fn simulated(
-        &self,
-        rig: &Arc<Rig>,
-        plan: SessionPlan,
-        atlas: &Texture,
-        faults: &str,
-        speedup: f64,
-    ) -> Result<CaptureOutcome> {
-        use super::simrig::{faults_by_name, SimRig};
-        let settle = Duration::from_millis(rig.config.turntable.settle_ms);
-        let sim = SimRig::spawn(rig, faults_by_name(faults, self.seed)?, speedup)?;
-        let mut stage = sim.stage(rig)?;
-        let mut cam = DigitalTwin::new(rig.clone(), atlas, sim.pose_source(), self.seed);
-        let info = self.info(plan, rig, cam.describe(), true)?;
-        let sim = Arc::new(sim);
-        let s2 = sim.clone();
-        let opts = CaptureOptions {
-            settle: Box::new(move || s2.settle(settle)),
-            progress: true,
-        };
-        let summary = session::capture(&self.out, &info, rig, &mut stage, &mut cam, &opts)?;
-        let w = sim.world().lock();
-        let device = format!(
-            "simulated device: {}; {} boots; driver {:?}",
-            w.fault_counts(),
-            w.device().boots(),
-            stage.turntable().stats()
-        );
-        Ok(CaptureOutcome { summary, device })
-    }
-
-    #[cfg(not(unix))]
-    fn simulated(
-        &self,
-        _: &Arc<Rig>,
-        _: SessionPlan,
-        _: &Texture,
-        _: &str,
-        _: f64,
-    ) -> Result<CaptureOutcome> {
-        bail!("the simulated rig needs a pseudo-terminal (Unix)")
+        Ok((rig, plan, atlas))
     }
 
     fn serial(
@@ -186,7 +128,7 @@ impl CaptureJob {
     }
 
     /// The session's `session.json`, written (or checked against the folder on resume).
-    fn info(
+    pub fn info(
         &self,
         plan: SessionPlan,
         rig: &Rig,

@@ -2,7 +2,7 @@
 //! [`Transport`] — a real serial port ([`SerialTransport`]), the simulator's pseudo-terminal, or its
 //! in-memory link (`crate::sim`) — camera frame sources, the calibrated lens, the rig file, the
 //! one camera model of the rig ([`rig_camera`]), the digital twin, ground-truth boxes, capture sessions with their manifest, and
-//! the whole capture run ([`capture`]).
+//! the whole capture run on a real rig ([`capture`]; on the simulated rig: `crate::sim::rig`).
 
 pub mod calib;
 pub mod camera;
@@ -13,8 +13,6 @@ pub mod rig_camera;
 pub mod score;
 pub mod serial;
 pub mod session;
-#[cfg(unix)]
-pub mod simrig;
 pub mod stage;
 pub mod transport;
 pub mod truth;

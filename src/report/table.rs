@@ -14,6 +14,12 @@ pub struct Table {
     pub rows: Vec<Vec<String>>,
 }
 
+/// One Markdown table line; `|` in cells is escaped.
+fn markdown_line<'a>(cells: impl Iterator<Item = &'a str>) -> String {
+    let cells: Vec<String> = cells.map(|c| c.replace('|', "\\|")).collect();
+    format!("| {} |\n", cells.join(" | "))
+}
+
 impl Table {
     /// A table with this header and no rows.
     pub fn new<S: Into<String>>(header: impl IntoIterator<Item = S>) -> Self {
@@ -60,14 +66,36 @@ impl Table {
 
     /// GitHub-flavoured Markdown; `|` in cells is escaped.
     pub fn markdown(&self) -> String {
-        let esc = |s: &str| s.replace('|', "\\|");
-        let line = |cells: Vec<String>| format!("| {} |\n", cells.join(" | "));
-        let mut s = line(self.flat_header().iter().map(|h| esc(h)).collect());
-        s += &line(vec!["---".to_string(); self.header.len()]);
+        let mut s = self.markdown_header();
         for r in &self.rows {
-            s += &line(self.cells(r).map(esc).collect());
+            s += &self.markdown_row(r);
         }
         s
+    }
+
+    /// The Markdown of the last row, after the header when it is the first: printed as each row
+    /// is measured, a long benchmark streams one Markdown table.
+    pub fn markdown_last(&self) -> String {
+        let Some(last) = self.rows.last() else {
+            return String::new();
+        };
+        let head = if self.rows.len() == 1 {
+            self.markdown_header()
+        } else {
+            String::new()
+        };
+        head + &self.markdown_row(last)
+    }
+
+    fn markdown_header(&self) -> String {
+        let h: Vec<String> = self.flat_header();
+        let rule = vec!["---".to_string(); self.header.len()];
+        markdown_line(h.iter().map(String::as_str))
+            + &markdown_line(rule.iter().map(String::as_str))
+    }
+
+    fn markdown_row(&self, r: &[String]) -> String {
+        markdown_line(self.cells(r))
     }
 
     /// CSV with a one-row header; cells with a comma, quote or newline are quoted.
@@ -155,6 +183,19 @@ mod tests {
         );
         assert_eq!(lines[1], "Original,0.90,0.80,0.70,0.60");
         assert_eq!(lines[2], "\"a, \"\"b\"\"\",x|y,,,");
+    }
+
+    #[test]
+    fn streamed_rows_add_up_to_the_whole_markdown() {
+        let full = sample();
+        let mut t = Table::new(full.header.clone()).grouped(full.groups.clone());
+        let mut streamed = t.markdown_last();
+        assert_eq!(streamed, "", "nothing before the first row");
+        for r in &full.rows {
+            t.row(r.clone());
+            streamed += &t.markdown_last();
+        }
+        assert_eq!(streamed, full.markdown());
     }
 
     #[test]

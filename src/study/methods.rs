@@ -17,30 +17,54 @@ use anyhow::{bail, Context, Result};
 use burn::tensor::Device;
 use std::path::PathBuf;
 
-/// The study's settings.
-#[derive(Debug, Clone)]
+/// The study's settings: `cac study methods`'s flags (the scene comes from `--config`).
+#[derive(Debug, Clone, clap::Args)]
 pub struct MethodsJob {
     /// The training scene (judged with the protocol's renderer on its object).
+    #[arg(skip = SceneConfig::training())]
     pub scene: SceneConfig,
+    /// Attacks, comma-separated (cac, advpat, shapeshifter, upc, camou).
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "cac,advpat,shapeshifter,upc,camou"
+    )]
     pub methods: Vec<Method>,
-    /// Hide-mode rows: `all`, or COCO labels joined by `+`.
+    /// Also train CAC in hide mode suppressing these classes: `all`, or COCO labels joined by
+    /// `+` (e.g. car+bus+truck). Repeat for several rows.
+    #[arg(long)]
     pub hide: Vec<String>,
-    /// CAC's proposal rule.
     /// What the attacks train against and for.
+    #[command(flatten)]
     pub source: super::Source,
-    /// Detectors the textures are judged by.
+    /// Detectors the textures are judged by (those not among --models measure transfer).
+    #[arg(long, value_delimiter = ',', value_parser = detect::spec::MODEL_SPECS, default_value = "nanodet,centernet")]
     pub eval_models: Vec<String>,
-    /// Training iterations per method.
+    /// Training iterations per method (the same budget for all).
+    #[arg(long, default_value_t = 600)]
     pub iterations: usize,
-    /// Textures evaluated beside the learned ones (`cac eval --texture` specs).
+    /// Textures evaluated beside the learned ones (see `cac eval --texture`).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "original,natural,naive,random"
+    )]
     pub textures: Vec<String>,
     /// Evaluation views per brightness level and set.
+    #[arg(long, default_value_t = 50)]
     pub views: usize,
+    /// Evaluation viewpoint sets (fv, rv); a repeated set counts once.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "fv,rv")]
     pub sets: Vec<ViewpointSet>,
     /// Seed of the training runs.
+    #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Seed of the evaluation views (and of the simple textures).
+    #[arg(long, default_value_t = 31)]
     pub eval_seed: u64,
+    /// Output folder: one run per method, eval/, methods.md and methods.csv.
+    #[arg(long, default_value = "study-methods")]
     pub out: PathBuf,
 }
 
@@ -128,7 +152,11 @@ impl MethodsJob {
                 .iter()
                 .map(|(n, _, d)| format!("{n}={}", d.display())),
         );
-        let plan = (self.views, self.eval_seed, self.sets.clone());
+        let plan = (
+            self.views,
+            self.eval_seed,
+            ViewpointSet::distinct(&self.sets),
+        );
         let job = protocol_job(scene, specs, plan, &self.source.target, &self.out)?;
         let evals = detect::load_all(&self.eval_models, None, device)?;
         println!("evaluating {} textures ...", job.textures.len());

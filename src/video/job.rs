@@ -113,6 +113,29 @@ pub struct VideoOutcome {
     pub scores: VideoScores,
     /// Timing and output lines, also in the report.
     pub notes: Vec<String>,
+    /// The output folder.
+    pub out: PathBuf,
+}
+
+/// What `cac score-video` prints: the summary table, the notes, what was decoded and scored.
+impl std::fmt::Display for VideoOutcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let s = &self.scores;
+        write!(f, "{}", report::summary_table(s).markdown())?;
+        for n in &self.notes {
+            writeln!(f, "{n}")?;
+        }
+        if !s.missed_times.is_empty() {
+            writeln!(f, "times outside the video: {:?}", s.missed_times)?;
+        }
+        let (decoded, scored, without) = (s.decoded, s.frames.len(), s.unannotated);
+        let out = self.out.display();
+        writeln!(
+            f,
+            "{decoded} frames decoded, {scored} scored, {without} sampled without ground truth; \
+             wrote {out}"
+        )
+    }
 }
 
 impl VideoJob {
@@ -283,6 +306,10 @@ impl Opened<'_> {
             notes.push(format!("annotated output: {}", p.display()));
         }
         report::write_all(&job.out, &scores, &notes, &examples.frames)?;
-        Ok(VideoOutcome { scores, notes })
+        Ok(VideoOutcome {
+            scores,
+            notes,
+            out: job.out.clone(),
+        })
     }
 }

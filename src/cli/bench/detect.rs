@@ -67,27 +67,11 @@ pub fn run(a: DetectBench) -> Result<()> {
 }
 
 fn bench_tfjs(a: &DetectBench) -> Result<()> {
-    println!(
-        "{:10} {:>5} {:>12} {:>16} {:>16} {:>14}",
-        "model", "batch", "forward_ms", "fwd+bwd_ms", "tfjs_wasm_ms", "fwd/tfjs"
-    );
-    let rows = bench::tfjs_models(
-        a.runner.as_deref(),
-        a.image.as_deref(),
-        a.runs,
-        (&device::inference(), &device::training()),
-        &mut |r| {
-            println!(
-                "{:10} {:>5} {:>12.1} {:>16.1} {:>16} {:>14}",
-                r.name,
-                r.batch,
-                r.forward_ms,
-                r.backward_ms,
-                bench::na(r.tfjs_ms, 1),
-                bench::na(r.ratio(), 3)
-            )
-        },
-    )?;
+    let devices = (&device::inference(), &device::training());
+    let (runner, image) = (a.runner.as_deref(), a.image.as_deref());
+    let rows = bench::tfjs_models(runner, image, a.runs, devices, &mut |t| {
+        print!("{}", t.markdown_last())
+    })?;
     cac::io::write_atomic(&a.csv, rows.csv().as_bytes())?;
     println!("wrote {}", a.csv.display());
     Ok(())
@@ -98,31 +82,10 @@ fn bench_onnx(a: &DetectBench) -> Result<()> {
     println!(
         "onnxruntime column: CPU, {threads} threads (cac's CPU backend uses the same pool size)"
     );
-    println!(
-        "{:16} {:>9} {:>9} {:>11} {:>11} {:>9} {:>8} {:>10}",
-        "model", "input", "graph_ms", "detect_ms", "fwd+bwd_ms", "ort_ms", "fwd/ort", "f+b/ort"
-    );
-    let rows = bench::onnx_models(
-        &a.onnx,
-        a.runs,
-        &a.python,
-        threads,
-        (&device::inference(), &device::training()),
-        &mut |r| {
-            let ((w, h), (rf, rb)) = (r.input, r.ratios());
-            println!(
-                "{:16} {:>9} {:>9.1} {:>11.1} {:>11.1} {:>9} {:>8} {:>10}",
-                r.name,
-                format!("{w}x{h}"),
-                r.graph_ms,
-                r.forward_ms,
-                r.backward_ms,
-                bench::na(r.ort_ms, 1),
-                bench::na(rf, 2),
-                bench::na(rb, 2)
-            )
-        },
-    )?;
+    let devices = (&device::inference(), &device::training());
+    let rows = bench::onnx_models(&a.onnx, a.runs, &a.python, threads, devices, &mut |t| {
+        print!("{}", t.markdown_last())
+    })?;
     cac::io::write_atomic(&a.onnx_csv, rows.csv().as_bytes())?;
     println!("wrote {}", a.onnx_csv.display());
     Ok(())

@@ -19,36 +19,12 @@ pub fn bench(runs: usize, python: &str) -> Result<Table> {
     // Like against like: on the GPU, PyTorch runs on CUDA on the same card.
     let torch_device = if device::is_gpu() { "cuda" } else { "cpu" };
     println!("PyTorch columns: {torch_device}, {threads} threads");
-    println!(
-        "{:24} {:>9} {:>11} {:>12} {:>12} {:>14} {:>8} {:>8}",
-        "model",
-        "input",
-        "forward_ms",
-        "fwd+bwd_ms",
-        "torch_fwd_ms",
-        "torch_fwd+bwd",
-        "fwd/pt",
-        "bwd/pt"
-    );
     let rows = bench::frcnn_models(
         runs,
         python,
         (threads, torch_device),
         (&inference, &training),
-        &mut |r| {
-            let ((w, h), (rf, rb)) = (r.input, r.ratios());
-            println!(
-                "{:24} {:>9} {:>11.1} {:>12.1} {:>12} {:>14} {:>8} {:>8}",
-                r.name,
-                format!("{w}x{h}"),
-                r.forward_ms,
-                r.backward_ms,
-                bench::na(r.torch.map(|t| t.0), 1),
-                bench::na(r.torch.map(|t| t.1), 1),
-                bench::na(rf, 2),
-                bench::na(rb, 2)
-            );
-        },
+        &mut |t| print!("{}", t.markdown_last()),
     )?;
     if rows.rows.iter().flatten().any(|c| c == "n/a") {
         eprintln!(

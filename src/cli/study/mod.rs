@@ -10,7 +10,6 @@ mod methods;
 use super::device;
 use anyhow::Result;
 use cac::config::SceneConfig;
-use cac::environment::ViewpointSet;
 use cac::study::topn::{Part, TopnJob, TopnOutcome};
 use std::path::PathBuf;
 
@@ -24,34 +23,11 @@ pub enum Cmd {
 
 #[derive(clap::Args, Debug)]
 pub struct TopnArgs {
-    /// Values of n, comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "1,4,16,64")]
-    pub n: Vec<usize>,
     #[command(flatten)]
-    pub source: cac::study::Source,
+    pub job: TopnJob,
     /// Scene config (default: the demo's scene, the pickup at street level, 320² renders).
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Detectors the textures are evaluated on (those not among --models measure transfer).
-    #[arg(long, value_delimiter = ',', value_parser = cac::detect::spec::MODEL_SPECS, default_value = "centernet,nanodet")]
-    pub eval_models: Vec<String>,
-    /// Training iterations per run.
-    #[arg(long, default_value_t = 30)]
-    pub iterations: usize,
-    /// Evaluation views per brightness level and set.
-    #[arg(long, default_value_t = 6)]
-    pub views: usize,
-    /// Evaluation viewpoint sets (fv, rv).
-    #[arg(long, value_enum, value_delimiter = ',', default_value = "fv")]
-    pub sets: Vec<ViewpointSet>,
-    /// Evaluation image side (default: the config's).
-    #[arg(long)]
-    pub size: Option<usize>,
-    /// Seed of the training runs and of the evaluation views.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-    #[arg(long, default_value = "study-topn")]
-    pub out: PathBuf,
     // Sweep entry points (cac slurm study topn, docs/sweeps.md).
     /// Train only setting K (the K-th value of --n, from 0) and exit: one array task per setting.
     #[arg(long, value_name = "K", conflicts_with_all = ["shard", "merge"])]
@@ -72,30 +48,20 @@ pub fn run(c: Cmd) -> Result<()> {
 }
 
 fn topn(a: TopnArgs) -> Result<()> {
-    let job = TopnJob {
-        scene: SceneConfig::from_file_or(a.config.as_deref(), TopnJob::default_scene)?,
-        n: a.n.clone(),
-        source: a.source.clone(),
-        eval_models: a.eval_models.clone(),
-        iterations: a.iterations,
-        views: a.views,
-        sets: ViewpointSet::distinct(&a.sets),
-        eval_size: a.size,
-        seed: a.seed,
-        out: a.out.clone(),
-        part: match (a.task, a.shard, a.merge) {
-            (Some(k), _, _) => Part::Task(k),
-            (_, Some(s), _) => Part::Shard(s),
-            (_, _, true) => Part::Merge,
-            _ => Part::Whole,
-        },
+    let mut job = a.job;
+    job.scene = SceneConfig::from_file_or(a.config.as_deref(), TopnJob::default_scene)?;
+    job.part = match (a.task, a.shard, a.merge) {
+        (Some(k), _, _) => Part::Task(k),
+        (_, Some(s), _) => Part::Shard(s),
+        (_, _, true) => Part::Merge,
+        _ => Part::Whole,
     };
     match job.run(&device::inference())? {
         TopnOutcome::Trained => {}
-        TopnOutcome::Shard(o) => super::eval::print_shard(&o),
+        TopnOutcome::Shard(o) => print!("{o}"),
         TopnOutcome::Written { markdown } => println!(
             "{markdown}\nwrote {}/topn.png, topn.csv, topn.md, topn.html and eval/",
-            a.out.display()
+            job.out.display()
         ),
     }
     Ok(())

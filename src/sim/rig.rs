@@ -1,15 +1,18 @@
 //! The whole rig simulated: the simulated firmware behind a pseudo-terminal (so the real serial
 //! driver is exercised), a simulated operator when there is no rail, and the digital twin's pose
 //! read from the simulated mechanics. Simulated time runs `speedup` times faster than real time.
+//! [`capture`] is `cac capture --simulate`: a whole session on the simulated rig.
 
 #![cfg(unix)]
 
-use super::rig::Rig;
-use super::serial::SerialTransport;
-use super::stage::TurntableStage;
-use super::turntable::{Turntable, TurntableConfig};
-use super::twin::{Pose, PoseSource};
-use crate::sim::{DeviceConfig, FaultConfig, LinkConfig, PtySim, SimHandle, SimWorld};
+use super::{DeviceConfig, FaultConfig, LinkConfig, PtySim, SimHandle, SimWorld};
+use crate::physical::capture::{CaptureJob, CaptureOutcome};
+use crate::physical::rig::Rig;
+use crate::physical::serial::SerialTransport;
+use crate::physical::session::{self, CaptureOptions};
+use crate::physical::stage::TurntableStage;
+use crate::physical::turntable::{Turntable, TurntableConfig};
+use crate::physical::twin::{DigitalTwin, Pose, PoseSource};
 use anyhow::{Context, Result};
 use firmware_protocol::Axis;
 use std::sync::{Arc, Mutex};
@@ -145,4 +148,36 @@ pub fn faults_by_name(name: &str, seed: u64) -> Result<FaultConfig> {
             FAULT_KINDS.join(", ")
         ),
     })
+}
+
+/// Captures `job`'s session on the simulated rig (faults by name, see [`FAULT_KINDS`]) with the
+/// digital twin as the camera; the outcome's device line counts the faults, boots and the
+/// driver's retries.
+pub fn capture(job: &CaptureJob, faults: &str, speedup: f64) -> Result<CaptureOutcome> {
+    let (rig, plan, atlas) = job.prepare()?;
+    let settle = Duration::from_millis(rig.config.turntable.settle_ms);
+    let sim = SimRig::spawn(&rig, faults_by_name(faults, job.seed)?, speedup)?;
+    let mut stage = sim.stage(&rig)?;
+    let mut cam = DigitalTwin::new(rig.clone(), &atlas, sim.pose_source(), job.seed);
+    let info = job.info(
+        plan,
+        &rig,
+        crate::physical::camera::FrameSource::describe(&cam),
+        true,
+    )?;
+    let sim = Arc::new(sim);
+    let s2 = sim.clone();
+    let opts = CaptureOptions {
+        settle: Box::new(move || s2.settle(settle)),
+        progress: true,
+    };
+    let summary = session::capture(&job.out, &info, &rig, &mut stage, &mut cam, &opts)?;
+    let w = sim.world().lock();
+    let device = format!(
+        "simulated device: {}; {} boots; driver {:?}",
+        w.fault_counts(),
+        w.device().boots(),
+        stage.turntable().stats()
+    );
+    Ok(CaptureOutcome { summary, device })
 }
