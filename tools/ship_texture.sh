@@ -10,7 +10,8 @@
 # evaluation summary (FV/RV x bright/dark, 50 views per level and set, seed EVAL_SEED, NanoDet and
 # CenterNet). The run folder stays in runs/ship-OBJECT-TARGET (resumable); the evaluation report in
 # runs/ship-OBJECT-TARGET-eval. Needs a release build (cargo build --release) and python3.
-# TRAIN_SIZE=512 renders the training views at 512² (default 320², the training preset).
+# TRAIN_SIZE=512 renders the training views at 512² (default 320², the training preset);
+# TRAIN_SPP=2 at 2 samples per pixel (default 1, the training preset).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 object=${1:?object (pickup, jeep, barrel, container)}
@@ -19,7 +20,9 @@ iterations=${3:-1200}
 eval_seed=${4:-31}
 size=${TRAIN_SIZE:-320}
 [[ $size =~ ^[1-9][0-9]*$ ]] || { echo "TRAIN_SIZE must be a positive number of pixels, got '$size'" >&2; exit 2; }
-invocation="${TRAIN_SIZE:+TRAIN_SIZE=$TRAIN_SIZE }tools/ship_texture.sh $*"
+spp=${TRAIN_SPP:-1}
+[[ $spp =~ ^[1-9][0-9]*$ ]] || { echo "TRAIN_SPP must be a positive number of samples per pixel, got '$spp'" >&2; exit 2; }
+invocation="${TRAIN_SIZE:+TRAIN_SIZE=$TRAIN_SIZE }${TRAIN_SPP:+TRAIN_SPP=$TRAIN_SPP }tools/ship_texture.sh $*"
 shift $(( $# < 4 ? $# : 4 ))
 slug=$(echo "$target" | tr ' ' '_')
 cac=target/release/cac
@@ -29,7 +32,7 @@ ev=runs/ship-$object-$slug-eval
 mkdir -p runs
 "$cac" config > "$run.toml.tmp"
 sed -e "s/^mesh = .*/mesh = \"$object\"/" -e "s/^width = 512/width = $size/" \
-    -e "s/^height = 512/height = $size/" -e 's/^samples = 4/samples = 1/' \
+    -e "s/^height = 512/height = $size/" -e "s/^samples = 4/samples = $spp/" \
     -e 's/^atlas_res = 512/atlas_res = 256/' "$run.toml.tmp" > "$run.toml"
 rm "$run.toml.tmp"
 train=("$cac" train --config "$run.toml" --target "$target" --iterations "$iterations" --seed 0 "$@")
