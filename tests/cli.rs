@@ -38,4 +38,12 @@ fn a_figure_without_a_caption_is_refused_before_anything_is_written() {
     assert!(!o.status.success(), "{err}");
     assert!(err.contains("\"plot.png\": expected CAPTION=PNG"), "{err}");
     assert!(!out.exists(), "nothing written");
+    // A missing PNG is refused now, not after every view has been rendered and scored.
+    let missing = d.path().join("missing.png");
+    let arg = format!("Study={}", missing.display());
+    let o = support::cac(&["eval", "--figure", &arg, "--out", out.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(err.contains("missing.png: no such file"), "{err}");
+    assert!(!out.exists(), "nothing written");
 }

@@ -15,7 +15,7 @@ use crate::environment::Environment;
 use crate::render::Renderer;
 use anyhow::Result;
 use burn::tensor::Device;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// Everything an evaluation needs besides the detectors.
@@ -34,11 +34,17 @@ pub struct EvalJob {
     pub out: PathBuf,
 }
 
-/// Parses an extra figure `CAPTION=PNG` (clap's value parser for `--figure`).
+/// Parses an extra figure `CAPTION=PNG` (clap's value parser for `--figure`). The PNG must exist
+/// now: it is read only when the report is written, after every view has been scored.
 pub fn parse_figure(s: &str) -> Result<(String, PathBuf), String> {
-    s.split_once('=')
-        .map(|(c, p)| (c.to_string(), PathBuf::from(p)))
-        .ok_or_else(|| format!("{s:?}: expected CAPTION=PNG"))
+    let (caption, png) = s
+        .split_once('=')
+        .filter(|(c, p)| !c.is_empty() && !p.is_empty())
+        .ok_or_else(|| format!("{s:?}: expected CAPTION=PNG"))?;
+    if !Path::new(png).is_file() {
+        return Err(format!("{png}: no such file (the figure {caption:?})"));
+    }
+    Ok((caption.to_string(), PathBuf::from(png)))
 }
 
 /// What a finished evaluation wrote and measured.
