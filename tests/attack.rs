@@ -67,6 +67,44 @@ fn multi_scale_atlas_resumes_exactly_and_changes_only_paintable_texels() {
     resume_and_paintable(3);
 }
 
+/// The step ray-casts the next iteration's views while the detectors run; a run whose every
+/// step plans its own views (rebuilt from the checkpoint before each step, so nothing was
+/// prefetched) ends with the same atlas, bit for bit, and the same losses.
+#[test]
+fn prefetched_views_give_the_run_that_plans_each_step_itself() {
+    let (r, env, d) = setup();
+    let init = r.scene.initial_atlas(64);
+    let dev = burn::tensor::Device::autodiff(inference());
+    let mut a = Trainer::new(config(3), &r, &env, vec![d.as_ref()], dev.clone(), &init).unwrap();
+    for _ in 0..3 {
+        a.step().unwrap();
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let mut b = Trainer::new(config(3), &r, &env, vec![d.as_ref()], dev.clone(), &init).unwrap();
+    for _ in 0..3 {
+        b.step().unwrap();
+        attack::checkpoint::save(dir.path(), &b.state).unwrap();
+        b = Trainer::new(config(3), &r, &env, vec![d.as_ref()], dev.clone(), &init)
+            .unwrap()
+            .resume(dir.path())
+            .unwrap();
+    }
+    assert_eq!(b.state.iteration, 3);
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert!(
+        bits(&a.state.atlas) == bits(&b.state.atlas),
+        "the prefetched run's atlas differs from the step-by-step run's"
+    );
+    let losses = |t: &Trainer| {
+        t.state
+            .log
+            .iter()
+            .map(|l| l.loss.to_bits())
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(losses(&a), losses(&b));
+}
+
 fn resume_and_paintable(scales: usize) {
     let (r, env, d) = setup();
     let init = r.scene.initial_atlas(64);

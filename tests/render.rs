@@ -252,6 +252,67 @@ fn object_box_matches_projected_silhouette() {
     }
 }
 
+/// A view cast and shaded a band of rows at a time (what `Renderer::plan` does, to keep the
+/// G-buffer small) is the view shaded at once from one G-buffer, bit for bit: pixels, taps,
+/// coverage and object box, under a sky with its skyline over the ground and under an image
+/// background (whose colour depends on the image row), at 1 and 4 samples per pixel.
+#[test]
+fn a_view_planned_in_bands_equals_the_view_planned_at_once() {
+    let ground = render::Ground {
+        texture: std::sync::Arc::new(environment::procedural_ground(64)),
+        tile_m: 3.0,
+        offset: Vec2::new(0.4, 1.1),
+    };
+    let sky = Background::Sky {
+        horizon: [0.8, 0.85, 0.9],
+        zenith: [0.3, 0.5, 0.8],
+        skyline: Some(render::skyline::Skyline {
+            phase_deg: 20.0,
+            light: 1.0,
+        }),
+    };
+    let mut stripes = Texture::solid(8, 8, [0.0; 3]);
+    for (k, t) in stripes.texels.iter_mut().enumerate() {
+        *t = [(k / 8) as f32 / 8.0, 0.5, 1.0 - (k % 8) as f32 / 8.0];
+    }
+    let image = Background::Image(std::sync::Arc::new(stripes));
+    let light = Lighting::sun_at(0.4, 0.7, 30.0, 40.0);
+    // 50 rows: three bands of 16 rows and one of 2.
+    assert!(50 % render::BAND_ROWS != 0);
+    for samples in [1, 4] {
+        let r = jeep_renderer(50, samples, 32);
+        for (background, view) in [
+            (sky.clone(), Viewpoint::new(35.0, 5.0, 2.5)),
+            (image.clone(), Viewpoint::new(200.0, 30.0, 1.5)),
+        ] {
+            let bd = Backdrop {
+                background,
+                ground: Some(ground.clone()),
+            };
+            let banded = r.plan(&view, &light, &bd).unwrap();
+            let cam = r.camera(&view).unwrap();
+            let g = render::gbuffer::GBuffer::cast(&r.scene, &r.accel, &cam, samples, true);
+            let whole = render::shade::plan(&r.scene, &r.accel, &g, &light, &bd, 32);
+            assert_eq!((banded.width, banded.height), (whole.width, whole.height));
+            let bits = |v: &[[f32; 3]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(
+                bits(&banded.base),
+                bits(&whole.base),
+                "{samples} spp: base differs"
+            );
+            assert_eq!(banded.tap_pixel, whole.tap_pixel);
+            assert_eq!(banded.tap_texel, whole.tap_texel);
+            assert_eq!(banded.tap_weight, whole.tap_weight);
+            assert_eq!(banded.coverage, whole.coverage);
+            assert_eq!(banded.object_box, whole.object_box);
+            assert!(banded.object_box.is_some() && !banded.tap_pixel.is_empty());
+            // The object crosses band boundaries, so the stacking's pixel offsets are exercised.
+            let [_, y1, _, y2] = banded.object_box.unwrap();
+            assert!((y2 - y1) as usize > render::BAND_ROWS);
+        }
+    }
+}
+
 #[test]
 fn zero_area_triangles_and_out_of_range_uvs_render_cleanly() {
     let mut s = generate::barrel();

@@ -298,6 +298,9 @@ pub struct IterationLog {
     /// Candidates the objective scored, summed over the batch and source models: the fixed
     /// proposals (CAC, ShapeShifter, UPC), every candidate (CAMOU) or one per image (AdvPat).
     pub proposals: usize,
+    /// Forming the images: the composite, plus planning the views where they were not planned
+    /// during the previous step, plus any wait for the next step's views ([`Trainer::step`]).
+    /// The four times add up to the iteration's wall time.
     pub ms_render: f64,
     pub ms_forward: f64,
     pub ms_backward: f64,

@@ -14,7 +14,7 @@ use super::checkpoint::{self, Checkpoint};
 use super::{draw_conditions, ensemble_loss, pyramid, AttackConfig, IterationLog};
 use crate::detect::Detector;
 use crate::environment::{self, Condition, Environment};
-use crate::render::Renderer;
+use crate::render::{RenderPlan, Renderer};
 use crate::scene::Texture;
 use anyhow::{bail, Context, Result};
 use burn::tensor::{Device, Tensor, TensorData};
@@ -42,6 +42,9 @@ pub struct Trainer<'a> {
     /// Iteration, optimiser state, parameters (for 2D methods: the patch) and log.
     pub state: Checkpoint,
     pub param: Parameterisation,
+    /// The next iteration's views, ray-cast and shaded while this one's detectors ran (see
+    /// [`Trainer::step`]); `None` before the first step and for 2D methods.
+    next_plans: Option<(usize, Vec<RenderPlan>)>,
 }
 
 impl<'a> Trainer<'a> {
@@ -106,6 +109,7 @@ impl<'a> Trainer<'a> {
             device,
             state,
             param,
+            next_plans: None,
         })
     }
 
@@ -178,12 +182,17 @@ impl<'a> Trainer<'a> {
         }
     }
 
-    /// The images of iteration `i` as a function of `leaf`, and the object boxes in them.
-    fn images(&self, i: usize, leaf: Tensor<4>) -> Result<(Tensor<4>, Vec<Option<[f32; 4]>>)> {
+    /// The images of iteration `i` as a function of `leaf`, and the object boxes in them. The
+    /// views' plans are the prefetched ones when they are iteration `i`'s.
+    fn images(&mut self, i: usize, leaf: Tensor<4>) -> Result<(Tensor<4>, Vec<Option<[f32; 4]>>)> {
         match &self.param {
             Parameterisation::Atlas { .. } => {
                 let conds = self.conditions(i);
-                let (images, plans) = environment::form(self.renderer, self.env, &conds, leaf)?;
+                let plans = match self.next_plans.take() {
+                    Some((j, plans)) if j == i => plans,
+                    _ => environment::plans(self.renderer, self.env, &conds)?,
+                };
+                let images = environment::form_planned(&plans, leaf, &conds);
                 Ok((images, plans.iter().map(|p| p.object_box).collect()))
             }
             Parameterisation::Patch(p) => {
@@ -207,7 +216,11 @@ impl<'a> Trainer<'a> {
         }
     }
 
-    /// One iteration: form the images, detect, loss, backward, Adam step.
+    /// One iteration: form the images, detect, loss, backward, Adam step. While the detectors
+    /// run forward and backward, another thread ray-casts and shades the next iteration's views
+    /// (they depend on the seed and the iteration only, not on the atlas), so the render hides
+    /// in the time the detectors leave a core idle; the result is the same bit for bit.
+    /// `ms_render` is the compositing plus any wait for those views.
     pub fn step(&mut self) -> Result<IterationLog> {
         let i = self.state.iteration;
         let goal = self.config.goal()?;
@@ -216,23 +229,28 @@ impl<'a> Trainer<'a> {
         let leaf = Tensor::<4>::from_data(TensorData::new(self.leaf(), [1, r, r, 3]), &self.device)
             .require_grad();
         let (images, objects) = self.images(i, leaf.clone())?;
-        let ms_render = t0.elapsed().as_secs_f64() * 1e3;
-        let t1 = Instant::now();
-        let (mut loss, proposals) =
-            ensemble_loss(&self.detectors, &images, &objects, &self.config, goal)?;
-        if self.config.method == Method::Advpat {
-            loss = loss + patch::total_variation(leaf.clone()) * patch::TV_WEIGHT;
+        let mut ms_render = t0.elapsed().as_secs_f64() * 1e3;
+        let prefetch = matches!(self.param, Parameterisation::Atlas { .. });
+        let (detected, next) = std::thread::scope(|s| {
+            let (renderer, env, config) = (self.renderer, self.env, &self.config);
+            let next = prefetch.then(|| {
+                s.spawn(move || {
+                    let conds = draw_conditions(env, config, i + 1);
+                    environment::plans(renderer, env, &conds)
+                })
+            });
+            let detected = self.detect_and_differentiate(&images, &objects, &leaf, goal);
+            let t = Instant::now();
+            let next = next.map(|h| h.join().expect("the view prefetch panicked"));
+            (detected, next.map(|n| (n, t.elapsed().as_secs_f64() * 1e3)))
+        });
+        let (loss_value, g, proposals, ms_forward, ms_backward) = detected?;
+        if let Some((next, ms_wait)) = next {
+            // A view that cannot be planned is iteration i + 1's error: that step plans it
+            // again and reports it.
+            self.next_plans = next.ok().map(|plans| (i + 1, plans));
+            ms_render += ms_wait;
         }
-        let loss_value = crate::detect::to_vec(&loss)?[0] as f64;
-        let ms_forward = t1.elapsed().as_secs_f64() * 1e3;
-        let t2 = Instant::now();
-        let grads = loss.backward();
-        let g = crate::detect::to_vec(
-            &leaf
-                .grad(&grads)
-                .context("no gradient reached the parameters")?,
-        )?;
-        let ms_backward = t2.elapsed().as_secs_f64() * 1e3;
         if !loss_value.is_finite() {
             bail!("iteration {i}: the loss is not finite ({loss_value})");
         }
@@ -253,6 +271,36 @@ impl<'a> Trainer<'a> {
         self.state.log.push(log.clone());
         self.state.iteration += 1;
         Ok(log)
+    }
+}
+
+impl Trainer<'_> {
+    /// The forward pass (loss and proposals) and the gradient with respect to `leaf`, with
+    /// their times in ms.
+    fn detect_and_differentiate(
+        &self,
+        images: &Tensor<4>,
+        objects: &[Option<[f32; 4]>],
+        leaf: &Tensor<4>,
+        goal: super::Goal,
+    ) -> Result<(f64, Vec<f32>, usize, f64, f64)> {
+        let t1 = Instant::now();
+        let (mut loss, proposals) =
+            ensemble_loss(&self.detectors, images, objects, &self.config, goal)?;
+        if self.config.method == Method::Advpat {
+            loss = loss + patch::total_variation(leaf.clone()) * patch::TV_WEIGHT;
+        }
+        let loss_value = crate::detect::to_vec(&loss)?[0] as f64;
+        let ms_forward = t1.elapsed().as_secs_f64() * 1e3;
+        let t2 = Instant::now();
+        let grads = loss.backward();
+        let g = crate::detect::to_vec(
+            &leaf
+                .grad(&grads)
+                .context("no gradient reached the parameters")?,
+        )?;
+        let ms_backward = t2.elapsed().as_secs_f64() * 1e3;
+        Ok((loss_value, g, proposals, ms_forward, ms_backward))
     }
 }
 

@@ -10,6 +10,7 @@ use super::camera::Camera;
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
+use std::ops::Range;
 
 /// What a sample's ray hit first.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -37,11 +38,15 @@ pub struct Sample {
     pub dir: Vec3,
 }
 
-/// The G-buffer of one view: `samples` entries per pixel, pixel-major (`(y * width + x) * samples + s`).
+/// The G-buffer of one view, or of a band of its rows: `samples` entries per pixel held,
+/// pixel-major (`((y - rows.start) * width + x) * samples + s`).
 pub struct GBuffer {
     pub camera: Camera,
     pub width: usize,
+    /// The image's height (all of it, whatever `rows` holds).
     pub height: usize,
+    /// The image rows held.
+    pub rows: Range<usize>,
     pub samples: usize,
     pub data: Vec<Sample>,
 }
@@ -99,31 +104,46 @@ impl GBuffer {
         ground: bool,
         ray: &(dyn Fn(f32, f32) -> Vec3 + Sync),
     ) -> GBuffer {
+        let h = camera.intrinsics.height;
+        Self::cast_rows(scene, accel, camera, samples, ground, ray, 0..h)
+    }
+
+    /// Like [`GBuffer::cast_with`], for the image rows `rows` only: a band of the image, so a
+    /// view can be cast and shaded a band at a time in little memory.
+    pub fn cast_rows(
+        scene: &Scene,
+        accel: &Accel,
+        camera: &Camera,
+        samples: usize,
+        ground: bool,
+        ray: &(dyn Fn(f32, f32) -> Vec3 + Sync),
+        rows: Range<usize>,
+    ) -> GBuffer {
         let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
+        assert!(rows.end <= h, "rows {rows:?} outside an image of {h} rows");
         let offs = sample_offsets(samples);
         let s = offs.len();
-        let data: Vec<Sample> = (0..h)
+        // An indexed parallel map, so the samples are written in place into one buffer.
+        let data: Vec<Sample> = (0..w * rows.len() * s)
             .into_par_iter()
-            .flat_map_iter(|y| {
-                let offs = &offs;
-                (0..w).flat_map(move |x| {
-                    offs.iter().map(move |o| {
-                        let dir = ray(x as f32 + o.x, y as f32 + o.y);
-                        trace_primary(scene, accel, camera.eye, dir, ground)
-                    })
-                })
+            .map(|i| {
+                let (pixel, o) = (i / s, offs[i % s]);
+                let (x, y) = (pixel % w, rows.start + pixel / w);
+                let dir = ray(x as f32 + o.x, y as f32 + o.y);
+                trace_primary(scene, accel, camera.eye, dir, ground)
             })
             .collect();
         GBuffer {
             camera: *camera,
             width: w,
             height: h,
+            rows,
             samples: s,
             data,
         }
     }
 
-    /// Fraction of each pixel's samples that see the object.
+    /// Fraction of each held pixel's samples that see the object.
     pub fn coverage(&self) -> Vec<f32> {
         self.data
             .chunks_exact(self.samples)
@@ -142,7 +162,10 @@ impl GBuffer {
         let mut any = false;
         for (i, &c) in cov.iter().enumerate() {
             if c > 0.0 {
-                let (x, y) = ((i % self.width) as f32, (i / self.width) as f32);
+                let (x, y) = (
+                    (i % self.width) as f32,
+                    (self.rows.start + i / self.width) as f32,
+                );
                 b = [
                     b[0].min(x),
                     b[1].min(y),

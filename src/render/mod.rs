@@ -26,7 +26,12 @@ pub use shade::{Backdrop, Background, Ground, Lighting, RenderPlan};
 
 use crate::scene::Scene;
 use anyhow::{bail, Result};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+
+/// Rows of a view cast and shaded together ([`Renderer::plan_rays`]): a band's G-buffer is at
+/// most `16 x width x samples` samples (4 MB at 512² and 4 samples).
+pub const BAND_ROWS: usize = 16;
 
 /// Image size, sampling and camera settings (the `[render]` table of a scene config).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -115,26 +120,14 @@ impl Renderer {
         backdrop: &Backdrop,
     ) -> Result<RenderPlan> {
         let cam = self.camera(view)?;
-        let g = gbuffer::GBuffer::cast(
-            &self.scene,
-            &self.accel,
-            &cam,
-            self.settings.samples,
-            backdrop.ground.is_some(),
-        );
-        Ok(shade::plan(
-            &self.scene,
-            &self.accel,
-            &g,
-            light,
-            backdrop,
-            self.settings.atlas_res,
-        ))
+        Ok(self.plan_rays(&cam, &|x, y| cam.ray_dir(x, y), light, backdrop))
     }
 
     /// Ray-casts and shades one view seen by `camera`, with the ray through each image point
     /// given by `ray` (unit directions; a camera with lens distortion); the image size is the
-    /// camera's.
+    /// camera's. The view is cast and shaded [`BAND_ROWS`] rows at a time and the bands are
+    /// stacked: the same plan as at once, without a G-buffer of the whole view in memory (64 MB
+    /// at 512² and 4 samples, a fresh mapping of pages on every view).
     pub fn plan_rays(
         &self,
         camera: &Camera,
@@ -142,21 +135,30 @@ impl Renderer {
         light: &Lighting,
         backdrop: &Backdrop,
     ) -> RenderPlan {
-        let g = gbuffer::GBuffer::cast_with(
-            &self.scene,
-            &self.accel,
-            camera,
-            self.settings.samples,
-            backdrop.ground.is_some(),
-            ray,
-        );
-        shade::plan(
-            &self.scene,
-            &self.accel,
-            &g,
-            light,
-            backdrop,
-            self.settings.atlas_res,
-        )
+        let h = camera.intrinsics.height;
+        let bands: Vec<RenderPlan> = (0..h.div_ceil(BAND_ROWS).max(1))
+            .into_par_iter()
+            .map(|b| {
+                let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(h);
+                let g = gbuffer::GBuffer::cast_rows(
+                    &self.scene,
+                    &self.accel,
+                    camera,
+                    self.settings.samples,
+                    backdrop.ground.is_some(),
+                    ray,
+                    rows,
+                );
+                shade::plan(
+                    &self.scene,
+                    &self.accel,
+                    &g,
+                    light,
+                    backdrop,
+                    self.settings.atlas_res,
+                )
+            })
+            .collect();
+        RenderPlan::stack(bands)
     }
 }

@@ -175,7 +175,8 @@ pub fn background_colour(
     }
 }
 
-/// Shades a G-buffer into a render plan for an atlas of `atlas_res x atlas_res`.
+/// Shades a G-buffer into a render plan for an atlas of `atlas_res x atlas_res`: of the whole
+/// view, or of the band of rows the G-buffer holds (join bands with [`RenderPlan::stack`]).
 pub fn plan(
     scene: &Scene,
     accel: &Accel,
@@ -220,7 +221,7 @@ pub fn plan(
                             &backdrop.background,
                             sm.dir,
                             pi % g.width,
-                            pi / g.width,
+                            g.rows.start + pi / g.width,
                             g.width,
                             g.height,
                         );
@@ -311,7 +312,7 @@ pub fn plan(
         .collect();
     let mut out = RenderPlan {
         width: g.width,
-        height: g.height,
+        height: g.rows.len(),
         atlas_res,
         base: Vec::with_capacity(pixels.len()),
         tap_pixel: vec![],
@@ -332,6 +333,37 @@ pub fn plan(
 }
 
 impl RenderPlan {
+    /// The plan of a whole view from the plans of its bands of rows, top to bottom (all of one
+    /// width and atlas): the same plan, bit for bit, as shading the view at once.
+    pub fn stack(bands: Vec<RenderPlan>) -> RenderPlan {
+        let mut bands = bands.into_iter();
+        let mut out = bands.next().expect("stack needs at least one band");
+        for b in bands {
+            assert!(
+                b.width == out.width && b.atlas_res == out.atlas_res,
+                "bands differ in width or atlas"
+            );
+            let offset = (out.width * out.height) as u32;
+            out.height += b.height;
+            out.base.extend(b.base);
+            out.tap_pixel
+                .extend(b.tap_pixel.iter().map(|&p| p + offset));
+            out.tap_texel.extend(b.tap_texel);
+            out.tap_weight.extend(b.tap_weight);
+            out.coverage.extend(b.coverage);
+            out.object_box = match (out.object_box, b.object_box) {
+                (Some(a), Some(c)) => Some([
+                    a[0].min(c[0]),
+                    a[1].min(c[1]),
+                    a[2].max(c[2]),
+                    a[3].max(c[3]),
+                ]),
+                (a, c) => a.or(c),
+            };
+        }
+        out
+    }
+
     /// Composites on the CPU (no gradients): the reference for the tensor path.
     pub fn render_cpu(&self, atlas: &Texture) -> Vec<[f32; 3]> {
         assert_eq!(
