@@ -25,6 +25,9 @@ spp=${TRAIN_SPP:-1}
 invocation="${TRAIN_SIZE:+TRAIN_SIZE=$TRAIN_SIZE }${TRAIN_SPP:+TRAIN_SPP=$TRAIN_SPP }tools/ship_texture.sh $*"
 shift $(( $# < 4 ? $# : 4 ))
 slug=$(echo "$target" | tr ' ' '_')
+# The commit the texture is trained with, read before anything is written; "-dirty" when tracked
+# files outside meshes/ differ from it.
+rev=$(git rev-parse HEAD)$(git diff --quiet HEAD -- . ':(exclude)meshes' || echo -dirty)
 cac=target/release/cac
 [ -x "$cac" ] || { echo "build first: cargo build --release" >&2; exit 1; }
 run=runs/ship-$object-$slug
@@ -51,12 +54,11 @@ evalcmd=("$cac" eval --object "$object" --texture "original,CAC=$run" --models n
 cp "$run/atlas.png" "meshes/$object/cac-$slug.png.tmp"
 mv "meshes/$object/cac-$slug.png.tmp" "meshes/$object/cac-$slug.png"
 python3 - "$run" "$ev" "meshes/$object/cac-$slug.json" "${train[*]} --out $run" \
-    "${evalcmd[*]}" "$invocation" <<'EOF'
-import json, os, subprocess, sys
-run, ev, out, train_cmd, eval_cmd, invocation = sys.argv[1:]
+    "${evalcmd[*]}" "$invocation" "$rev" <<'EOF'
+import json, os, sys
+run, ev, out, train_cmd, eval_cmd, invocation, rev = sys.argv[1:]
 r = json.load(open(os.path.join(run, "run.json")))
 e = json.load(open(os.path.join(ev, "results.json")))
-rev = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
 doc = {
     "texture": os.path.basename(out).replace(".json", ".png"),
     "commands": {"train": train_cmd, "evaluate": eval_cmd,
