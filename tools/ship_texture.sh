@@ -27,7 +27,8 @@ shift $(( $# < 4 ? $# : 4 ))
 slug=$(echo "$target" | tr ' ' '_')
 # The commit the texture is trained with, read before anything is written; "-dirty" when tracked
 # files outside meshes/ differ from it.
-rev=$(git rev-parse HEAD)$(git diff --quiet HEAD -- . ':(exclude)meshes' || echo -dirty)
+rev=$(git rev-parse HEAD 2>/dev/null) || { echo "not a git checkout: the texture's commit cannot be recorded" >&2; exit 2; }
+git diff --quiet HEAD -- . ':(exclude)meshes' || rev=$rev-dirty
 cac=target/release/cac
 [ -x "$cac" ] || { echo "build first: cargo build --release" >&2; exit 1; }
 run=runs/ship-$object-$slug
@@ -40,6 +41,21 @@ sed -e "s/^mesh = .*/mesh = \"$object\"/" -e "s/^width = 512/width = $size/" \
 rm "$run.toml.tmp"
 train=("$cac" train --config "$run.toml" --target "$target" --iterations "$iterations" --seed 0 "$@")
 if [ -f "$run/run.json" ]; then
+    # Resume only the run these settings ask for: an earlier run at another size, sampling,
+    # object, target or seed would otherwise be shipped under this command.
+    python3 - "$run/run.json" "$object" "$target" "$size" "$spp" <<'EOF' || exit 2
+import json, sys
+path, obj, target, size, spp = sys.argv[1:]
+r = json.load(open(path))
+render = r["scene"]["render"]
+have = (r["scene"]["object"]["mesh"], r["attack"]["target"], render["width"], render["height"],
+        render["samples"], r["attack"]["seed"])
+want = (obj, target, int(size), int(size), int(spp), 0)
+if have != want:
+    names = ("object", "target", "width", "height", "samples", "seed")
+    diff = [f"{n} {h} (asked {w})" for n, h, w in zip(names, have, want) if h != w]
+    sys.exit(f"{path}: holds a run with other settings: {'; '.join(diff)}; remove it first")
+EOF
     "$cac" train --resume "$run" --iterations "$iterations"
 else
     "${train[@]}" --out "$run"

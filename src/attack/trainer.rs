@@ -272,9 +272,7 @@ impl<'a> Trainer<'a> {
         self.state.iteration += 1;
         Ok(log)
     }
-}
 
-impl Trainer<'_> {
     /// The forward pass (loss and proposals) and the gradient with respect to `leaf`, with
     /// their times in ms.
     fn detect_and_differentiate(

@@ -81,7 +81,8 @@ pub fn sample_offsets(n: usize) -> Vec<Vec2> {
 }
 
 impl GBuffer {
-    /// Casts `samples` primary rays per pixel. `ground`: intersect the plane `y = 0` too.
+    /// Casts `samples` primary rays per pixel through the whole image. `ground`: intersect the
+    /// plane `y = 0` too.
     pub fn cast(
         scene: &Scene,
         accel: &Accel,
@@ -89,27 +90,14 @@ impl GBuffer {
         samples: usize,
         ground: bool,
     ) -> GBuffer {
-        Self::cast_with(scene, accel, camera, samples, ground, &|x, y| {
-            camera.ray_dir(x, y)
-        })
+        let rows = 0..camera.intrinsics.height;
+        let ray = |x, y| camera.ray_dir(x, y);
+        Self::cast_rows(scene, accel, camera, samples, ground, &ray, rows)
     }
 
-    /// Like [`GBuffer::cast`], with the world-space ray direction through each image point
-    /// `(px, py)` given by `ray` (unit length; e.g. through a lens-distortion model).
-    pub fn cast_with(
-        scene: &Scene,
-        accel: &Accel,
-        camera: &Camera,
-        samples: usize,
-        ground: bool,
-        ray: &(dyn Fn(f32, f32) -> Vec3 + Sync),
-    ) -> GBuffer {
-        let h = camera.intrinsics.height;
-        Self::cast_rows(scene, accel, camera, samples, ground, ray, 0..h)
-    }
-
-    /// Like [`GBuffer::cast_with`], for the image rows `rows` only: a band of the image, so a
-    /// view can be cast and shaded a band at a time in little memory.
+    /// Casts the image rows `rows` only (a band of the image, so a view can be cast and shaded a
+    /// band at a time in little memory), with the world-space ray direction through each image
+    /// point `(px, py)` given by `ray` (unit length; e.g. through a lens-distortion model).
     pub fn cast_rows(
         scene: &Scene,
         accel: &Accel,
