@@ -11,7 +11,9 @@
 # CenterNet). The run folder stays in runs/ship-OBJECT-TARGET (resumable); the evaluation report in
 # runs/ship-OBJECT-TARGET-eval. Needs a release build (cargo build --release) and python3.
 # TRAIN_SIZE=512 renders the training views at 512² (default 320², the training preset);
-# TRAIN_SPP=2 at 2 samples per pixel (default 1, the training preset).
+# TRAIN_SPP=2 at 2 samples per pixel (default 1, the training preset);
+# TRAIN_SKY_OCCLUSION=0.5 lights half the training views' ambient from an open sky over the ground
+# (environment.sky_occlusion; default 0, the evaluation protocol's ambient).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 object=${1:?object (pickup, jeep, barrel, container)}
@@ -22,7 +24,9 @@ size=${TRAIN_SIZE:-320}
 [[ $size =~ ^[1-9][0-9]*$ ]] || { echo "TRAIN_SIZE must be a positive number of pixels, got '$size'" >&2; exit 2; }
 spp=${TRAIN_SPP:-1}
 [[ $spp =~ ^[1-9][0-9]*$ ]] || { echo "TRAIN_SPP must be a positive number of samples per pixel, got '$spp'" >&2; exit 2; }
-invocation="${TRAIN_SIZE:+TRAIN_SIZE=$TRAIN_SIZE }${TRAIN_SPP:+TRAIN_SPP=$TRAIN_SPP }tools/ship_texture.sh $*"
+sky=${TRAIN_SKY_OCCLUSION:-0.0}
+python3 -c 'import sys; v = float(sys.argv[1]); assert 0 <= v <= 1' "$sky" 2>/dev/null || { echo "TRAIN_SKY_OCCLUSION must be a probability within [0, 1], got '$sky'" >&2; exit 2; }
+invocation="${TRAIN_SIZE:+TRAIN_SIZE=$TRAIN_SIZE }${TRAIN_SPP:+TRAIN_SPP=$TRAIN_SPP }${TRAIN_SKY_OCCLUSION:+TRAIN_SKY_OCCLUSION=$TRAIN_SKY_OCCLUSION }tools/ship_texture.sh $*"
 shift $(( $# < 4 ? $# : 4 ))
 slug=$(echo "$target" | tr ' ' '_')
 # The commit the texture is trained with, read before anything is written; "-dirty" when tracked
@@ -37,22 +41,24 @@ mkdir -p runs
 "$cac" config > "$run.toml.tmp"
 sed -e "s/^mesh = .*/mesh = \"$object\"/" -e "s/^width = 512/width = $size/" \
     -e "s/^height = 512/height = $size/" -e "s/^samples = 4/samples = $spp/" \
-    -e 's/^atlas_res = 512/atlas_res = 256/' "$run.toml.tmp" > "$run.toml"
+    -e 's/^atlas_res = 512/atlas_res = 256/' -e "s/^sky_occlusion = .*/sky_occlusion = $sky/" \
+    "$run.toml.tmp" > "$run.toml"
 rm "$run.toml.tmp"
 train=("$cac" train --config "$run.toml" --target "$target" --iterations "$iterations" --seed 0 "$@")
 if [ -f "$run/run.json" ]; then
     # Resume only the run these settings ask for: an earlier run at another size, sampling,
     # object, target or seed would otherwise be shipped under this command.
-    python3 - "$run/run.json" "$object" "$target" "$size" "$spp" <<'EOF' || exit 2
+    python3 - "$run/run.json" "$object" "$target" "$size" "$spp" "$sky" <<'EOF' || exit 2
 import json, sys
-path, obj, target, size, spp = sys.argv[1:]
+path, obj, target, size, spp, sky = sys.argv[1:]
 r = json.load(open(path))
 render = r["scene"]["render"]
 have = (r["scene"]["object"]["mesh"], r["attack"]["target"], render["width"], render["height"],
-        render["samples"], r["attack"]["seed"])
-want = (obj, target, int(size), int(size), int(spp), 0)
+        render["samples"], r["attack"]["seed"],
+        float(r["scene"]["environment"].get("sky_occlusion", 0.0)))
+want = (obj, target, int(size), int(size), int(spp), 0, float(sky))
 if have != want:
-    names = ("object", "target", "width", "height", "samples", "seed")
+    names = ("object", "target", "width", "height", "samples", "seed", "sky_occlusion")
     diff = [f"{n} {h} (asked {w})" for n, h, w in zip(names, have, want) if h != w]
     sys.exit(f"{path}: holds a run with other settings: {'; '.join(diff)}; remove it first")
 EOF

@@ -108,6 +108,11 @@ pub struct EnvConfig {
     pub noise_std: [f32; 2],
     /// Sun elevation range (degrees).
     pub sun_elevation_deg: [f32; 2],
+    /// Probability that a drawn condition lights the object's ambient from an open sky over the
+    /// ground (`Lighting::sky_occlusion`) rather than from every direction: a physical renderer's
+    /// ambient, which the textures must survive (docs/attack.md, "Second renderer"). Default 0:
+    /// the evaluation protocol's ambient; training configs may raise it.
+    pub sky_occlusion: f32,
     pub bright: LightLevel,
     pub dark: LightLevel,
 }
@@ -132,6 +137,7 @@ impl Default for EnvConfig {
             channel_mul: [0.7, 1.3],
             noise_std: [0.0, 0.1],
             sun_elevation_deg: [25.0, 70.0],
+            sky_occlusion: 0.0,
             bright: LightLevel {
                 ambient: 0.45,
                 sun: 0.70,
@@ -164,6 +170,7 @@ impl EnvConfig {
             ("translate", self.translate),
             ("light_add", self.light_add),
             ("channel_add", self.channel_add),
+            ("sky_occlusion", self.sky_occlusion),
         ] {
             if !(v.is_finite() && (0.0..=1.0).contains(&v)) {
                 bail!("environment.{n} = {v} must be within [0, 1]");
@@ -197,6 +204,9 @@ pub struct Condition {
     pub channel_mul: [f32; 3],
     pub noise_std: f32,
     pub noise_seed: u64,
+    /// The ambient comes from an open sky over the ground (see `EnvConfig::sky_occlusion`).
+    #[serde(default)]
+    pub sky_occlusion: bool,
 }
 
 impl Condition {
@@ -217,6 +227,7 @@ impl Condition {
             channel_mul: [1.0; 3],
             noise_std: 0.0,
             noise_seed: 0,
+            sky_occlusion: false,
         }
     }
 }
@@ -352,6 +363,9 @@ impl Environment {
             channel_mul: [0, 1, 2].map(|_| u(rng, c.channel_mul)),
             noise_std: u(rng, c.noise_std),
             noise_seed: rng.random(),
+            // Drawn last, and only when asked for: the draws of every other field, and so the
+            // protocol's views, stay as they were.
+            sky_occlusion: c.sky_occlusion > 0.0 && rng.random_bool(c.sky_occlusion as f64),
         }
     }
 
@@ -375,12 +389,18 @@ impl Environment {
             Brightness::Bright => self.config.bright,
             Brightness::Dark => self.config.dark,
         };
-        Lighting::sun_at(
+        let mut l = Lighting::sun_at(
             lv.ambient,
             lv.sun,
             cond.sun_azimuth_deg,
             cond.sun_elevation_deg,
-        )
+        );
+        if cond.sky_occlusion && self.config.ground {
+            let g = &self.grounds[cond.ground_texture.min(self.grounds.len() - 1)];
+            let [r, gr, b] = crate::render::shade::mean_colour(g);
+            l.sky_occlusion = Some((r + gr + b) / 3.0);
+        }
+        l
     }
 
     /// The background and ground of a condition.

@@ -10,7 +10,8 @@
 //! - light: cac multiplies display (sRGB) values by `ambient + sun·cos`; Blender works in linear
 //!   light, so the uniform world's strength is `lin(ambient)` and the sun's irradiance is
 //!   `π (lin(ambient + sun) − lin(ambient))`: a white surface facing the sun, or in shade under an
-//!   open sky, gets the same display value in both. The ground, GI, soft sky occlusion and
+//!   open sky, gets the same display value in both ([`Shading`] takes this step by step towards
+//!   cac's own image formation, to find where a texture's loss comes from). The ground, GI, soft sky occlusion and
 //!   Fresnel reflections are Cycles' own (that is the point of a second renderer);
 //! - materials: Principled BSDF, base colour = texture or colour (sRGB decoded), roughness from the
 //!   Blinn-Phong exponent (`(2 / (n + 2))^¼`), reflectance at normal incidence as cac's mirror
@@ -20,7 +21,7 @@
 //!   the far ground is not reproduced).
 //!
 //! Sampling: `samples` per pixel (box filter one pixel wide), no denoising by default, a fixed
-//! seed. The object mask comes from a second view layer in which the ground is a holdout: its
+//! seed; `bounces` light bounces (0: direct light only). The object mask comes from a second view layer in which the ground is a holdout: its
 //! alpha is the object's coverage, from which the ground-truth box is taken as in cac.
 
 use super::{ImageScore, Protocol, Scorer};
@@ -48,6 +49,17 @@ pub struct BlenderSettings {
     pub samples: usize,
     /// Samples of the coverage mask.
     pub mask_samples: usize,
+    /// Cycles' light-path bounce limit (default 4, diffuse and glossy at most 2); 0 renders
+    /// direct light only (sun and sky with their shadows, no bounce light), the closest to cac's
+    /// own shading, to tell a loss from indirect light apart from one from the rest.
+    pub bounces: usize,
+    /// How Cycles forms the image: physically (the default), or step by step closer to cac's own
+    /// image formation, to tell which difference a texture's loss comes from.
+    pub shading: Shading,
+    /// Glossy rays that leave for the sky see the sky cac composites behind the object (its
+    /// horizon-to-zenith gradient, decoded in linear light) rather than the uniform ambient world
+    /// (always so with cac's surfaces).
+    pub sky_reflections: bool,
     /// CPU threads (0: Blender's choice).
     pub threads: usize,
     /// Denoise (OpenImageDenoise, when the Blender build has it).
@@ -65,10 +77,47 @@ impl Default for BlenderSettings {
                 .unwrap_or_else(|| "blender".into()),
             samples: 32,
             mask_samples: 16,
+            bounces: 4,
+            shading: Shading::Linear,
+            sky_reflections: false,
             threads: 0,
             denoise: false,
             work_dir: std::env::var_os("CAC_BLENDER_WORK").map(PathBuf::from),
         }
+    }
+}
+
+/// How Cycles forms the image: see [`BlenderSettings::shading`]. Each step towards cac's own
+/// image formation keeps the one before it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Shading {
+    /// Physical: colours and textures decoded from sRGB, lights converted so that a white
+    /// surface facing the sun or the open sky shows cac's display value, Principled BSDF, the
+    /// ambient a uniform world (occluded by the ground and the body), the image encoded to sRGB.
+    Linear,
+    /// As `Linear`, but colours, textures and light levels taken as display values and the image
+    /// written as computed (view transform "Raw"): albedo × light on display values, as in cac.
+    Display,
+    /// As `Display`, with cac's surfaces: a Lambert diffuse, a GGX glossy lobe weighted by cac's
+    /// gloss × dielectric Fresnel, and glossy rays that leave for the sky seeing cac's reflected
+    /// sky (horizon to zenith by the square root of the ray's height); the ambient is still the
+    /// uniform world, occluded by the ground and the body.
+    CacSurfaces,
+    /// As `CacSurfaces`, with cac's ambient term: albedo × ambient whatever occludes the sky (an
+    /// emission; the world lights glossy rays only). Left to Cycles: shadows, the highlight's
+    /// shape (GGX), bounce light and its sampling.
+    Cac,
+}
+
+/// The horizon and zenith colours cac's mirror term reflects (`shade`'s environment colour above
+/// the horizon): the sky's, a flat background's colour, an image background's mean.
+fn reflected_sky(bg: &render::Background) -> [[f32; 3]; 2] {
+    match bg {
+        render::Background::Sky {
+            horizon, zenith, ..
+        } => [*horizon, *zenith],
+        render::Background::Color(c) => [*c, *c],
+        render::Background::Image(img) => [shade::mean_colour(img); 2],
     }
 }
 
@@ -209,12 +258,17 @@ pub fn render_views(
     }
     obj_write::write_obj(&scene, dir, "object")?;
     let mut materials = serde_json::Map::new();
+    let decode = |x: f32| match s.shading {
+        Shading::Linear => srgb_to_linear(x),
+        Shading::Display | Shading::CacSurfaces | Shading::Cac => x,
+    };
+    let cac_surfaces = matches!(s.shading, Shading::CacSurfaces | Shading::Cac);
     for (m, &p) in scene.materials.iter().zip(&scene.paintable) {
         let rough = (2.0 / (m.shininess.max(0.0) + 2.0)).powf(0.25);
         materials.insert(
             m.name.clone(),
             json!({
-                "color": m.base_color.map(srgb_to_linear),
+                "color": m.base_color.map(decode),
                 "texture": m.texture.map(|t| format!("object_tex{t}.png")),
                 "paintable": p,
                 "roughness": rough,
@@ -248,10 +302,10 @@ pub fn render_views(
         let cam = r.camera(&c.viewpoint)?;
         let light = env.lighting(c);
         let backdrop = env.backdrop(c);
-        let amb = srgb_to_linear(light.ambient);
+        let amb = decode(light.ambient);
         let sun = (light.sun > 0.0).then(|| {
             json!({
-                "strength": std::f32::consts::PI * (srgb_to_linear(light.ambient + light.sun) - amb),
+                "strength": std::f32::consts::PI * (decode(light.ambient + light.sun) - amb),
                 "matrix_world": sun_matrix(light.sun_dir),
             })
         });
@@ -278,6 +332,8 @@ pub fn render_views(
         views.push(json!({
             "camera": blender_camera(&cam),
             "world_strength": amb,
+            "reflected_sky": (cac_surfaces || s.sky_reflections)
+                .then(|| reflected_sky(&backdrop.background).map(|c| c.map(decode))),
             "sun": sun,
             "ground": ground,
             "paint_texture": paint,
@@ -290,6 +346,11 @@ pub fn render_views(
         "obj": "object.obj",
         "width": r.settings.width, "height": r.settings.height,
         "samples": s.samples, "mask_samples": s.mask_samples, "threads": s.threads,
+        "bounces": s.bounces,
+        "display_values": s.shading != Shading::Linear,
+        "cac_surfaces": cac_surfaces,
+        "cac_ambient": s.shading == Shading::Cac,
+        "sky_reflections": s.sky_reflections,
         "denoise": s.denoise, "seed": 0, "ground_half_size": 1000.0,
         "materials": materials,
         "ground_textures": grounds.iter().map(|(_, n)| n.clone()).collect::<Vec<_>>(),

@@ -144,8 +144,10 @@ pub fn run(
                 "distance_ratio",
                 "nanodet_hit",
                 "nanodet_conf",
+                "nanodet_targeted",
                 "centernet_hit",
                 "centernet_conf",
+                "centernet_targeted",
             ]),
         },
     };
@@ -306,8 +308,10 @@ impl Bench<'_> {
                 format!("{:.2}", v.distance_ratio),
                 (n.hit as u8).to_string(),
                 format!("{:.3}", n.best_true_conf),
+                (n.targeted as u8).to_string(),
                 (c.hit as u8).to_string(),
                 format!("{:.3}", c.best_true_conf),
+                (c.targeted as u8).to_string(),
             ]);
         }
         let (n, c) = (super::summarise(&scores[0]), super::summarise(&scores[1]));

@@ -72,6 +72,7 @@ impl DigitalTwin {
             ambient: t.ambient,
             sun: t.lamp,
             sun_dir: rig.lamp_dir(pose.angle_deg),
+            sky_occlusion: None,
         };
         let backdrop = Backdrop {
             background: Background::Color(t.background),

@@ -21,6 +21,12 @@ pub struct Lighting {
     pub sun: f32,
     /// Unit vector towards the sun.
     pub sun_dir: Vec3,
+    /// `None`: the object's ambient light comes from every direction alike. `Some(albedo)`: it
+    /// comes from an open sky over a ground of that albedo (display value): a surface whose
+    /// normal has height `n_y` sees the sky with weight `(1 + n_y) / 2` and the lit ground, whose
+    /// light is `albedo × (ambient + sun × sun_y)`, with weight `(1 − n_y) / 2`, as a physical
+    /// renderer finds it (the body's occlusion of itself is not modelled).
+    pub sky_occlusion: Option<f32>,
 }
 
 impl Lighting {
@@ -31,6 +37,7 @@ impl Lighting {
             ambient,
             sun,
             sun_dir: Vec3::new(e.cos() * a.cos(), e.sin(), e.cos() * a.sin()),
+            sky_occlusion: None,
         }
     }
 }
@@ -120,6 +127,14 @@ pub fn sample(tex: &Texture, uv: Vec2) -> [f32; 3] {
     out
 }
 
+/// The mean texel of a texture (what reflections show of an image background).
+pub fn mean_colour(t: &Texture) -> [f32; 3] {
+    let n = t.texels.len().max(1) as f32;
+    t.texels.iter().fold([0.0f32; 3], |a, t| {
+        [a[0] + t[0] / n, a[1] + t[1] / n, a[2] + t[2] / n]
+    })
+}
+
 /// The colour the environment shows in direction `r` (sky above the horizon, lit ground below),
 /// for reflections.
 fn environment_colour(
@@ -190,12 +205,7 @@ pub fn plan(
     let shadows = light.sun > 0.0;
     let eps = 1e-3 * (g.camera.eye.length() + 1.0);
     let image_mean = match &backdrop.background {
-        Background::Image(img) => {
-            let n = img.texels.len().max(1) as f32;
-            img.texels.iter().fold([0.0f32; 3], |a, t| {
-                [a[0] + t[0] / n, a[1] + t[1] / n, a[2] + t[2] / n]
-            })
-        }
+        Background::Image(img) => mean_colour(img),
         _ => [0.0; 3],
     };
     struct Px {
@@ -270,7 +280,16 @@ pub fn plan(
                         } else {
                             1.0
                         };
-                        let diffuse = light.ambient + light.sun * ndl.max(0.0) * vis;
+                        let ambient = match light.sky_occlusion {
+                            None => light.ambient,
+                            Some(albedo) => {
+                                let sky = 0.5 + 0.5 * n.y.clamp(-1.0, 1.0);
+                                let ground =
+                                    albedo * (light.ambient + light.sun * light.sun_dir.y.max(0.0));
+                                light.ambient * sky + ground * (1.0 - sky)
+                            }
+                        };
+                        let diffuse = ambient + light.sun * ndl.max(0.0) * vis;
                         let h = (light.sun_dir - sm.dir).normalize_or_zero();
                         let spec = if ndl > 0.0 {
                             mat.specular * light.sun * vis * n.dot(h).max(0.0).powf(mat.shininess)

@@ -33,10 +33,11 @@ cy.samples = job["samples"]
 cy.use_adaptive_sampling = False
 cy.use_denoising = bool(job.get("denoise", False))
 cy.seed = job.get("seed", 0)
-cy.max_bounces = 4
-cy.diffuse_bounces = 2
-cy.glossy_bounces = 2
-cy.transmission_bounces = 2
+bounces = job.get("bounces", 4)
+cy.max_bounces = bounces
+cy.diffuse_bounces = min(bounces, 2)
+cy.glossy_bounces = min(bounces, 2)
+cy.transmission_bounces = min(bounces, 2)
 cy.pixel_filter_type = "BOX"
 cy.filter_width = 1.0
 if job.get("threads", 0) > 0:
@@ -52,7 +53,15 @@ scene.render.dither_intensity = 0.0
 scene.render.image_settings.file_format = "PNG"
 scene.render.image_settings.color_mode = "RGBA"
 scene.render.image_settings.color_depth = "8"
-scene.view_settings.view_transform = "Standard"
+# Display values (cac's own shading space): colours and textures are not decoded and the image is
+# written as computed. Otherwise colours are decoded from sRGB and the image encoded to it.
+display_values = bool(job.get("display_values", False))
+# cac's surfaces (with display values only): Lambert + Fresnel-weighted GGX gloss, cac's sky in
+# reflections; without them, Principled BSDF. cac's ambient (with cac's surfaces only): an
+# unoccluded emission; without it, the uniform world.
+cac_surfaces = display_values and bool(job.get("cac_surfaces", False))
+cac_ambient = cac_surfaces and bool(job.get("cac_ambient", False))
+scene.view_settings.view_transform = "Raw" if display_values else "Standard"
 scene.view_settings.look = "None"
 scene.view_settings.exposure = 0.0
 scene.view_settings.gamma = 1.0
@@ -79,11 +88,48 @@ for o in imported:
 
 def image(p, colour=True):
     img = bpy.data.images.load(path(p), check_existing=True)
-    img.colorspace_settings.name = "sRGB" if colour else "Non-Color"
+    img.colorspace_settings.name = "sRGB" if colour and not display_values else "Non-Color"
     return img
 
 
 paint_nodes = []
+# With cac's surfaces the ambient term is cac's: albedo × ambient, seen whatever occludes the
+# sky, an emission whose strength is set per view (the world lights glossy rays only).
+ambient_nodes = []
+
+
+def cac_like(nt, albedo_out, col, gloss, roughness):
+    """cac's surface model from Cycles' parts: a Lambert diffuse of the albedo (no energy taken
+    by the coat), a GGX glossy lobe weighted by gloss × dielectric Fresnel (F0 = 0.04) for the
+    highlight and the mirror term, and the albedo × ambient emission."""
+    diff = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    em = nt.nodes.new("ShaderNodeEmission")
+    if albedo_out is None:
+        diff.inputs["Color"].default_value = col
+        em.inputs["Color"].default_value = col
+    else:
+        nt.links.new(albedo_out, diff.inputs["Color"])
+        nt.links.new(albedo_out, em.inputs["Color"])
+    ambient_nodes.append(em)
+    add = nt.nodes.new("ShaderNodeAddShader")
+    nt.links.new(diff.outputs["BSDF"], add.inputs[0])
+    nt.links.new(em.outputs["Emission"], add.inputs[1])
+    if gloss <= 0.0:
+        return add.outputs["Shader"]
+    glossy = nt.nodes.new("ShaderNodeBsdfGlossy")
+    glossy.distribution = "GGX"
+    glossy.inputs["Roughness"].default_value = roughness
+    fres = nt.nodes.new("ShaderNodeFresnel")
+    fres.inputs["IOR"].default_value = 1.5
+    weight = nt.nodes.new("ShaderNodeMath")
+    weight.operation = "MULTIPLY"
+    weight.inputs[1].default_value = gloss
+    nt.links.new(fres.outputs["Fac"], weight.inputs[0])
+    nt.links.new(weight.outputs[0], glossy.inputs["Color"])
+    add2 = nt.nodes.new("ShaderNodeAddShader")
+    nt.links.new(add.outputs["Shader"], add2.inputs[0])
+    nt.links.new(glossy.outputs["BSDF"], add2.inputs[1])
+    return add2.outputs["Shader"]
 
 
 def build_material(mat, spec):
@@ -91,13 +137,8 @@ def build_material(mat, spec):
     nt = mat.node_tree
     nt.nodes.clear()
     out = nt.nodes.new("ShaderNodeOutputMaterial")
-    bsdf = nt.nodes.new("ShaderNodeBsdfPrincipled")
-    nt.links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
-    bsdf.inputs["Roughness"].default_value = spec["roughness"]
-    bsdf.inputs["Specular"].default_value = spec["specular"]
-    bsdf.inputs["Metallic"].default_value = 0.0
     col = spec["color"] + [1.0]
-    bsdf.inputs["Base Color"].default_value = col
+    albedo = None
     tex = spec.get("texture")
     if spec["paintable"] or tex:
         t = nt.nodes.new("ShaderNodeTexImage")
@@ -107,14 +148,27 @@ def build_material(mat, spec):
             t.image = image(tex)
         if spec["paintable"]:
             paint_nodes.append(t)
-            nt.links.new(t.outputs["Color"], bsdf.inputs["Base Color"])
+            albedo = t.outputs["Color"]
         else:
             mix = nt.nodes.new("ShaderNodeMixRGB")
             mix.blend_type = "MULTIPLY"
             mix.inputs["Fac"].default_value = 1.0
             mix.inputs["Color2"].default_value = col
             nt.links.new(t.outputs["Color"], mix.inputs["Color1"])
-            nt.links.new(mix.outputs["Color"], bsdf.inputs["Base Color"])
+            albedo = mix.outputs["Color"]
+    if cac_surfaces:
+        # The job's Principled "specular" is F0 / 0.08 = 0.5 × cac's gloss.
+        shader = cac_like(nt, albedo, col, 2.0 * spec["specular"], spec["roughness"])
+    else:
+        bsdf = nt.nodes.new("ShaderNodeBsdfPrincipled")
+        bsdf.inputs["Roughness"].default_value = spec["roughness"]
+        bsdf.inputs["Specular"].default_value = spec["specular"]
+        bsdf.inputs["Metallic"].default_value = 0.0
+        bsdf.inputs["Base Color"].default_value = col
+        if albedo is not None:
+            nt.links.new(albedo, bsdf.inputs["Base Color"])
+        shader = bsdf.outputs["BSDF"]
+    nt.links.new(shader, out.inputs["Surface"])
 
 
 specs = job["materials"]
@@ -143,21 +197,55 @@ gmat.use_nodes = True
 gnt = gmat.node_tree
 gnt.nodes.clear()
 gout = gnt.nodes.new("ShaderNodeOutputMaterial")
-gdiff = gnt.nodes.new("ShaderNodeBsdfDiffuse")
 gtex = gnt.nodes.new("ShaderNodeTexImage")
 gtex.interpolation = "Linear"
 gtex.extension = "REPEAT"
-gnt.links.new(gtex.outputs["Color"], gdiff.inputs["Color"])
-gnt.links.new(gdiff.outputs["BSDF"], gout.inputs["Surface"])
+if cac_surfaces:
+    gshader = cac_like(gnt, gtex.outputs["Color"], None, 0.0, 1.0)
+else:
+    gdiff = gnt.nodes.new("ShaderNodeBsdfDiffuse")
+    gnt.links.new(gtex.outputs["Color"], gdiff.inputs["Color"])
+    gshader = gdiff.outputs["BSDF"]
+gnt.links.new(gshader, gout.inputs["Surface"])
 gmesh.materials.append(gmat)
 ground_images = [image(p) for p in job.get("ground_textures", [])]
 
 # ---- world (uniform ambient) and sun ---------------------------------------------------------
 world = bpy.data.worlds.new("ambient")
 world.use_nodes = True
-bg = world.node_tree.nodes["Background"]
+wnt = world.node_tree
+bg = wnt.nodes["Background"]
 bg.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
 scene.world = world
+# With sky reflections (always with cac's surfaces), glossy rays see cac's reflected sky: horizon
+# to zenith by sqrt(max(y, 0)) of the ray's direction (cac's frame, +Y up), at full strength;
+# other rays see the uniform ambient (black with cac's ambient: the ambient term is then the
+# materials' emission). The world is not sampled as a light, so that each ray sees the world its
+# kind sees (a uniform world is found as well by BSDF sampling).
+sky_nodes = None
+if cac_surfaces or job.get("sky_reflections", False):
+    world.cycles.sampling_method = "NONE"
+    coord = wnt.nodes.new("ShaderNodeTexCoord")
+    xyz = wnt.nodes.new("ShaderNodeSeparateXYZ")
+    wnt.links.new(coord.outputs["Generated"], xyz.inputs["Vector"])
+    up = wnt.nodes.new("ShaderNodeMath")
+    up.operation = "MAXIMUM"
+    up.inputs[1].default_value = 0.0
+    wnt.links.new(xyz.outputs["Y"], up.inputs[0])
+    root_t = wnt.nodes.new("ShaderNodeMath")
+    root_t.operation = "SQRT"
+    wnt.links.new(up.outputs[0], root_t.inputs[0])
+    sky = wnt.nodes.new("ShaderNodeMixRGB")
+    sky.blend_type = "MIX"
+    wnt.links.new(root_t.outputs[0], sky.inputs["Fac"])
+    path_node = wnt.nodes.new("ShaderNodeLightPath")
+    pick = wnt.nodes.new("ShaderNodeMixRGB")
+    pick.blend_type = "MIX"
+    wnt.links.new(path_node.outputs["Is Glossy Ray"], pick.inputs["Fac"])
+    wnt.links.new(sky.outputs["Color"], pick.inputs["Color2"])
+    wnt.links.new(pick.outputs["Color"], bg.inputs["Color"])
+    bg.inputs["Strength"].default_value = 1.0
+    sky_nodes = (sky, pick)
 
 sun_data = bpy.data.lights.new("sun", "SUN")
 sun_data.angle = math.radians(0.53)
@@ -211,7 +299,17 @@ for i, v in enumerate(job["views"]):
     from mathutils import Matrix
 
     cam.matrix_world = Matrix(c["matrix_world"])
-    bg.inputs["Strength"].default_value = v["world_strength"]
+    if sky_nodes is None:
+        bg.inputs["Strength"].default_value = v["world_strength"]
+    else:
+        sky, pick = sky_nodes
+        a = 0.0 if cac_ambient else v["world_strength"]
+        pick.inputs["Color1"].default_value = (a, a, a, 1.0)
+        for em in ambient_nodes:
+            em.inputs["Strength"].default_value = v["world_strength"] if cac_ambient else 0.0
+        horizon, zenith = v["reflected_sky"]
+        sky.inputs["Color1"].default_value = tuple(horizon) + (1.0,)
+        sky.inputs["Color2"].default_value = tuple(zenith) + (1.0,)
     s = v.get("sun")
     if s is None:
         sun.hide_render = True

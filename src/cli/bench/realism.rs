@@ -31,6 +31,17 @@ pub struct Args {
     /// Cycles samples per pixel for the Blender renderer.
     #[arg(long, default_value_t = 32)]
     pub blender_samples: usize,
+    /// Cycles' light bounces for the Blender renderer (0: direct light only).
+    #[arg(long, default_value_t = 4)]
+    pub blender_bounces: usize,
+    /// How the Blender renderer forms the image: linear (physical), display (light × colour on
+    /// display values, as cac does), cac-surfaces (and cac's surface model and reflected sky)
+    /// or cac (and cac's unoccluded ambient).
+    #[arg(long, value_enum, default_value = "linear")]
+    pub blender_shading: blender::Shading,
+    /// Blender's glossy rays see cac's sky rather than the uniform ambient world.
+    #[arg(long)]
+    pub blender_sky_reflections: bool,
     /// CSV output file.
     #[arg(long, default_value = "bench-realism.csv")]
     pub csv: PathBuf,
@@ -48,7 +59,9 @@ pub fn run(a: Args) -> Result<()> {
     job.cfg = SceneConfig::from_file_or(a.config.as_deref(), SceneConfig::default)?;
     let r = &mut job.cfg.render;
     (r.width, r.height, r.samples) = (a.size, a.size, a.samples);
-    job.blender.samples = a.blender_samples;
+    let b = &mut job.blender;
+    (b.samples, b.bounces, b.shading) = (a.blender_samples, a.blender_bounces, a.blender_shading);
+    b.sky_reflections = a.blender_sky_reflections;
     job.protocol = Protocol::from_labels("car,truck", a.target.as_deref())?;
     let dev = device::inference();
     let dets = detect::load_all(&["nanodet", "centernet"], None, &dev)?;
@@ -56,8 +69,8 @@ pub fn run(a: Args) -> Result<()> {
         println!("renderer 2: {}", blender::check(&job.blender)?);
     }
     println!(
-        "P@0.5 = car/truck at IoU >= 0.5, conf >= 0.3; {}² px, {} spp (cac), {} spp (Blender); {} views per row; photometric transforms {}",
-        a.size, a.samples, a.blender_samples, job.views, if job.photometric { "on" } else { "off" }
+        "P@0.5 = car/truck at IoU >= 0.5, conf >= 0.3; {}² px, {} spp (cac), {} spp, {} bounces, {:?} shading (Blender); {} views per row; photometric transforms {}",
+        a.size, a.samples, a.blender_samples, a.blender_bounces, a.blender_shading, job.views, if job.photometric { "on" } else { "off" }
     );
     // The columns of `print_row`.
     println!("mesh             renderer texture   set        light   nanodet       conf   target centernet       conf   target      s");
