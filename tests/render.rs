@@ -503,3 +503,99 @@ fn the_milk_truck_loads_normalised_with_only_its_body_paintable() {
         .count();
     assert_eq!(wheels, 2 * 2304 / 3);
 }
+
+/// Per pixel, the sum of the atlas taps' weights: the light the paint receives there.
+fn paint_light(p: &render::RenderPlan) -> Vec<f64> {
+    let mut l = vec![0f64; p.width * p.height];
+    for (&px, &w) in p.tap_pixel.iter().zip(&p.tap_weight) {
+        l[px as usize] += w as f64;
+    }
+    l
+}
+
+/// `environment.sky_occlusion`: with the sun off, the paint's light under an open sky over the
+/// ground is the uniform ambient times `(1 + n_y)/2 + albedo (1 − n_y)/2`: unchanged on the
+/// roof seen from above, about `(1 + albedo)/2` on the sides seen level, never outside
+/// `[albedo, 1]`; and a condition without it is lit exactly as before. Drawing it is the last
+/// draw of a condition, so the protocol's views keep every other field.
+#[test]
+fn sky_occlusion_lights_the_sides_from_sky_and_ground() {
+    let mut sc = generate::pickup();
+    sc.normalise(0.0, None);
+    let r = Renderer::new(sc, small(96, 2, 64)).unwrap();
+    let level = environment::LightLevel {
+        ambient: 0.5,
+        sun: 0.0,
+    };
+    let env = Environment::new(EnvConfig {
+        bright: level,
+        dark: level,
+        ..Default::default()
+    })
+    .unwrap();
+    let view = |az: f32, el: f32, occluded: bool| {
+        let mut c = Condition::plain(Viewpoint::new(az, el, 1.6), Brightness::Bright);
+        c.sky_occlusion = occluded;
+        c
+    };
+    let albedo = env
+        .lighting(&view(0.0, 0.0, true))
+        .sky_occlusion
+        .expect("a condition with sky occlusion over a ground carries the ground's albedo")
+        as f64;
+    assert!(albedo > 0.05 && albedo < 0.95, "ground albedo {albedo}");
+    assert_eq!(env.lighting(&view(0.0, 0.0, false)).sky_occlusion, None);
+    let ratios = |az: f32, el: f32| {
+        let open = environment::plan(&r, &env, &view(az, el, false)).unwrap();
+        let occl = environment::plan(&r, &env, &view(az, el, true)).unwrap();
+        assert_eq!(open.tap_texel, occl.tap_texel, "the same paint is seen");
+        let (lo, lc) = (paint_light(&open), paint_light(&occl));
+        let mut q: Vec<f64> = lo
+            .iter()
+            .zip(&lc)
+            .filter(|(o, _)| **o > 0.45) // pixels fully painted (ambient 0.5)
+            .map(|(o, c)| c / o)
+            .collect();
+        assert!(q.len() > 100, "{} painted pixels", q.len());
+        for &x in &q {
+            assert!(x > albedo - 1e-4 && x < 1.0 + 1e-4, "ratio {x}");
+        }
+        q.sort_by(f64::total_cmp);
+        q[q.len() / 2]
+    };
+    let top = ratios(30.0, 85.0);
+    assert!(top > 0.97, "roof from above: median ratio {top}");
+    let side = ratios(90.0, 0.0);
+    let want = (1.0 + albedo) / 2.0;
+    assert!(
+        (side - want).abs() < 0.05,
+        "side seen level: median ratio {side}, expected about {want}"
+    );
+    // The draw comes last: with probability 1 every other field is what probability 0 draws.
+    let with = |p: f32| {
+        Environment::new(EnvConfig {
+            sky_occlusion: p,
+            ..Default::default()
+        })
+        .unwrap()
+        .sample_n(16, ViewpointSet::Free, Brightness::Bright, 5)
+    };
+    let (none, all) = (with(0.0), with(1.0));
+    for (a, b) in none.iter().zip(&all) {
+        assert!(!a.sky_occlusion && b.sky_occlusion);
+        assert_eq!(
+            &Condition {
+                sky_occlusion: false,
+                ..b.clone()
+            },
+            a
+        );
+    }
+    let e = Environment::new(EnvConfig {
+        sky_occlusion: 1.5,
+        ..Default::default()
+    })
+    .err()
+    .expect("a probability above 1 is refused");
+    assert!(format!("{e:#}").contains("sky_occlusion"), "{e:#}");
+}

@@ -93,15 +93,16 @@ def image(p, colour=True):
 
 
 paint_nodes = []
-# With cac's surfaces the ambient term is cac's: albedo × ambient, seen whatever occludes the
-# sky, an emission whose strength is set per view (the world lights glossy rays only).
+# cac's surfaces carry cac's ambient term, albedo × ambient whatever occludes the sky, as an
+# emission whose strength is set per view: the ambient with cac's ambient (the world then lights
+# glossy rays only), else 0 (the world lights every ray).
 ambient_nodes = []
 
 
 def cac_like(nt, albedo_out, col, gloss, roughness):
     """cac's surface model from Cycles' parts: a Lambert diffuse of the albedo (no energy taken
     by the coat), a GGX glossy lobe weighted by gloss × dielectric Fresnel (F0 = 0.04) for the
-    highlight and the mirror term, and the albedo × ambient emission."""
+    highlight and the mirror term, and the albedo × ambient emission (see ambient_nodes)."""
     diff = nt.nodes.new("ShaderNodeBsdfDiffuse")
     em = nt.nodes.new("ShaderNodeEmission")
     if albedo_out is None:
