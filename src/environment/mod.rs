@@ -396,11 +396,15 @@ impl Environment {
             cond.sun_elevation_deg,
         );
         if cond.sky_occlusion && self.config.ground {
-            let g = &self.grounds[cond.ground_texture.min(self.grounds.len() - 1)];
-            let [r, gr, b] = crate::render::shade::mean_colour(g);
+            let [r, gr, b] = crate::render::shade::mean_colour(self.ground(cond));
             l.sky_occlusion = Some((r + gr + b) / 3.0);
         }
         l
+    }
+
+    /// The ground texture a condition draws.
+    fn ground(&self, cond: &Condition) -> &Arc<Texture> {
+        &self.grounds[cond.ground_texture.min(self.grounds.len() - 1)]
     }
 
     /// The background and ground of a condition.
@@ -425,7 +429,7 @@ impl Environment {
             },
         };
         let ground = self.config.ground.then(|| Ground {
-            texture: self.grounds[cond.ground_texture.min(self.grounds.len() - 1)].clone(),
+            texture: self.ground(cond).clone(),
             tile_m: self.config.ground_tile_m,
             offset: Vec2::from(cond.ground_offset),
         });

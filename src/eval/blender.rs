@@ -10,9 +10,10 @@
 //! - light: cac multiplies display (sRGB) values by `ambient + sun·cos`; Blender works in linear
 //!   light, so the uniform world's strength is `lin(ambient)` and the sun's irradiance is
 //!   `π (lin(ambient + sun) − lin(ambient))`: a white surface facing the sun, or in shade under an
-//!   open sky, gets the same display value in both ([`Shading`] takes this step by step towards
-//!   cac's own image formation, to find where a texture's loss comes from). The ground, GI, soft sky occlusion and
-//!   Fresnel reflections are Cycles' own (that is the point of a second renderer);
+//!   open sky, gets the same display value in both. The ground, GI, soft sky occlusion and
+//!   Fresnel reflections are Cycles' own (that is the point of a second renderer); [`Shading`]
+//!   takes Cycles step by step towards cac's own image formation instead, to find which
+//!   difference a texture's loss comes from;
 //! - materials: Principled BSDF, base colour = texture or colour (sRGB decoded), roughness from the
 //!   Blinn-Phong exponent (`(2 / (n + 2))^¼`), reflectance at normal incidence as cac's mirror
 //!   term (`0.04 · min(1.5 · specular, 1)`);
@@ -21,8 +22,9 @@
 //!   the far ground is not reproduced).
 //!
 //! Sampling: `samples` per pixel (box filter one pixel wide), no denoising by default, a fixed
-//! seed; `bounces` light bounces (0: direct light only). The object mask comes from a second view layer in which the ground is a holdout: its
-//! alpha is the object's coverage, from which the ground-truth box is taken as in cac.
+//! seed; `bounces` light bounces (0: direct light only). The object mask comes from a second
+//! view layer in which the ground is a holdout: its alpha is the object's coverage, from which
+//! the ground-truth box is taken as in cac.
 
 use super::{ImageScore, Protocol, Scorer};
 use crate::detect::Detector;
@@ -67,6 +69,33 @@ pub struct BlenderSettings {
     /// Keep the job folder here (default: `$CAC_BLENDER_WORK`, else a temporary folder that is
     /// removed afterwards).
     pub work_dir: Option<PathBuf>,
+}
+
+impl BlenderSettings {
+    /// The renderer's name in tables: "blender" with the default image formation, else the
+    /// settings that differ from it (e.g. "blender:cac,b0"), so rows of different settings
+    /// cannot be mistaken for each other.
+    pub fn label(&self) -> String {
+        let mut parts = vec![];
+        if self.shading != Shading::Linear {
+            use clap::ValueEnum;
+            let v = self
+                .shading
+                .to_possible_value()
+                .expect("no skipped variants");
+            parts.push(v.get_name().to_string());
+        }
+        if self.bounces != 4 {
+            parts.push(format!("b{}", self.bounces));
+        }
+        if self.sky_reflections {
+            parts.push("sky".into());
+        }
+        match parts.is_empty() {
+            true => "blender".into(),
+            false => format!("blender:{}", parts.join(",")),
+        }
+    }
 }
 
 impl Default for BlenderSettings {

@@ -239,7 +239,10 @@ impl Bench<'_> {
                         let (scores, images) = self.score(which, &r, &env, &conds, &atlas)?;
                         let key = [
                             stem(mesh),
-                            format!("{which:?}").to_lowercase(),
+                            match which {
+                                Which::Cac => "cac".to_string(),
+                                Which::Blender => a.blender.label(),
+                            },
                             stem(tname),
                             format!("{set:?}").to_lowercase(),
                             format!("{b:?}").to_lowercase(),
