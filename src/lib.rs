@@ -5,9 +5,10 @@
 //! forward only. A module names only modules of an earlier rank (modules joined by `/` share one
 //! and do not name each other; `tests/import_graph.rs` checks it against this line):
 //!
-//! `io` / `report` → `scene` → `render` → `environment` → `config` → `detect` → `attack` / `eval` → `export` / `physical` / `study` → `sim` / `video`
+//! `io` / `memory` / `report` → `scene` → `render` → `environment` → `config` → `detect` → `attack` / `eval` → `export` / `physical` / `study` → `sim` / `video`
 //!
-//! `io` and `report` are the shared floor (files, tables, plots, HTML, drawn labels); `config`
+//! `io`, `memory` and `report` are the shared floor (files, the memory budget, tables, plots, HTML,
+//! drawn labels); `config`
 //! holds the scene config and the named presets; `study` holds the experiments that train with
 //! `attack` and judge with `eval` (the studies, the demo, the attack benchmark); `sim` is the
 //! simulated turntable firmware that `physical`'s driver talks to, and the simulated rig around it; `video` scores recordings
@@ -23,6 +24,7 @@ pub mod environment;
 pub mod eval;
 pub mod export;
 pub mod io;
+pub mod memory;
 pub mod physical;
 pub mod render;
 pub mod report;

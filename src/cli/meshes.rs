@@ -1,7 +1,8 @@
-//! `cac meshes generate`: writes the built-in default objects as OBJ + MTL + PNG.
+//! `cac meshes generate`: writes the built-in default objects as OBJ + MTL + PNG;
+//! `cac meshes hostile`: writes the seeded hostile meshes (`cac::scene::hostile`).
 
 use anyhow::Result;
-use cac::scene::{generate, obj_write};
+use cac::scene::{generate, hostile, obj_write};
 use std::path::PathBuf;
 
 #[derive(clap::Subcommand, Debug)]
@@ -10,6 +11,17 @@ pub enum Cmd {
     Generate {
         #[arg(long, default_value = "meshes")]
         out: PathBuf,
+    },
+    /// Write the hostile meshes (tiled UVs, 1 mm to 1 km, NaN vertices, 1 M triangles, 10 k
+    /// parts, missing files, ...) to try a pipeline on; each says what cac must do with it.
+    Hostile {
+        #[arg(long, default_value = "hostile")]
+        out: PathBuf,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Only these cases (comma-separated; default: all).
+        #[arg(long, value_delimiter = ',')]
+        cases: Vec<String>,
     },
 }
 
@@ -26,6 +38,26 @@ pub fn run(c: Cmd) -> Result<()> {
                     dir.join(format!("{name}.obj")).display(),
                     s.triangles.len(),
                     s.length()
+                );
+            }
+            Ok(())
+        }
+        Cmd::Hostile { out, seed, cases } => {
+            let names: Vec<String> = if cases.is_empty() {
+                hostile::CASES.iter().map(|s| s.to_string()).collect()
+            } else {
+                cases
+            };
+            for n in names {
+                let c = hostile::write_case(&out, &n, seed)?;
+                println!(
+                    "wrote {} ({} triangles): {}",
+                    c.mesh.display(),
+                    c.triangles,
+                    match c.expect {
+                        hostile::Expect::Loads => "must load".to_string(),
+                        hostile::Expect::Refused(why) => format!("must be refused ({why})"),
+                    }
                 );
             }
             Ok(())

@@ -26,6 +26,10 @@ pub mod train;
 #[derive(Parser, Debug)]
 #[command(name = "cac", version, about)]
 pub struct Cli {
+    /// Memory budget (e.g. 4G, 12G): work estimated above it (a texture, a solid, a bake, a
+    /// rendered view) is refused before it is allocated, naming the flag that makes it smaller.
+    #[arg(long, global = true, default_value_t = cac::memory::MemoryBudget::default())]
+    pub max_memory: cac::memory::MemoryBudget,
     #[command(subcommand)]
     pub command: Command,
 }
@@ -95,6 +99,7 @@ pub enum BenchCmd {
 }
 
 pub fn run(cli: Cli) -> Result<()> {
+    cac::memory::set_process_budget(cli.max_memory);
     match cli.command {
         Command::Demo(a) => demo::run(a),
         Command::Eval(a) => eval::run(a),

@@ -40,6 +40,7 @@ pub fn throughput(
         "score_ms",
         "total_ms",
         "images_per_s",
+        "peak_mb",
     ]);
     let mut rows: Vec<Vec<usize>> = (0..dets.len()).map(|k| vec![k]).collect();
     if dets.len() > 1 {
@@ -48,6 +49,7 @@ pub fn throughput(
     for which in rows {
         let (mut tr, mut td, mut ts, mut n) = (0.0, 0.0, 0.0, 0);
         let chosen: Vec<&dyn Detector> = which.iter().map(|&k| dets[k]).collect();
+        crate::memory::reset_peak_rss();
         for (i, c) in conds.iter().enumerate() {
             let (render_s, detect_s, score_s) = time_image(r, env, c, a_t.clone(), &chosen, &p)?;
             if i == 0 {
@@ -71,6 +73,7 @@ pub fn throughput(
             ms(ts),
             ms(total),
             format!("{:.2}", n as f64 / total),
+            format!("{:.0}", crate::memory::peak_rss_mb()),
         ]);
     }
     Ok(t)

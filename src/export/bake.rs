@@ -9,6 +9,7 @@
 
 use super::texture::{delta_e, sample};
 use super::{Paint, PrintMesh};
+use crate::memory::MemoryBudget;
 use anyhow::{bail, Result};
 use glam::{Vec2, Vec3};
 use rand::{Rng, SeedableRng};
@@ -66,8 +67,89 @@ pub fn reference_colour(mesh: &PrintMesh, parent: usize, b: Vec3) -> [f32; 3] {
     }
 }
 
-/// Subdivides and colours the mesh.
-pub fn bake(mesh: &PrintMesh, limits: &BakeLimits) -> Result<Baked> {
+/// Memory held per baked triangle through the export that follows the bake (the bake's own
+/// vectors and edge map, the colour-error sample, the 3MF's property list, the OBJ's vertices):
+/// the jeep's whole `cac export` at 2.55 M and 10.2 M baked triangles peaked at 489 and 1889 MB,
+/// 192 bytes per added triangle (docs/memory.md).
+pub const BYTES_PER_BAKED_TRIANGLE: u64 = 200;
+
+/// Memory an export holds before the bake's triangles (binary, mesh, textures, buffers).
+const BAKE_FIXED_BYTES: u64 = 128 << 20;
+
+/// A lower bound on the bake's triangle count: a triangle whose edges are at most `L` long has
+/// at most the area `√3/4 L²`, so a triangle of area `A` (in texels² or mm²) ends as at least
+/// `A / (√3/4 L²)` pieces. Known without subdividing, so a bake that cannot fit is refused at
+/// once.
+pub fn min_triangles(mesh: &PrintMesh, limits: &BakeLimits) -> u64 {
+    let piece = |l: f32| 3f64.sqrt() / 4.0 * (l as f64).powi(2);
+    let (mm_piece, tx_piece) = (piece(limits.max_edge_mm), piece(limits.max_edge_texels));
+    mesh.tris
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.v.map(|i| mesh.positions[i as usize]);
+            let mut n = 0.5 * (b - a).cross(c - a).length() as f64 / mm_piece;
+            if let Paint::Texture { tex, uv } = t.paint {
+                let tx = &mesh.textures[tex as usize];
+                let d = (uv[1] - uv[0]).perp_dot(uv[2] - uv[0]).abs() as f64;
+                let texels2 = 0.5 * d * tx.width as f64 * tx.height as f64;
+                n = n.max(texels2 / tx_piece);
+            }
+            if n.is_finite() {
+                n.max(1.0) as u64
+            } else {
+                u64::MAX / 4
+            }
+        })
+        .fold(0u64, u64::saturating_add)
+}
+
+/// The most triangles the bake may make: `limits.max_triangles`, and what fits the budget.
+fn triangle_cap(limits: &BakeLimits, budget: &MemoryBudget) -> u64 {
+    (limits.max_triangles as u64).min(budget.items(BAKE_FIXED_BYTES, BYTES_PER_BAKED_TRIANGLE))
+}
+
+/// The refusal of a bake of `n` triangles (estimated or counted) over the cap.
+fn too_many(n: u64, limits: &BakeLimits, budget: &MemoryBudget) -> anyhow::Error {
+    let knob = format!(
+        "raise --max-edge-texels (now {}){}, or use a smaller texture",
+        limits.max_edge_texels,
+        if limits.max_edge_mm.is_finite() {
+            format!(" or --max-edge-mm (now {})", limits.max_edge_mm)
+        } else {
+            String::new()
+        }
+    );
+    if n > limits.max_triangles as u64 {
+        anyhow::anyhow!(
+            "the bake would make at least {n} triangles, over its limit of {}: {knob}",
+            limits.max_triangles
+        )
+    } else {
+        let need = BAKE_FIXED_BYTES + n.saturating_mul(BYTES_PER_BAKED_TRIANGLE);
+        budget
+            .check(&format!("the bake ({n} triangles)"), need, &knob)
+            .unwrap_err()
+            .into()
+    }
+}
+
+/// Refuses, without subdividing, a bake whose [`min_triangles`] is already over the limit or the
+/// budget (the exporter calls it before repairing, so a hopeless bake costs no solidify).
+pub fn check_lower_bound(
+    mesh: &PrintMesh,
+    limits: &BakeLimits,
+    budget: &MemoryBudget,
+) -> Result<()> {
+    let lower = min_triangles(mesh, limits);
+    if lower > triangle_cap(limits, budget) {
+        return Err(too_many(lower, limits, budget));
+    }
+    Ok(())
+}
+
+/// Subdivides and colours the mesh, refusing (before it allocates) a bake whose triangles would
+/// not fit `limits.max_triangles` or the memory budget.
+pub fn bake(mesh: &PrintMesh, limits: &BakeLimits, budget: &MemoryBudget) -> Result<Baked> {
     let positive = |x: f32| x > 0.0; // false for NaN too
     if !positive(limits.max_edge_texels) || !positive(limits.max_edge_mm) {
         bail!(
@@ -76,6 +158,8 @@ pub fn bake(mesh: &PrintMesh, limits: &BakeLimits) -> Result<Baked> {
             limits.max_edge_mm
         );
     }
+    check_lower_bound(mesh, limits, budget)?;
+    let cap = triangle_cap(limits, budget);
     let mut positions = mesh.positions.clone();
     let corners = [Vec3::X, Vec3::Y, Vec3::Z];
     let mut tris: Vec<BakedTri> = mesh
@@ -123,27 +207,32 @@ pub fn bake(mesh: &PrintMesh, limits: &BakeLimits) -> Result<Baked> {
         if marked.is_empty() {
             break;
         }
+        // Count this round's triangles (a triangle with k marked edges becomes k + 1) before
+        // anything is allocated for them.
+        let count: u64 = tris
+            .iter()
+            .map(|t| {
+                1 + (0..3)
+                    .filter(|&k| marked.contains_key(&key(t.v[k], t.v[(k + 1) % 3])))
+                    .count() as u64
+            })
+            .sum();
+        if count > cap {
+            return Err(too_many(count, limits, budget));
+        }
         // Create midpoints once per edge.
+        positions.reserve(marked.len());
         for (&(a, b), m) in marked.iter_mut() {
             positions.push((positions[a as usize] + positions[b as usize]) * 0.5);
             *m = positions.len() as u32 - 1;
         }
-        let mut next = Vec::with_capacity(tris.len() * 2);
+        let mut next = Vec::with_capacity(count as usize);
         for t in &tris {
             let mid: [Option<u32>; 3] =
                 std::array::from_fn(|k| marked.get(&key(t.v[k], t.v[(k + 1) % 3])).copied());
             split(t, mid, &mut next);
         }
         tris = next;
-        if tris.len() > limits.max_triangles {
-            bail!(
-                "the bake would exceed {} triangles (limits: {} texels, {} mm per edge); \
-                 raise the limits or use a smaller texture",
-                limits.max_triangles,
-                limits.max_edge_texels,
-                limits.max_edge_mm
-            );
-        }
     }
     for t in &mut tris {
         for k in 0..3 {
@@ -322,6 +411,7 @@ mod tests {
                 max_edge_mm: 3.0,
                 ..Default::default()
             },
+            &MemoryBudget::default(),
         )
         .unwrap();
         for t in &b.tris {
@@ -360,11 +450,95 @@ mod tests {
                     max_edge_texels: texels,
                     ..Default::default()
                 },
+                &MemoryBudget::default(),
             )
             .unwrap();
             colour_error(&m, &b, 20_000, 3).rmse_8bit
         };
         let (coarse, fine) = (err(16.0), err(0.5));
         assert!(fine < coarse * 0.6, "coarse {coarse}, fine {fine}");
+    }
+
+    #[test]
+    fn the_lower_bound_never_exceeds_the_count_and_is_within_its_factor() {
+        let m = square();
+        for (texels, mm) in [
+            (16.0, f32::INFINITY),
+            (1.0, 3.0),
+            (0.5, f32::INFINITY),
+            (64.0, 2.0),
+        ] {
+            let l = BakeLimits {
+                max_edge_texels: texels,
+                max_edge_mm: mm,
+                ..Default::default()
+            };
+            let n = bake(&m, &l, &MemoryBudget::default()).unwrap().tris.len() as u64;
+            let lower = min_triangles(&m, &l);
+            assert!(
+                lower <= n && n <= 8 * lower.max(1),
+                "{texels} {mm}: {lower} vs {n}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_bake_over_the_budget_is_refused_before_it_allocates_naming_the_knobs() {
+        // An 8192² texture over the square: at least 38 M triangles at 2 texels per edge.
+        let mut m = square();
+        m.textures[0] = Texture {
+            width: 8192,
+            height: 8192,
+            texels: vec![[0.5; 3]; 1],
+        };
+        let err = bake(&m, &BakeLimits::default(), &MemoryBudget::default())
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("over its limit of 20000000"), "{err}");
+        assert!(err.contains("--max-edge-texels (now 2)"), "{err}");
+        // Under the triangle limit but over a small budget: the budget names --max-memory.
+        // (512²: at least 151 k triangles, 158 MB with the fixed share.)
+        m.textures[0] = Texture {
+            width: 512,
+            height: 512,
+            texels: vec![[0.5; 3]; 512 * 512],
+        };
+        let small = MemoryBudget::new(150 << 20);
+        let err = bake(&m, &BakeLimits::default(), &small)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("over the memory budget of 150 MB"), "{err}");
+        assert!(err.contains("--max-memory"), "{err}");
+        // The same bake fits the default budget.
+        assert!(bake(&m, &BakeLimits::default(), &MemoryBudget::default()).is_ok());
+    }
+
+    #[test]
+    fn the_count_refuses_what_the_lower_bound_lets_through() {
+        // Long thin slivers: tiny area (the lower bound says 2 triangles) but each edge spans
+        // the whole 4096-texel atlas, so subdivision makes thousands.
+        let mut m = square();
+        m.positions[2] = Vec3::new(40.0, 0.001, 0.0);
+        m.positions[3] = Vec3::new(0.0, 0.001, 0.0);
+        m.textures[0] = Texture {
+            width: 4096,
+            height: 4096,
+            texels: vec![[0.5; 3]; 4096 * 4096],
+        };
+        for t in &mut m.tris {
+            t.paint = Paint::Texture {
+                tex: 0,
+                uv: [Vec2::ZERO, Vec2::new(1.0, 0.0001), Vec2::new(1.0, 0.0)],
+            };
+        }
+        let l = BakeLimits {
+            max_triangles: 1000,
+            ..Default::default()
+        };
+        assert!(min_triangles(&m, &l) <= 1000);
+        let err = bake(&m, &l, &MemoryBudget::default())
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("over its limit of 1000"), "{err}");
     }
 }

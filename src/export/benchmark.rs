@@ -4,6 +4,7 @@
 
 use super::bake::{bake, colour_error, BakeLimits};
 use super::{PrintMesh, Scale};
+use crate::memory::MemoryBudget;
 use crate::scene::generate::value_noise;
 use crate::scene::Texture;
 use anyhow::{Context, Result};
@@ -46,6 +47,9 @@ pub struct BenchRow {
     pub max_edge_mm: f32,
     pub triangles: usize,
     pub seconds: f64,
+    /// Peak resident memory while this row was baked and measured (MB; the process's peak is
+    /// reset before each row where Linux allows it).
+    pub peak_mb: f64,
     pub rmse_8bit: f64,
     pub mean_delta_e: f64,
     pub p95_delta_e: f64,
@@ -58,14 +62,17 @@ pub fn run(
     limits: &[BakeLimits],
     samples: usize,
     repeats: usize,
+    budget: &MemoryBudget,
 ) -> Result<Vec<BenchRow>> {
     let mut rows = vec![];
     for l in limits {
         let mut best = f64::INFINITY;
         let mut baked = None;
+        crate::memory::reset_peak_rss();
         for _ in 0..repeats.max(1) {
             let t = Instant::now();
-            let b = bake(mesh, l)?;
+            drop(baked.take()); // the previous repeat's bake is freed before the next is made
+            let b = bake(mesh, l, budget)?;
             best = best.min(t.elapsed().as_secs_f64());
             baked = Some(b);
         }
@@ -76,6 +83,7 @@ pub fn run(
             max_edge_mm: l.max_edge_mm,
             triangles: b.tris.len(),
             seconds: best,
+            peak_mb: crate::memory::peak_rss_mb(),
             rmse_8bit: e.rmse_8bit,
             mean_delta_e: e.mean_delta_e,
             p95_delta_e: e.p95_delta_e,
@@ -87,7 +95,7 @@ pub fn run(
 /// The table as Markdown.
 pub fn markdown(rows: &[BenchRow]) -> String {
     let mut s = String::from(
-        "| max edge (texels) | max edge (mm) | triangles | bake (s) | RMSE (8-bit) | mean ΔE76 | p95 ΔE76 |\n|---:|---:|---:|---:|---:|---:|---:|\n",
+        "| max edge (texels) | max edge (mm) | triangles | bake (s) | peak MB | RMSE (8-bit) | mean ΔE76 | p95 ΔE76 |\n|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for r in rows {
         let tx = if r.max_edge_texels.is_finite() {
@@ -102,8 +110,8 @@ pub fn markdown(rows: &[BenchRow]) -> String {
         };
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {:.3} | {:.2} | {:.2} | {:.2} |",
-            tx, mm, r.triangles, r.seconds, r.rmse_8bit, r.mean_delta_e, r.p95_delta_e
+            "| {} | {} | {} | {:.3} | {:.0} | {:.2} | {:.2} | {:.2} |",
+            tx, mm, r.triangles, r.seconds, r.peak_mb, r.rmse_8bit, r.mean_delta_e, r.p95_delta_e
         );
     }
     s
@@ -112,16 +120,17 @@ pub fn markdown(rows: &[BenchRow]) -> String {
 /// The table as CSV.
 pub fn csv(rows: &[BenchRow]) -> String {
     let mut s = String::from(
-        "max_edge_texels,max_edge_mm,triangles,seconds,rmse_8bit,mean_delta_e,p95_delta_e\n",
+        "max_edge_texels,max_edge_mm,triangles,seconds,peak_mb,rmse_8bit,mean_delta_e,p95_delta_e\n",
     );
     for r in rows {
         let _ = writeln!(
             s,
-            "{},{},{},{:.6},{:.4},{:.4},{:.4}",
+            "{},{},{},{:.6},{:.1},{:.4},{:.4},{:.4}",
             r.max_edge_texels,
             r.max_edge_mm,
             r.triangles,
             r.seconds,
+            r.peak_mb,
             r.rmse_8bit,
             r.mean_delta_e,
             r.p95_delta_e
@@ -143,18 +152,6 @@ pub struct SolidRow {
     pub fidelity: super::Fidelity,
 }
 
-/// Peak resident set size of this process in MB (`VmHWM`), 0 where unknown.
-pub fn peak_rss_mb() -> f64 {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("VmHWM:"))
-                .and_then(|l| l.split_whitespace().nth(1)?.parse::<f64>().ok())
-        })
-        .map_or(0.0, |kb| kb / 1024.0)
-}
-
 /// Subdivides `mesh` (midpoint splits, as the bake does) until it has at least `n` triangles,
 /// keeping each piece's paint: a larger input of the same shape for the solidify benchmark.
 pub fn refine(mesh: &PrintMesh, n: usize) -> Result<PrintMesh> {
@@ -167,6 +164,7 @@ pub fn refine(mesh: &PrintMesh, n: usize) -> Result<PrintMesh> {
                 max_edge_mm: mm,
                 ..Default::default()
             },
+            &MemoryBudget::default(),
         )?;
         if b.tris.len() >= n {
             let mut tris: Vec<super::PrintTri> = b
@@ -227,7 +225,7 @@ pub fn run_solid(
             voxel_mm: h,
             triangles: s.tris.len(),
             seconds,
-            peak_mb: peak_rss_mb(),
+            peak_mb: crate::memory::peak_rss_mb(),
             fidelity,
         });
     }
@@ -329,7 +327,7 @@ impl ExportBench {
     pub fn run(&self) -> Result<ExportBenchOutcome> {
         let scene = super::load_mesh(&self.mesh, &Default::default())?;
         let camo = match &self.texture {
-            Some(p) => super::load_texture(p)?,
+            Some(p) => super::load_texture(p, &MemoryBudget::current())?,
             None => synthetic_camouflage(self.res, 11),
         };
         let mesh = super::prepare(&scene, &camo, self.scale)
@@ -361,7 +359,13 @@ impl ExportBench {
         let bake = if solid.is_some() && limits.is_empty() {
             None
         } else {
-            Some(run(&mesh, &limits, self.samples, 3)?)
+            Some(run(
+                &mesh,
+                &limits,
+                self.samples,
+                3,
+                &MemoryBudget::current(),
+            )?)
         };
         Ok(ExportBenchOutcome {
             texture: (camo.width, camo.height),

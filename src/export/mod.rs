@@ -28,6 +28,7 @@ pub mod surface;
 pub mod texture;
 pub mod threemf;
 
+use crate::memory::MemoryBudget;
 use crate::scene::{LoadOptions, PaintRule, Scene, Texture};
 use anyhow::{bail, ensure, Context, Result};
 use glam::{Vec2, Vec3};
@@ -169,6 +170,9 @@ pub struct ExportOptions {
     pub voxel_mm: Option<f32>,
     /// Light repair fills holes up to this perimeter, mm at print scale.
     pub max_hole_mm: f32,
+    /// The memory budget (default: the process's, [`MemoryBudget::current`]): the texture, the
+    /// solid and the bake are estimated against it first.
+    pub memory: MemoryBudget,
 }
 
 impl Default for ExportOptions {
@@ -185,6 +189,7 @@ impl Default for ExportOptions {
             limits: PrintLimits::default(),
             voxel_mm: None,
             max_hole_mm: 20.0,
+            memory: MemoryBudget::current(),
         }
     }
 }
@@ -272,7 +277,10 @@ pub fn check_paint_uvs(scene: &Scene, rule: &PaintRule) -> Result<()> {
 }
 
 /// Loads the camouflage texture, refusing huge images before decoding them.
-pub fn load_texture(path: &Path) -> Result<Texture> {
+/// Memory per texel while a texture is decoded and held (8-bit decode, `f32` RGB texels).
+const BYTES_PER_TEXEL: u64 = 4 + 3 * 4;
+
+pub fn load_texture(path: &Path, budget: &MemoryBudget) -> Result<Texture> {
     let (w, h) = image::ImageReader::open(path)
         .with_context(|| format!("cannot open texture {}", path.display()))?
         .with_guessed_format()
@@ -289,6 +297,13 @@ pub fn load_texture(path: &Path) -> Result<Texture> {
     if w == 0 || h == 0 {
         bail!("texture {} is empty ({w}x{h})", path.display());
     }
+    budget
+        .check(
+            &format!("texture {} ({w}x{h} texels)", path.display()),
+            w as u64 * h as u64 * BYTES_PER_TEXEL,
+            "downscale it",
+        )
+        .map_err(anyhow::Error::from)?;
     Ok(Texture::from_rgb8(&crate::io::load_rgb(path)?))
 }
 
@@ -437,7 +452,7 @@ pub fn export(
 ) -> Result<ExportSummary> {
     ensure!(!opts.formats.is_empty(), "no export format requested");
     let scene = load_mesh(mesh_path, &opts.load)?;
-    let camo = load_texture(texture_path)?;
+    let camo = load_texture(texture_path, &opts.memory)?;
     check_output_dir(out)?;
     let mesh = prepare(&scene, &camo, opts.scale)
         .with_context(|| format!("mesh {}", mesh_path.display()))?;
@@ -452,6 +467,14 @@ pub fn export(
     )];
     notes.extend(mesh.report.repairs());
     let needs_closed = opts.formats.iter().any(Format::is_geometry);
+    let needs_bake = opts
+        .formats
+        .iter()
+        .any(|f| matches!(f, Format::ThreeMfColor | Format::ObjVc));
+    if needs_bake {
+        bake::check_lower_bound(&mesh, &opts.bake, &opts.memory)
+            .with_context(|| format!("mesh {}", mesh_path.display()))?;
+    }
     let mut mesh = mesh;
     let (mut solid, mut fidelity, mut printability, mut original) = (None, None, None, None);
     if needs_closed && (opts.allow_open || opts.repair == RepairMode::Off) {
@@ -477,12 +500,9 @@ pub fn export(
     }
     let stem = sanitize(&mesh.name);
     let mut files = vec![];
-    let needs_bake = opts
-        .formats
-        .iter()
-        .any(|f| matches!(f, Format::ThreeMfColor | Format::ObjVc));
     let baked = if needs_bake {
-        let mut b = bake::bake(&mesh, &opts.bake)?;
+        let mut b = bake::bake(&mesh, &opts.bake, &opts.memory)
+            .with_context(|| format!("mesh {}", mesh_path.display()))?;
         if let Some((orig, _)) = &original {
             solidify::recolour_from(orig, &mut b);
         }
@@ -556,6 +576,9 @@ fn make_printable(
 )> {
     let limits = &opts.limits;
     let at = format!("mesh {} at 1:{}", path.display(), opts.scale.denominator);
+    // Repair and solidify change the size by less than a voxel: an object that cannot fit is
+    // refused before either runs (a 1 km object would be solidified first otherwise).
+    check_build_volume(&at, mesh.report.size_mm, opts)?;
     let mut cur = mesh.clone();
     let mut rebuild = opts.repair == RepairMode::Solid;
     if !cur.report.is_closed() {
@@ -671,25 +694,34 @@ fn make_printable(
             ThinPolicy::Thicken => notes.push(format!("warning: {msg}")),
         }
     }
-    if p.fits_build_volume == Some(false) {
-        let v = limits.build_volume_mm.unwrap_or_default();
-        let need = (0..3)
-            .map(|k| p.size_mm[k] / v[k])
-            .fold(0.0f32, f32::max)
-            .max(p.size_mm[0].max(p.size_mm[1]) / v[0].max(v[1]));
-        bail!(
-            "{at} is {:.1} x {:.1} x {:.1} mm, larger than the build volume {} x {} x {} mm; print at 1:{:.0} or smaller, or pass another --build-volume",
-            p.size_mm[0],
-            p.size_mm[1],
-            p.size_mm[2],
-            v[0],
-            v[1],
-            v[2],
-            (opts.scale.denominator as f32 * need).ceil()
-        );
-    }
+    check_build_volume(&at, p.size_mm, opts)?;
     notes.extend(p.lines());
     Ok((cur, solid, p, kinds))
+}
+
+/// Refuses an object of `size` mm that does not fit the build volume, naming the largest scale
+/// that does.
+fn check_build_volume(at: &str, size: [f32; 3], opts: &ExportOptions) -> Result<()> {
+    let Some(v) = opts.limits.build_volume_mm else {
+        return Ok(());
+    };
+    if printability::fits(size, v) {
+        return Ok(());
+    }
+    let need = (0..3)
+        .map(|k| size[k] / v[k])
+        .fold(0.0f32, f32::max)
+        .max(size[0].max(size[1]) / v[0].max(v[1]));
+    bail!(
+        "{at} is {:.1} x {:.1} x {:.1} mm, larger than the build volume {} x {} x {} mm; print at 1:{:.0} or smaller, or pass another --build-volume",
+        size[0],
+        size[1],
+        size[2],
+        v[0],
+        v[1],
+        v[2],
+        (opts.scale.denominator as f32 * need).ceil()
+    )
 }
 
 fn a_out_for(m: &PrintMesh) -> printability::Analysis {

@@ -83,6 +83,14 @@ impl RenderSettings {
         Ok(())
     }
 
+    /// Memory one view holds while it is cast, shaded and composed: 32 bytes per sample (the
+    /// G-buffer's hit, barycentrics, normal and texel taps) and 16 per pixel (the image and its
+    /// PNG). Calibrated on `cac render` at 8000² and 4 spp: 7.5 GB peak, 30.5 bytes per sample.
+    pub fn bytes_per_view(&self) -> u64 {
+        let pixels = (self.width * self.height) as u64;
+        pixels * (32 * self.samples as u64 + 16)
+    }
+
     pub fn intrinsics(&self) -> Intrinsics {
         Intrinsics::from_vfov(self.width, self.height, self.vfov_deg)
     }
@@ -96,8 +104,20 @@ pub struct Renderer {
 }
 
 impl Renderer {
+    /// Refuses settings whose view would not fit the process's memory budget
+    /// ([`crate::memory::MemoryBudget::current`]).
     pub fn new(scene: Scene, settings: RenderSettings) -> Result<Renderer> {
         settings.validate()?;
+        crate::memory::MemoryBudget::current()
+            .check(
+                &format!(
+                    "a rendered view of {}x{} pixels at {} samples per pixel",
+                    settings.width, settings.height, settings.samples
+                ),
+                settings.bytes_per_view(),
+                "lower the size (--width/--height, --size or the config's [render]) or the samples per pixel",
+            )
+            .map_err(anyhow::Error::from)?;
         let accel = accel::Accel::build(&scene);
         Ok(Renderer {
             scene,

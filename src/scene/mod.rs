@@ -12,6 +12,7 @@
 
 pub mod generate;
 mod gltf_load;
+pub mod hostile;
 mod obj_load;
 pub mod obj_write;
 pub mod paint;

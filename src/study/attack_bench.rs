@@ -31,8 +31,8 @@ pub fn time_split(runs: usize, det: &[&dyn Detector], device: &Device) -> Result
     } = cfg.stage()?;
     println!("iteration time, nanodet, n = 300, {}x{} renders ({} spp), {}² atlas, CPU (median of {} after 1 warm-up)", cfg.render.width, cfg.render.height, cfg.render.samples, cfg.render.atlas_res, runs);
     println!(
-        "{:>5} {:>10} {:>11} {:>12} {:>13} {:>9}",
-        "batch", "render_ms", "forward_ms", "backward_ms", "optimiser_ms", "total_ms"
+        "{:>5} {:>10} {:>11} {:>12} {:>13} {:>9} {:>8}",
+        "batch", "render_ms", "forward_ms", "backward_ms", "optimiser_ms", "total_ms", "peak_mb"
     );
     let columns = [
         "render_ms",
@@ -40,6 +40,7 @@ pub fn time_split(runs: usize, det: &[&dyn Detector], device: &Device) -> Result
         "backward_ms",
         "optimiser_ms",
         "total_ms",
+        "peak_mb",
     ];
     let mut split = Table::new(std::iter::once("batch").chain(columns));
     for batch in [1usize, 4] {
@@ -50,6 +51,7 @@ pub fn time_split(runs: usize, det: &[&dyn Detector], device: &Device) -> Result
             ..Default::default()
         };
         let training = Device::autodiff(device.clone());
+        crate::memory::reset_peak_rss();
         let mut tr = Trainer::new(ac, &renderer, &env, det.to_vec(), training, &init)?;
         tr.step()?;
         let logs: Vec<_> = (0..runs).map(|_| tr.step()).collect::<Result<_>>()?;
@@ -61,7 +63,8 @@ pub fn time_split(runs: usize, det: &[&dyn Detector], device: &Device) -> Result
             m(|l| l.ms_optimiser),
         );
         let total = r + f + b + o;
-        println!("{batch:>5} {r:>10.0} {f:>11.0} {b:>12.0} {o:>13.1} {total:>9.0}");
+        let peak = crate::memory::peak_rss_mb();
+        println!("{batch:>5} {r:>10.0} {f:>11.0} {b:>12.0} {o:>13.1} {total:>9.0} {peak:>8.0}");
         split.row([
             batch.to_string(),
             format!("{r:.1}"),
@@ -69,6 +72,7 @@ pub fn time_split(runs: usize, det: &[&dyn Detector], device: &Device) -> Result
             format!("{b:.1}"),
             format!("{o:.2}"),
             format!("{total:.1}"),
+            format!("{peak:.0}"),
         ]);
     }
     Ok((split, renderer.scene.clone()))
@@ -127,6 +131,7 @@ pub fn error_against_time(
             anyhow::bail!("the default target must be person");
         }
         let training = Device::autodiff(device.clone());
+        crate::memory::reset_peak_rss();
         let mut tr = Trainer::new(ac, &r, &denv, det.to_vec(), training, &original)?;
         let mut secs = 0.0;
         report(0, 0.0, &score(&original)?);
