@@ -700,8 +700,19 @@ fn make_printable(
 }
 
 /// Refuses an object of `size` mm that does not fit the build volume, naming the largest scale
-/// that does.
+/// that does, or that is smaller than the minimum feature.
 fn check_build_volume(at: &str, size: [f32; 3], opts: &ExportOptions) -> Result<()> {
+    let longest = size.iter().copied().fold(0.0f32, f32::max);
+    if longest < opts.limits.min_feature_mm {
+        bail!(
+            "{at} is {:.3} x {:.3} x {:.3} mm, smaller than the {:.2} mm minimum feature: nothing of it can be printed; choose a larger scale (1:{} makes it 100 mm long)",
+            size[0],
+            size[1],
+            size[2],
+            opts.limits.min_feature_mm,
+            format_scale(opts.scale.denominator as f32 * longest / 100.0)
+        );
+    }
     let Some(v) = opts.limits.build_volume_mm else {
         return Ok(());
     };
@@ -722,6 +733,12 @@ fn check_build_volume(at: &str, size: [f32; 3], opts: &ExportOptions) -> Result<
         v[2],
         (opts.scale.denominator as f32 * need).ceil()
     )
+}
+
+/// `24`, `1.5`, `0.0042`: a scale denominator to three significant digits.
+fn format_scale(n: f32) -> String {
+    let digits = (2 - n.abs().log10().floor() as i32).max(0) as usize;
+    format!("{n:.digits$}")
 }
 
 fn a_out_for(m: &PrintMesh) -> printability::Analysis {
