@@ -389,7 +389,10 @@ fn node_tree(rng: &mut impl Rng, n: usize, bad_buffer: bool) -> (String, usize) 
     let uri = if bad_buffer {
         "missing_buffer.bin".to_string()
     } else {
-        format!("data:application/octet-stream;base64,{}", base64(&bytes))
+        format!(
+            "data:application/octet-stream;base64,{}",
+            crate::report::html::base64(&bytes)
+        )
     };
     let mut children: Vec<Vec<usize>> = vec![vec![]; n];
     for i in 1..n {
@@ -431,41 +434,9 @@ fn node_tree(rng: &mut impl Rng, n: usize, bad_buffer: bool) -> (String, usize) 
     (json, 12 * n)
 }
 
-/// Standard base64 (RFC 4648, with padding).
-fn base64(b: &[u8]) -> String {
-    const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let mut s = String::with_capacity(b.len().div_ceil(3) * 4);
-    for c in b.chunks(3) {
-        let n = (c[0] as u32) << 16
-            | (*c.get(1).unwrap_or(&0) as u32) << 8
-            | *c.get(2).unwrap_or(&0) as u32;
-        for k in 0..4 {
-            if k <= c.len() {
-                s.push(A[(n >> (18 - 6 * k) & 63) as usize] as char);
-            } else {
-                s.push('=');
-            }
-        }
-    }
-    s
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn base64_matches_rfc_4648_vectors() {
-        for (i, o) in [
-            ("", ""),
-            ("f", "Zg=="),
-            ("fo", "Zm8="),
-            ("foo", "Zm9v"),
-            ("foobar", "Zm9vYmFy"),
-        ] {
-            assert_eq!(base64(i.as_bytes()), o);
-        }
-    }
 
     #[test]
     fn the_same_seed_writes_the_same_files_and_another_seed_others() {
