@@ -4,9 +4,11 @@
 //! For every image of `../shared/reference/images`: raw outputs within
 //! `max|a-b| / max|b| <= 1e-4` per tensor, and the same final detections (labels, boxes within
 //! 0.5 px, scores within 1e-4). The runner is installed (npm install in a copy under the target
-//! folder, or `$CAC_TFJS_RUNNER`) and its dumps are cached under `target/tfjs-oracle`, keyed by
-//! model, settings and image. Without `../shared` it fails under CI (`CI=true`) and is skipped,
-//! loudly, elsewhere.
+//! folder, or `$CAC_TFJS_RUNNER`) and its dumps are cached under `target/tfjs-oracle`, keyed by a
+//! SHA-256 of the model and its pinned digests, the settings, the image's bytes and the runner's
+//! `detect.mjs` and `package.json`: a changed image or runner is run again. Every run must compare
+//! at least one image, and every image it names. Without `../shared` it fails under CI
+//! (`CI=true`) and is skipped, loudly, elsewhere.
 
 mod support;
 
@@ -36,16 +38,24 @@ fn target_dir() -> PathBuf {
     exe.ancestors().nth(3).unwrap().to_path_buf()
 }
 
-/// The installed reference runner folder (installs it on first use).
+/// The runner's files that decide its output (hashed into the oracle cache key).
+const RUNNER_FILES: [&str; 2] = ["detect.mjs", "package.json"];
+
+/// The installed reference runner folder (installs it on first use, and again when its
+/// [`RUNNER_FILES`] differ from those of `../shared`).
 fn runner(shared: &Path) -> &'static PathBuf {
     static RUNNER: OnceLock<PathBuf> = OnceLock::new();
     RUNNER.get_or_init(|| {
         let dir = std::env::var_os("CAC_TFJS_RUNNER")
             .map(PathBuf::from)
             .unwrap_or_else(|| target_dir().join("tfjsref"));
-        if !dir.join("node_modules/@tensorflow/tfjs").exists() {
+        let src = shared.join("reference/tfjs");
+        let stale = RUNNER_FILES
+            .iter()
+            .any(|f| std::fs::read(dir.join(f)).ok() != std::fs::read(src.join(f)).ok());
+        if stale || !dir.join("node_modules/@tensorflow/tfjs").exists() {
             std::fs::create_dir_all(&dir).unwrap();
-            for e in std::fs::read_dir(shared.join("reference/tfjs")).unwrap() {
+            for e in std::fs::read_dir(&src).unwrap() {
                 let p = e.unwrap().path();
                 if p.is_file() {
                     std::fs::copy(&p, dir.join(p.file_name().unwrap())).unwrap();
@@ -73,7 +83,34 @@ fn images(shared: &Path) -> Vec<PathBuf> {
     v
 }
 
-/// The oracle's raw dump and detection list for one case (cached).
+/// The oracle cache key of one case: a SHA-256 of the model, its pinned file digests, the
+/// settings, the image's bytes and the runner's files (hex, 16 digits).
+fn oracle_key(shared: &Path, model: &str, norm: &str, decode: &str, image: &Path) -> String {
+    use sha2::{Digest, Sha256};
+    let mut h = Sha256::new();
+    let mut field = |bytes: &[u8]| {
+        h.update((bytes.len() as u64).to_le_bytes());
+        h.update(bytes);
+    };
+    for s in [model, norm, decode] {
+        field(s.as_bytes());
+    }
+    for (name, digest) in detect::fetch::FILES {
+        if name.starts_with(&format!("{model}.")) {
+            field(digest.as_bytes());
+        }
+    }
+    field(&std::fs::read(image).unwrap());
+    for f in RUNNER_FILES {
+        field(&std::fs::read(shared.join("reference/tfjs").join(f)).unwrap());
+    }
+    h.finalize()[..8]
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// The oracle's raw dump and detection list for one case (cached under [`oracle_key`]).
 fn oracle(
     shared: &Path,
     model: &str,
@@ -84,7 +121,8 @@ fn oracle(
     let dir = target_dir().join("tfjs-oracle");
     std::fs::create_dir_all(&dir).unwrap();
     let stem = image.file_stem().unwrap().to_string_lossy();
-    let base = dir.join(format!("{model}-{norm}-{decode}-{stem}"));
+    let key = oracle_key(shared, model, norm, decode, image);
+    let base = dir.join(format!("{model}-{norm}-{decode}-{stem}-{key}"));
     let raw = base.with_extension("raw.json");
     let dets = base.with_extension("dets.json");
     if raw.exists() && dets.exists() {
@@ -136,11 +174,13 @@ fn conformance(model: &str, norm: &str, decode: &str, detector_name: &str, only:
     let det = detect::load(detector_name, models(), &device).unwrap();
     let mut failures = Vec::new();
     let mut worst: Vec<(String, f64)> = Vec::new();
+    let mut compared: Vec<String> = Vec::new();
     for image in images(&shared) {
         let stem = image.file_stem().unwrap().to_string_lossy().to_string();
         if only.is_some_and(|o| !o.contains(&stem.as_str())) {
             continue;
         }
+        compared.push(stem.clone());
         let (raw_path, dets_path) = oracle(&shared, model, norm, decode, &image);
         let want = RawDump::read(&raw_path).unwrap();
         let img = cac::io::load_rgb(&image).unwrap();
@@ -201,6 +241,20 @@ fn conformance(model: &str, norm: &str, decode: &str, detector_name: &str, only:
     }
     eprintln!("WORST {model}/{norm}/{decode}: {worst:?}");
     assert!(
+        !compared.is_empty(),
+        "{model}/{norm}/{decode}: no image compared in {}",
+        shared.join("reference/images").display()
+    );
+    let absent: Vec<&&str> = only
+        .unwrap_or_default()
+        .iter()
+        .filter(|n| !compared.iter().any(|c| c == *n))
+        .collect();
+    assert!(
+        absent.is_empty(),
+        "{model}/{norm}/{decode}: images {absent:?} not found"
+    );
+    assert!(
         failures.is_empty(),
         "conformance failures:\n{}",
         failures.join("\n")
@@ -226,4 +280,39 @@ fn nanodet_human_mode_matches_tfjs() {
         "nanodet-human",
         Some(&["astronaut", "motorcycle_left", "chelsea"]),
     );
+}
+
+/// The oracle cache key changes with the image's bytes, either runner file, the model and each
+/// setting, and only with them.
+#[test]
+fn oracle_key_changes_with_every_input() {
+    let d = tempfile::tempdir().unwrap();
+    let runner = d.path().join("reference/tfjs");
+    std::fs::create_dir_all(&runner).unwrap();
+    let image = d.path().join("a.png");
+    let write = |p: &Path, s: &str| std::fs::write(p, s).unwrap();
+    write(&runner.join("detect.mjs"), "runner");
+    write(&runner.join("package.json"), "{}");
+    write(&image, "pixels");
+    let key = |m: &str, n: &str, dec: &str| oracle_key(d.path(), m, n, dec, &image);
+    let base = key("nanodet", "human", "human");
+    assert_eq!(key("nanodet", "human", "human"), base, "deterministic");
+    for other in [
+        key("centernet", "human", "human"),
+        key("nanodet", "nanodet", "human"),
+        key("nanodet", "human", "dfl"),
+    ] {
+        assert_ne!(other, base);
+    }
+    let mut seen = vec![base];
+    for (file, text) in [
+        (&image, "other pixels"),
+        (&runner.join("detect.mjs"), "new runner"),
+        (&runner.join("package.json"), "{\"v\":2}"),
+    ] {
+        write(file, text);
+        let k = key("nanodet", "human", "human");
+        assert!(!seen.contains(&k), "{} changed, same key", file.display());
+        seen.push(k);
+    }
 }

@@ -177,6 +177,41 @@ fn driver_scenarios_counted_on_the_pins() {
     );
 }
 
+/// The value of `KEY=` in a reply or event line.
+fn field(line: &str, key: &str) -> i64 {
+    line.split(' ')
+        .find_map(|kv| kv.strip_prefix(key)?.strip_prefix('='))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no numeric {key}= in {line:?}"))
+}
+
+/// Polls `STATUS 1` (sequence numbers from `*seq` on) until the firmware reports the table's move
+/// from `from` to `to` (m°) under way: `MOV=1`, at least a quarter of the way and short of `to`.
+/// Event-driven, so that a STOP sent next lands mid-move however fast the emulator runs.
+fn wait_under_way<T: Transport>(r: &mut Raw<T>, seq: &mut u16, from: i64, to: i64) {
+    let end = Instant::now() + Duration::from_secs(120);
+    loop {
+        let st = r.cmd(*seq, "STATUS 1");
+        *seq += 1;
+        let pos = field(&st, "POS");
+        assert_eq!(field(&st, "TGT"), to, "{st}");
+        assert_eq!(
+            field(&st, "MOV"),
+            1,
+            "the move to {to} ended before the check: {st}"
+        );
+        if (pos - from).abs() * 4 >= (to - from).abs() {
+            assert!((pos - to).signum() == (from - to).signum(), "{st}");
+            return;
+        }
+        assert!(
+            Instant::now() < end,
+            "the move from {from} to {to} stuck: {st}"
+        );
+        std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
 #[test]
 fn raw_stop_estop_reset_and_retry_replay_on_the_pins() {
     let Some(b) = built() else { return };
@@ -239,24 +274,19 @@ fn raw_stop_estop_reset_and_retry_replay_on_the_pins() {
     );
     assert!(rate >= 24_000, "step rate {rate} steps/s");
     assert_eq!(avr.table_phys() - home, table_steps(735_000));
-    // STOP mid-move: decelerates (steps after the STOP reply), ends STOPPED where the pins say.
+    // STOP mid-move (sent once STATUS reports the move under way): decelerates (steps after the
+    // STOP reply), ends STOPPED between start and target where the pins say, and STATUS agrees.
+    // The polls take sequence numbers from 1000 on, apart from the numbered commands.
+    let mut poll = 1000;
     assert_eq!(r.cmd(14, "SPEED 1 180000"), "OK");
     assert_eq!(r.cmd(15, "ACCEL 1 180000"), "OK");
     assert!(r.cmd(16, "MOVE_ABS 1 0").starts_with("OK ETA="));
-    std::thread::sleep(Duration::from_millis(1500));
+    wait_under_way(&mut r, &mut poll, 735_000, 0);
     assert_eq!(r.cmd(17, "STOP"), "OK");
     let at_stop = avr.counts().get("tpulses");
     let done = r.expect("! DONE SEQ=16 AXIS=1 ", S);
     assert!(done.contains("END=STOPPED"), "{done}");
-    let pos: i64 = done
-        .split("POS=")
-        .nth(1)
-        .unwrap()
-        .split(' ')
-        .next()
-        .unwrap()
-        .parse()
-        .unwrap();
+    let pos = field(&done, "POS");
     assert!(
         avr.counts().get("tpulses") > at_stop,
         "controlled stop: it decelerated"
@@ -267,14 +297,21 @@ fn raw_stop_estop_reset_and_retry_replay_on_the_pins() {
         "POS={pos} but the pins say {phys} steps"
     );
     assert!(pos > 0 && pos < 735_000, "stopped on the way: {pos}");
-    // ESTOP mid-move: halts at once, drivers off, DONE ABORTED then FAULT.
+    assert_eq!(
+        r.cmd(poll, "STATUS 1"),
+        format!("OK POS={pos} TGT=0 MOV=0 HOMED=1 FAULT=NONE SEQ=16"),
+        "STATUS after the STOP"
+    );
+    poll += 1;
+    // ESTOP mid-move: halts at once between start and target, drivers off, DONE ABORTED then
+    // FAULT.
     assert!(r.cmd(18, "MOVE_ABS 1 0").starts_with("OK ETA="));
-    std::thread::sleep(Duration::from_millis(500));
+    wait_under_way(&mut r, &mut poll, pos, 0);
     assert_eq!(r.cmd(19, "ESTOP"), "OK");
-    r.expect("! DONE SEQ=18 AXIS=1 ", S)
-        .contains("END=ABORTED")
-        .then_some(())
-        .expect("ABORTED");
+    let done = r.expect("! DONE SEQ=18 AXIS=1 ", S);
+    assert!(done.contains("END=ABORTED"), "{done}");
+    let aborted = field(&done, "POS");
+    assert!(aborted > 0 && aborted < pos, "aborted on the way: {done}");
     r.expect("! FAULT CODE=ESTOP", S);
     let c1 = avr.counts();
     std::thread::sleep(Duration::from_millis(300));
@@ -291,7 +328,7 @@ fn raw_stop_estop_reset_and_retry_replay_on_the_pins() {
     assert!(r.cmd(23, "HOME 1").starts_with("OK ETA="));
     r.expect("! DONE SEQ=23", S);
     assert!(r.cmd(24, "MOVE_REL 1 360000").starts_with("OK ETA="));
-    std::thread::sleep(Duration::from_millis(400));
+    wait_under_way(&mut r, &mut poll, 0, 360_000);
     assert_eq!(r.cmd(25, "RESET"), "OK");
     r.expect("! BOOT PROTO=1 FW=cac-avr-1.0 REASON=RESET", S);
     let c2 = avr.counts();
@@ -745,7 +782,7 @@ fn capture_session_with_twin_camera_on_the_firmware_then_scored() {
         assert!((r.mean - hits as f64 / 3.0).abs() < 1e-12, "{r:?}");
     }
     assert_eq!(s.by_angle.len(), 3);
-    assert!(out.join("score/report.html").metadata().unwrap().len() > 0);
+    support::score_report::check(&out.join("score"), &s, &entries, out_s);
     println!(
         "twin-camera session: 6 frames, {} table pulses, {} rail pulses, {:.1} s emulated; capture {t_capture:.1} s, with scoring {:.1} s wall",
         c.get("tpulses"),

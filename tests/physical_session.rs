@@ -4,6 +4,8 @@
 //! frame in the simulated device's log, under each fault kind and their mix.
 #![cfg(unix)]
 
+mod support;
+
 use cac::physical::calib::CameraModel;
 use cac::physical::manifest::{self, Entry};
 use cac::physical::rig::{Rig, RigConfig};
@@ -394,17 +396,7 @@ fn session_mix_then_scored() {
     assert_eq!(s.by_angle.len(), 4);
     let out = dir.join("score");
     cac::physical::score::write(&out, &s, "test").unwrap();
-    for f in [
-        "scores.json",
-        "frames.csv",
-        "by_ratio.csv",
-        "by_angle.csv",
-        "p_vs_ratio.png",
-        "polar.png",
-        "report.html",
-    ] {
-        assert!(out.join(f).metadata().unwrap().len() > 0, "{f}");
-    }
+    support::score_report::check(&out, &s, &o.entries, "test");
     println!(
         "[mix] scored: {:?}",
         s.by_ratio

@@ -73,16 +73,64 @@ impl RawDump {
 }
 
 /// `max |a - b| / max |b|` over two equally shaped value lists (the conformance metric).
+///
+/// Any mismatch that the ratio cannot measure is an infinite error: different lengths, NaN in
+/// either list, an infinity against a different value. Equal infinities count as equal.
 pub fn relative_error(a: &[f32], b: &[f32]) -> f64 {
-    assert_eq!(a.len(), b.len(), "value counts differ");
-    let scale = b.iter().fold(0f64, |m, &v| m.max((v as f64).abs()));
-    let diff = a
-        .iter()
-        .zip(b)
-        .fold(0f64, |m, (&x, &y)| m.max((x as f64 - y as f64).abs()));
+    if a.len() != b.len() {
+        return f64::INFINITY;
+    }
+    let (mut scale, mut diff) = (0f64, 0f64);
+    for (&x, &y) in a.iter().zip(b) {
+        if !(x.is_finite() && y.is_finite()) {
+            if x == y {
+                continue;
+            }
+            return f64::INFINITY;
+        }
+        scale = scale.max((y as f64).abs());
+        diff = diff.max((x as f64 - y as f64).abs());
+    }
     if scale == 0.0 {
         diff
     } else {
         diff / scale
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::relative_error;
+
+    #[test]
+    fn ordinary_values() {
+        let e = relative_error(&[1.0, 2.0, -4.5], &[1.0, 2.5, -4.0]);
+        assert!((e - 0.5 / 4.0).abs() < 1e-12, "{e}");
+        assert_eq!(relative_error(&[0.25, 0.0], &[0.0, 0.0]), 0.25);
+        assert_eq!(relative_error(&[], &[]), 0.0);
+    }
+
+    #[test]
+    fn nan_in_either_list_is_an_infinite_error() {
+        assert_eq!(relative_error(&[1.0, f32::NAN], &[1.0, 2.0]), f64::INFINITY);
+        assert_eq!(relative_error(&[1.0, 2.0], &[f32::NAN, 2.0]), f64::INFINITY);
+        assert_eq!(relative_error(&[f32::NAN], &[f32::NAN]), f64::INFINITY);
+    }
+
+    #[test]
+    fn infinity_against_a_finite_value_is_an_infinite_error() {
+        assert_eq!(relative_error(&[f32::INFINITY], &[1e30]), f64::INFINITY);
+        assert_eq!(relative_error(&[1.0], &[f32::NEG_INFINITY]), f64::INFINITY);
+        assert_eq!(
+            relative_error(&[f32::INFINITY], &[f32::NEG_INFINITY]),
+            f64::INFINITY
+        );
+        let e = relative_error(&[f32::INFINITY, 1.0], &[f32::INFINITY, 1.0]);
+        assert_eq!(e, 0.0, "equal infinities match");
+    }
+
+    #[test]
+    fn different_lengths_are_an_infinite_error() {
+        assert_eq!(relative_error(&[1.0], &[1.0, 2.0]), f64::INFINITY);
     }
 }

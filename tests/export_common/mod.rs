@@ -22,18 +22,16 @@ pub fn camo_png(dir: &Path, res: usize) -> PathBuf {
 pub fn print_mesh(mesh: &Path, texture: &Path, scale: Scale) -> PrintMesh {
     let opts = ExportOptions::default();
     let scene = export::load_mesh(mesh, &opts.load).unwrap();
-    let camo = export::load_texture(texture).unwrap();
+    let camo = export::load_texture(texture, &Default::default()).unwrap();
     export::prepare(&scene, &camo, scale).unwrap()
 }
 
-/// The third-party truck, when the shared folder has it.
+/// The third-party truck of the shared folder (`None`, a failure under CI, when it is missing).
 pub fn truck() -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/meshes/CesiumMilkTruck/CesiumMilkTruck.glb");
-    if !p.exists() {
-        eprintln!("SKIPPED: {} not present", p.display());
-    }
-    p.exists().then_some(p)
+    support::require_path(
+        &support::root().join("../shared/meshes/CesiumMilkTruck/CesiumMilkTruck.glb"),
+        "the Cesium milk truck of ../shared (a third-party mesh)",
+    )
 }
 
 /// lib3mf (Python) present?

@@ -1,9 +1,12 @@
 //! Shared by the integration tests (`mod support;` at the top of a test file): the compute
 //! device, the `cac` binary, the detector models, and [`require`] / [`require_path`], which turn
-//! a missing tool or file into a failure under CI (`CI=true`) and into a visible skip elsewhere.
+//! a missing tool or file into a failure under CI (`CI=true`) and into a visible skip elsewhere;
+//! [`score_report`] checks a scored capture session's report files by their content.
 //! The device is chosen here, at the edge, as the binary does in `src/cli/device.rs`.
 
 #![allow(dead_code)]
+
+pub mod score_report;
 
 use burn::tensor::Device;
 use std::path::{Path, PathBuf};
