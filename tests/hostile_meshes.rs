@@ -192,6 +192,7 @@ fn export(case: &HostileCase, camo: &Path, dir: &Path) -> bool {
             case.name
         );
     }
+    refused
 }
 
 #[test]

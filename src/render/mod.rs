@@ -115,7 +115,7 @@ impl Renderer {
                     settings.width, settings.height, settings.samples
                 ),
                 settings.bytes_per_view(),
-                "lower the size (--width/--height, --size or the config's [render]) or the samples per pixel",
+                "lower the size (--width/--height, --size or the config's [render]) or --samples",
             )
             .map_err(anyhow::Error::from)?;
         let accel = accel::Accel::build(&scene);
