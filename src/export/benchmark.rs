@@ -216,6 +216,7 @@ pub fn run_solid(
                 voxel_mm: h,
                 min_wall_mm: min_wall,
                 thin: super::ThinPolicy::Thicken,
+                memory: MemoryBudget::current(),
             },
         )?;
         let seconds = t.elapsed().as_secs_f64();

@@ -652,6 +652,7 @@ fn make_printable(
             voxel_mm: voxel,
             min_wall_mm: limits.min_wall_mm,
             thin: limits.thin,
+            memory: opts.memory,
         };
         let (m, rep) = solidify::solidify(&cur, &a, &so).with_context(|| at.clone())?;
         notes.push(rep.note());
