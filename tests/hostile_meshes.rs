@@ -178,6 +178,18 @@ fn export(case: &HostileCase, camo: &Path, dir: &Path) -> bool {
     if refused {
         assert_eq!(std::fs::read(&earlier).unwrap(), b"an earlier export");
     } else {
+        // Each stage says when it starts (a long export is never silent).
+        for stage in [
+            "export: baking the colours of",
+            "export: writing sheets ...",
+        ] {
+            assert!(
+                r.text.contains(stage),
+                "{}: no '{stage}':\n{}",
+                case.name,
+                r.text
+            );
+        }
         assert!(
             std::fs::metadata(&earlier).unwrap().len() > 1000,
             "{}: 3MF not written",

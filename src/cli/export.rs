@@ -84,6 +84,7 @@ pub fn run(a: Args) -> Result<()> {
         repair: a.repair,
         voxel_mm: a.voxel_mm,
         max_hole_mm: a.max_hole_mm,
+        progress: |stage| eprintln!("export: {stage} ..."),
         ..Default::default()
     };
     opts.limits.thin = a.thin;

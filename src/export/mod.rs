@@ -98,14 +98,14 @@ pub enum Format {
 impl FromStr for Format {
     type Err = anyhow::Error;
     fn from_str(s: &str) -> Result<Format> {
-        Ok(match s.trim() {
-            "3mf-texture" => Format::ThreeMfTexture,
-            "3mf-color" | "3mf-colour" => Format::ThreeMfColor,
-            "obj" => Format::Obj,
-            "obj-vc" => Format::ObjVc,
-            "sheets" => Format::Sheets,
-            o => bail!(
-                "unknown export format '{o}' (expected 3mf-texture, 3mf-color, obj, obj-vc, sheets)"
+        let s = s.trim();
+        if s == "3mf-colour" {
+            return Ok(Format::ThreeMfColor);
+        }
+        Ok(match Format::ALL.into_iter().find(|f| f.name() == s) {
+            Some(f) => f,
+            None => bail!(
+                "unknown export format '{s}' (expected 3mf-texture, 3mf-color, obj, obj-vc, sheets)"
             ),
         })
     }
@@ -119,6 +119,17 @@ impl Format {
         Format::ObjVc,
         Format::Sheets,
     ];
+    /// The name `--formats` takes.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Format::ThreeMfTexture => "3mf-texture",
+            Format::ThreeMfColor => "3mf-color",
+            Format::Obj => "obj",
+            Format::ObjVc => "obj-vc",
+            Format::Sheets => "sheets",
+        }
+    }
+
     /// Does this format carry printable geometry (and so need a closed mesh)?
     pub fn is_geometry(&self) -> bool {
         !matches!(self, Format::Sheets)
@@ -173,6 +184,8 @@ pub struct ExportOptions {
     /// The memory budget (default: the process's, [`MemoryBudget::current`]): the texture, the
     /// solid and the bake are estimated against it first.
     pub memory: MemoryBudget,
+    /// Told the name of each stage as it starts (the CLI prints it; default: nothing).
+    pub progress: fn(&str),
 }
 
 impl Default for ExportOptions {
@@ -190,6 +203,7 @@ impl Default for ExportOptions {
             voxel_mm: None,
             max_hole_mm: 20.0,
             memory: MemoryBudget::current(),
+            progress: |_| {},
         }
     }
 }
@@ -490,6 +504,7 @@ pub fn export(
             notes.push(format!("warning: {msg}; written anyway (--allow-open)"));
         }
     } else if needs_closed {
+        (opts.progress)("checking and repairing for print");
         let r = make_printable(&mesh, opts, mesh_path, &mut notes)?;
         if r.1.is_some() {
             original = Some((mesh, r.3));
@@ -501,6 +516,10 @@ pub fn export(
     let stem = sanitize(&mesh.name);
     let mut files = vec![];
     let baked = if needs_bake {
+        (opts.progress)(&format!(
+            "baking the colours of {} triangles",
+            mesh.tris.len()
+        ));
         let mut b = bake::bake(&mesh, &opts.bake, &opts.memory)
             .with_context(|| format!("mesh {}", mesh_path.display()))?;
         if let Some((orig, _)) = &original {
@@ -519,6 +538,7 @@ pub fn export(
         fidelity = Some(f);
     }
     for f in &opts.formats {
+        (opts.progress)(&format!("writing {}", f.name()));
         match f {
             Format::ThreeMfTexture => {
                 let p = out.join(format!("{stem}_texture.3mf"));
@@ -654,6 +674,7 @@ fn make_printable(
             thin: limits.thin,
             memory: opts.memory,
         };
+        (opts.progress)(&format!("rebuilding as a solid on a {voxel:.3} mm grid"));
         let (m, rep) = solidify::solidify(&cur, &a, &so).with_context(|| at.clone())?;
         notes.push(rep.note());
         if !m.report.is_closed() {
