@@ -12,22 +12,8 @@ type Tri = [[f32; 3]; 3];
 
 /// The 12 outward triangles of an axis-aligned box (metres).
 fn boxed(lo: [f32; 3], hi: [f32; 3]) -> Vec<Tri> {
-    let c = |i: usize| {
-        [
-            if i & 1 == 0 { lo[0] } else { hi[0] },
-            if i & 2 == 0 { lo[1] } else { hi[1] },
-            if i & 4 == 0 { lo[2] } else { hi[2] },
-        ]
-    };
-    let quads = [
-        [0, 2, 3, 1],
-        [4, 5, 7, 6],
-        [0, 1, 5, 4],
-        [2, 6, 7, 3],
-        [0, 4, 6, 2],
-        [1, 3, 7, 5],
-    ];
-    quads
+    let c = |i: u32| std::array::from_fn(|k| if i >> k & 1 == 0 { lo[k] } else { hi[k] });
+    cac::scene::BOX_QUADS
         .iter()
         .flat_map(|q| [[c(q[0]), c(q[1]), c(q[2])], [c(q[0]), c(q[2]), c(q[3])]])
         .collect()

@@ -598,7 +598,7 @@ fn make_printable(
     let at = format!("mesh {} at 1:{}", path.display(), opts.scale.denominator);
     // Repair and solidify change the size by less than a voxel: an object that cannot fit is
     // refused before either runs (a 1 km object would be solidified first otherwise).
-    check_build_volume(&at, mesh.report.size_mm, opts)?;
+    check_size(&at, mesh.report.size_mm, opts)?;
     let mut cur = mesh.clone();
     let mut rebuild = opts.repair == RepairMode::Solid;
     if !cur.report.is_closed() {
@@ -716,14 +716,14 @@ fn make_printable(
             ThinPolicy::Thicken => notes.push(format!("warning: {msg}")),
         }
     }
-    check_build_volume(&at, p.size_mm, opts)?;
+    check_size(&at, p.size_mm, opts)?;
     notes.extend(p.lines());
     Ok((cur, solid, p, kinds))
 }
 
 /// Refuses an object of `size` mm that does not fit the build volume, naming the largest scale
 /// that does, or that is smaller than the minimum feature.
-fn check_build_volume(at: &str, size: [f32; 3], opts: &ExportOptions) -> Result<()> {
+fn check_size(at: &str, size: [f32; 3], opts: &ExportOptions) -> Result<()> {
     let longest = size.iter().copied().fold(0.0f32, f32::max);
     if longest < opts.limits.min_feature_mm {
         bail!(
@@ -853,14 +853,7 @@ pub(crate) mod fixtures {
     use glam::Vec3;
 
     /// The unit cube's six faces, outward, as corner indices (see [`corner`]).
-    pub const CUBE_QUADS: [[u32; 4]; 6] = [
-        [0, 2, 3, 1],
-        [4, 5, 7, 6],
-        [0, 1, 5, 4],
-        [2, 6, 7, 3],
-        [0, 4, 6, 2],
-        [1, 3, 7, 5],
-    ];
+    pub use crate::scene::BOX_QUADS as CUBE_QUADS;
 
     /// Corner `i` of the unit cube: `(i & 1, i >> 1 & 1, i >> 2 & 1)`.
     pub fn corner(i: u32) -> Vec3 {
@@ -887,10 +880,18 @@ pub(crate) mod fixtures {
 
     /// A closed, outward cube (12 triangles) of side `s` at `o`.
     pub fn cube(s: f32, o: Vec3) -> Vec<[Vec3; 3]> {
-        let c = |i: u32| corner(i) * s + o;
+        cuboid(o, o + Vec3::splat(s), &[])
+    }
+
+    /// The box from `lo` to `hi` as outward triangles, without the faces whose indices into
+    /// [`CUBE_QUADS`] are in `skip`.
+    pub fn cuboid(lo: Vec3, hi: Vec3, skip: &[usize]) -> Vec<[Vec3; 3]> {
+        let c = |i: u32| lo + corner(i) * (hi - lo);
         CUBE_QUADS
             .iter()
-            .flat_map(|q| [[c(q[0]), c(q[1]), c(q[2])], [c(q[0]), c(q[2]), c(q[3])]])
+            .enumerate()
+            .filter(|(k, _)| !skip.contains(k))
+            .flat_map(|(_, q)| [[c(q[0]), c(q[1]), c(q[2])], [c(q[0]), c(q[2]), c(q[3])]])
             .collect()
     }
 }

@@ -820,7 +820,7 @@ mod tests {
         crate::export::fixtures::print_mesh("t", &positions, pt)
     }
 
-    use crate::export::fixtures::cube;
+    use crate::export::fixtures::{cube, cuboid};
 
     fn opts(h: f32) -> SolidifyOptions {
         SolidifyOptions {
@@ -900,30 +900,6 @@ mod tests {
         );
     }
 
-    /// Outward box from `lo` to `hi` without the faces in `skip` (-x, +x, -y, +y, -z, +z).
-    fn box_tris(lo: Vec3, hi: Vec3, skip: &[usize]) -> Vec<[Vec3; 3]> {
-        let v = |i: usize| {
-            Vec3::new(
-                if i & 1 == 0 { lo.x } else { hi.x },
-                if i & 2 == 0 { lo.y } else { hi.y },
-                if i & 4 == 0 { lo.z } else { hi.z },
-            )
-        };
-        const F: [[usize; 4]; 6] = [
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-        ];
-        F.iter()
-            .enumerate()
-            .filter(|(k, _)| !skip.contains(k))
-            .flat_map(|(_, q)| [[v(q[0]), v(q[1]), v(q[2])], [v(q[0]), v(q[2]), v(q[3])]])
-            .collect()
-    }
-
     /// The failure of a box vehicle (messy.obj): a body without a floor, a cabin, four wheel
     /// boxes through the body's sides and a single-sided window just off the cabin. The winding
     /// number's film across the 40 x 16 mm floor hole is the plane of the hole (exactly ½ there),
@@ -941,15 +917,16 @@ mod tests {
             // z origin is that of `grid_origin`: grid plane 16 is a block face.
             let pad = 0.4 + 2.0 * h;
             let z = grid_origin(Vec3::ZERO, pad, h).z + 16.0 * h + eps;
-            let mut t = box_tris(Vec3::new(0.0, 0.0, z), Vec3::new(len, wid, z + 8.0), &[4]);
-            t.extend(box_tris(
+            // The body without its floor (face 0: −z).
+            let mut t = cuboid(Vec3::new(0.0, 0.0, z), Vec3::new(len, wid, z + 8.0), &[0]);
+            t.extend(cuboid(
                 Vec3::new(12.0, 0.5, z + 8.0),
                 Vec3::new(26.0, wid - 0.5, z + 14.0),
                 &[],
             ));
             for x in [6.0, 30.0] {
                 for y in [-1.0, wid - 1.0] {
-                    t.extend(box_tris(
+                    t.extend(cuboid(
                         Vec3::new(x, y, 0.0),
                         Vec3::new(x + 6.0, y + 2.0, z + 1.6),
                         &[],

@@ -58,10 +58,44 @@ fn texture_from(data: &gltf::image::Data, path: &Path) -> Result<Texture> {
     })
 }
 
+/// Refuses a glTF whose buffers or images refer to files that are not next to it, naming them
+/// (the importer's own error says only "No such file or directory").
+fn missing_files(path: &Path) -> Result<()> {
+    let Ok(g) = gltf::Gltf::open(path) else {
+        return Ok(()); // unreadable: the importer says why
+    };
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let external = |uri: &str| !uri.starts_with("data:") && !dir.join(uri).is_file();
+    for b in g.buffers() {
+        if let gltf::buffer::Source::Uri(uri) = b.source() {
+            if external(uri) {
+                bail!(
+                    "{}: buffer {} refers to {uri}, which is not next to it",
+                    path.display(),
+                    b.index()
+                );
+            }
+        }
+    }
+    for i in g.images() {
+        if let gltf::image::Source::Uri { uri, .. } = i.source() {
+            if external(uri) {
+                bail!(
+                    "{}: image {} refers to {uri}, which is not next to it",
+                    path.display(),
+                    i.index()
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
 pub fn load(path: &Path) -> Result<Scene> {
     if !path.is_file() {
         bail!("mesh file {} does not exist", path.display());
     }
+    missing_files(path)?;
     let (doc, buffers, images) = gltf::import(path)
         .map_err(|e| anyhow!("{}: not a readable glTF/GLB file ({e})", path.display()))?;
     let name = path

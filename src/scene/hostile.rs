@@ -134,7 +134,7 @@ pub fn write_case(dir: &Path, name: &str, seed: u64) -> Result<HostileCase> {
         "missing_mtl" => {
             vehicle(&mut m, &mut rng, 1.0);
             m.mtllib = Some("does_not_exist.mtl".into());
-            expect = Expect::Refused("material library");
+            expect = Expect::Refused("mtllib does_not_exist.mtl");
         }
         "missing_texture" => {
             m.material("paint", Some("does_not_exist.png"));
@@ -144,7 +144,7 @@ pub fn write_case(dir: &Path, name: &str, seed: u64) -> Result<HostileCase> {
         "gltf_node_tree" => gltf = Some(node_tree(&mut rng, 2000, false)),
         "gltf_bad_buffer" => {
             gltf = Some(node_tree(&mut rng, 3, true));
-            expect = Expect::Refused("buffer");
+            expect = Expect::Refused("refers to missing_buffer.bin");
         }
         other => anyhow::bail!("no hostile case '{other}' (cases: {})", CASES.join(", ")),
     }
@@ -227,33 +227,23 @@ impl Obj {
         skip: Option<usize>,
         uv: impl Fn(usize, [f32; 2]) -> [f32; 2],
     ) {
-        let p = |i: usize| {
-            [
-                if i & 1 == 0 { lo[0] } else { hi[0] },
-                if i & 2 == 0 { lo[1] } else { hi[1] },
-                if i & 4 == 0 { lo[2] } else { hi[2] },
-            ]
-        };
         let base = self.nv;
         for i in 0..8 {
-            self.vertex(p(i));
+            self.vertex(std::array::from_fn(|k| {
+                if i >> k & 1 == 0 {
+                    lo[k]
+                } else {
+                    hi[k]
+                }
+            }));
         }
-        // −x, +x, −y (floor), +y, −z, +z; counter-clockwise from outside.
-        const FACES: [[usize; 4]; 6] = [
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-        ];
         let corners = [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]];
-        for (k, f) in FACES.iter().enumerate() {
+        for (k, f) in super::BOX_QUADS.iter().enumerate() {
             if skip == Some(k) {
                 continue;
             }
             let t: Vec<usize> = corners.iter().map(|&c| self.uv(uv(k, c))).collect();
-            let c: Vec<(usize, usize)> = (0..4).map(|j| (base + 1 + f[j], t[j])).collect();
+            let c: Vec<(usize, usize)> = (0..4).map(|j| (base + 1 + f[j] as usize, t[j])).collect();
             self.face(&c);
         }
     }
@@ -303,6 +293,7 @@ fn vehicle(m: &mut Obj, rng: &mut impl Rng, scale: f32) {
     let s = |p: [f32; 3]| p.map(|x| x * scale);
     m.material("paint", None);
     m.group("body");
+    // Face 2 of `BOX_QUADS` is −y: the floor.
     m.cuboid_skip(s([-2.25, 0.4, -0.9]), s([2.25, 1.4, 0.9]), Some(2), tile);
     m.group("cabin");
     m.cuboid(s([-0.8, 1.4, -0.85]), s([0.9, 2.1, 0.85]), tile);

@@ -23,6 +23,18 @@ use glam::{Mat4, Vec2, Vec3};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+/// The six faces of an axis-aligned box as corner indices, each counter-clockwise seen from
+/// outside, in the order −z, +z, −y, +y, −x, +x; corner `i` is at `(i & 1, i >> 1 & 1, i >> 2 & 1)`
+/// of the box (0: low side, 1: high side). Shared by the hostile meshes and the export tests.
+pub const BOX_QUADS: [[u32; 4]; 6] = [
+    [0, 2, 3, 1],
+    [4, 5, 7, 6],
+    [0, 1, 5, 4],
+    [2, 6, 7, 3],
+    [0, 4, 6, 2],
+    [1, 3, 7, 5],
+];
+
 /// An RGB texture in display (sRGB-encoded) values, row-major, row 0 at the top (`v = 1`).
 #[derive(Clone, Debug)]
 pub struct Texture {

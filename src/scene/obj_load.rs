@@ -24,10 +24,17 @@ pub fn load(path: &Path) -> Result<Scene> {
     let dir = path.parent().unwrap_or(Path::new("."));
     let mats = match mats {
         Ok(m) => m,
-        Err(tobj::LoadError::OpenFileFailed) => bail!(
-            "{}: its material library (mtllib) could not be opened next to it",
-            path.display()
-        ),
+        Err(tobj::LoadError::OpenFileFailed) => {
+            let lib = std::fs::read_to_string(path).ok().and_then(|t| {
+                t.lines()
+                    .find_map(|l| Some(l.trim().strip_prefix("mtllib")?.trim().to_string()))
+            });
+            bail!(
+                "{}: its material library (mtllib {}) could not be opened next to it",
+                path.display(),
+                lib.as_deref().unwrap_or("?")
+            )
+        }
         Err(e) => bail!(
             "{}: its material library is malformed ({e})",
             path.display()
