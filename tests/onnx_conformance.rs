@@ -345,6 +345,11 @@ fn yolo_detections_on_reference_images_match_onnxruntime() {
     for e in manifest(dir).models.iter().filter(|e| e.kind == "detector") {
         let det = OnnxDetector::load(&dir.join(&e.file), Some(&cfg), &dev).unwrap();
         let anchor_free = e.name != "yolov5_anchor";
+        // onnxruntime's output on each photo and its spread against itself (its fused graph
+        // against the graph as written). The random-weight network amplifies float noise by an
+        // amount that varies from photo to photo (1e-4 to 3e-4 of the largest box output for
+        // YOLOv8n), so cac is held to twice the model's largest spread (and at least 1e-4).
+        let mut oracle = Vec::new();
         for img in ["astronaut.png", "horse.png", "motorcycle_left.png"] {
             let (rgb, x) = photo(&shared, img);
             let (net, geo) = det.network_input(x.clone()).unwrap();
@@ -379,13 +384,17 @@ fn yolo_detections_on_reference_images_match_onnxruntime() {
                     .fold(0.0f64, |m, (p, q)| m.max((p - q).abs()))
                     / scale
             };
+            oracle.push((img, rgb, x, net, geo, want, spread));
+        }
+        let model_spread = oracle.iter().map(|o| o.6).fold(0.0f64, f64::max);
+        for (img, rgb, x, net, geo, want, spread) in oracle {
             let got = det.graph().run_images("images", net, &["output0"]).unwrap();
             let got = &got;
             let rel = compare_within(
                 &format!("{} on {img}", e.name),
                 &got[0],
                 &want["output0"],
-                1e-4f64.max(2.0 * spread),
+                1e-4f64.max(2.0 * model_spread),
             )
             .unwrap();
             eprintln!("{} on {img}: raw output within {rel:.2e} (onnxruntime against itself {spread:.2e})", e.name);

@@ -86,6 +86,8 @@ pub enum BenchCmd {
     Render(bench::render::Args),
     /// The COCO detectors (burn) against the TFJS wasm runtime.
     Detect(bench::detect::DetectBench),
+    /// The detectors' activations (fused kernels) against burn's composites and PyTorch.
+    Kernels(bench::kernels::Args),
     /// Bake error against triangles and seconds for several subdivision limits.
     Export(export::BenchArgs),
     /// The attack: iteration time split, and white-box error against wall time.
@@ -119,6 +121,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Score(a) => score::run(a),
         Command::Bench(BenchCmd::Render(a)) => bench::render::run(a),
         Command::Bench(BenchCmd::Detect(a)) => bench::detect::run(a),
+        Command::Bench(BenchCmd::Kernels(a)) => bench::kernels::run(a),
         Command::Bench(BenchCmd::Export(a)) => export::bench(a),
         Command::Bench(BenchCmd::Attack(a)) => bench::attack::run(a),
         Command::Bench(BenchCmd::Video(a)) => bench::video::run(a),

@@ -339,7 +339,9 @@ pub fn ort_ms(
 }
 
 /// One ONNX detector: cac's graph forward, its detector forward (with the pre-sigmoid tail) and
-/// forward+backward to the image, and onnxruntime's forward, all at batch 1.
+/// forward+backward to the image, onnxruntime's forward, and PyTorch's forward and
+/// forward+backward (the file converted by onnx2torch; backward of the first output's sum), all
+/// at batch 1.
 pub struct OnnxRow {
     pub name: String,
     pub input: (usize, usize),
@@ -347,6 +349,7 @@ pub struct OnnxRow {
     pub forward_ms: f64,
     pub backward_ms: f64,
     pub ort_ms: Option<f64>,
+    pub torch_ms: Option<(f64, f64)>,
 }
 
 impl OnnxRow {
@@ -380,6 +383,9 @@ pub fn onnx_models(
         "ort_forward_ms",
         "forward_over_ort",
         "forward_backward_over_ort",
+        "torch_forward_ms",
+        "torch_forward_backward_ms",
+        "forward_backward_over_torch",
     ]);
     for f in files {
         let spec = format!("onnx:{f}");
@@ -403,6 +409,7 @@ pub fn onnx_models(
             forward_ms: fwd,
             backward_ms: bwd,
             ort_ms: ort_ms(python, &path, &input, [1, 3, h, w], threads, runs.max(3)),
+            torch_ms: onnx_torch_ms(python, &path, [1, 3, h, w], threads, runs),
         };
         let (rf, rb) = row.ratios();
         rows.row([
@@ -415,13 +422,188 @@ pub fn onnx_models(
             na(row.ort_ms, 2),
             na(rf, 4),
             na(rb, 4),
+            na(row.torch_ms.map(|t| t.0), 2),
+            na(row.torch_ms.map(|t| t.1), 2),
+            na(row.torch_ms.map(|t| bwd / t.1), 4),
         ]);
         on_row(&rows);
     }
     Ok(rows)
 }
 
+/// PyTorch's (forward, forward+backward) ms of `model` converted by onnx2torch
+/// (`tools/onnx/torch_run.py`), run by `python` with `threads` threads; None (with the reason on
+/// stderr) when it does not convert or run.
+fn onnx_torch_ms(
+    python: &str,
+    model: &Path,
+    shape: [usize; 4],
+    threads: usize,
+    runs: usize,
+) -> Option<(f64, f64)> {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/onnx/torch_run.py");
+    let dims = shape.map(|d| d.to_string()).join(",");
+    let out = Command::new(python)
+        .arg(script)
+        .arg(model)
+        .args(["--shape", &dims, "--threads", &threads.to_string()])
+        .args(["--runs", &runs.max(3).to_string()])
+        .output()
+        .ok()?;
+    let text = String::from_utf8_lossy(&out.stdout);
+    let v: serde_json::Value = serde_json::from_str(text.lines().last()?).ok()?;
+    if let Some(e) = v["error"].as_str() {
+        eprintln!("PyTorch column n/a for {}: {e}", model.display());
+        return None;
+    }
+    Some((
+        v["forward_ms"].as_f64()?,
+        v["forward_backward_ms"].as_f64()?,
+    ))
+}
+
 /// `v` with `p` decimals, or `n/a`.
 pub fn na(v: Option<f64>, p: usize) -> String {
     v.map(|v| format!("{v:.p$}")).unwrap_or("n/a".into())
+}
+
+/// The detectors' hot ops as cac runs them (the fused activations of [`super::activation`], the
+/// dense convolutions of [`super::conv`]) against burn's own ops on the same backend and against
+/// PyTorch (`tools/torch_activations.py`, run by `python` with the same thread count), on one
+/// seeded feature map of `shape` (convolutions: C to C channels, 3×3 padded and 1×1, seeded
+/// weights), at each of `threads`: fastest forward and forward + backward (of `y.sum()` to the
+/// input; weights take no gradient, as in an attack) ms of `runs`. `on_row` sees the table after
+/// each row; returns the CSV table.
+pub fn activation_rows(
+    shape: [usize; 4],
+    threads: &[usize],
+    runs: usize,
+    python: &str,
+    (inference, training): (&Device, &Device),
+    on_row: &mut dyn FnMut(&Table),
+) -> Result<Table> {
+    use super::activation as fast;
+    use burn::tensor::activation;
+    use burn::tensor::ops::ConvOptions;
+    type Op = Box<dyn Fn(Tensor<4>) -> Tensor<4> + Send + Sync>;
+    let c = shape[1];
+    let w3 = Tensor::<4>::random([c, c, 3, 3], Distribution::Uniform(-0.5, 0.5), inference);
+    let w1 = Tensor::<4>::random([c, c, 1, 1], Distribution::Uniform(-0.5, 0.5), inference);
+    let conv = |w: &Tensor<4>, pad: usize, ours: bool| -> Op {
+        let w = w.clone();
+        Box::new(move |x: Tensor<4>| {
+            let w = w.clone().to_device(&x.device());
+            let o = ConvOptions::new([1, 1], [pad, pad], [1, 1], 1);
+            match ours {
+                true => super::conv::conv2d(x, w, None, o),
+                false => burn::tensor::module::conv2d(x, w, None, o),
+            }
+        })
+    };
+    let bias = Tensor::<1>::random([c], Distribution::Uniform(-0.5, 0.5), inference);
+    let bias_add = |ours: bool| -> Op {
+        let b = bias.clone();
+        Box::new(move |x: Tensor<4>| {
+            let b = b.clone().to_device(&x.device());
+            match ours {
+                true => super::conv::add_bias(x, b),
+                false => x + b.reshape([1, c, 1, 1]),
+            }
+        })
+    };
+    let ops: Vec<(&str, Op, Op)> = vec![
+        (
+            "sigmoid",
+            Box::new(fast::sigmoid),
+            Box::new(activation::sigmoid),
+        ),
+        (
+            "silu",
+            Box::new(fast::silu),
+            Box::new(|x: Tensor<4>| x.clone() * activation::sigmoid(x)),
+        ),
+        (
+            "leaky_relu",
+            Box::new(|x| fast::leaky_relu(x, 0.1)),
+            Box::new(|x| activation::leaky_relu(x, 0.1)),
+        ),
+        ("conv3x3", conv(&w3, 1, true), conv(&w3, 1, false)),
+        ("bias_add", bias_add(true), bias_add(false)),
+        ("conv1x1", conv(&w1, 0, true), conv(&w1, 0, false)),
+    ];
+    let mut rows = Table::new([
+        "op",
+        "shape",
+        "threads",
+        "cac_forward_ms",
+        "cac_forward_backward_ms",
+        "burn_forward_ms",
+        "burn_forward_backward_ms",
+        "torch_forward_ms",
+        "torch_forward_backward_ms",
+        "forward_over_torch",
+        "forward_backward_over_torch",
+    ]);
+    let dims = shape.map(|d| d.to_string()).join(",");
+    for &t in threads {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build()?;
+        let torch = torch_activation_ms(python, &dims, t, runs);
+        for (name, fused, composite) in &ops {
+            let x = Tensor::<4>::random(shape, Distribution::Uniform(-6.0, 6.0), inference);
+            let xa = Tensor::<4>::random(shape, Distribution::Uniform(-6.0, 6.0), training);
+            let measure = |f: &Op| -> Result<(f64, f64)> {
+                let fwd = time(runs, || {
+                    let _ = f(x.clone());
+                    Ok(())
+                })?;
+                let bwd = time(runs, || {
+                    let x = xa.clone().require_grad();
+                    let g = f(x.clone()).sum().backward();
+                    x.grad(&g).context("no gradient")?;
+                    Ok(())
+                })?;
+                Ok((fwd, bwd))
+            };
+            let ((ff, fb), (cf, cb)) =
+                pool.install(|| Ok::<_, anyhow::Error>((measure(fused)?, measure(composite)?)))?;
+            let peer = torch.as_ref().and_then(|v| v.get(*name).copied());
+            rows.row([
+                name.to_string(),
+                format!("{shape:?}"),
+                t.to_string(),
+                format!("{ff:.3}"),
+                format!("{fb:.3}"),
+                format!("{cf:.3}"),
+                format!("{cb:.3}"),
+                na(peer.map(|p| p.0), 3),
+                na(peer.map(|p| p.1), 3),
+                na(peer.map(|p| ff / p.0), 2),
+                na(peer.map(|p| fb / p.1), 2),
+            ]);
+            on_row(&rows);
+        }
+    }
+    Ok(rows)
+}
+
+/// PyTorch's (forward, forward+backward) ms per activation, or None when torch cannot run.
+fn torch_activation_ms(
+    python: &str,
+    shape: &str,
+    threads: usize,
+    runs: usize,
+) -> Option<std::collections::HashMap<String, (f64, f64)>> {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/torch_activations.py");
+    let out = Command::new(python)
+        .arg(script)
+        .args(["--shape", shape, "--threads", &threads.to_string()])
+        .args(["--runs", &runs.to_string()])
+        .output()
+        .ok()?;
+    let text = String::from_utf8_lossy(&out.stdout);
+    let v: serde_json::Value = serde_json::from_str(text.lines().last()?).ok()?;
+    v.as_object()?
+        .iter()
+        .map(|(k, v)| Some((k.clone(), (v[0].as_f64()?, v[1].as_f64()?))))
+        .collect()
 }

@@ -12,7 +12,7 @@ use super::raw::{RawDump, RawImage, RawTensor};
 use super::tfjs::{load_graph, Graph, Value};
 use super::{check_images, labels::COCO80, to_vec, Candidates, Detection, Detector};
 use anyhow::{bail, ensure, Result};
-use burn::tensor::{activation, Device, Tensor, TensorData};
+use burn::tensor::{Device, Tensor, TensorData};
 use std::path::Path;
 
 const INPUT: &str = "tower_0/images";
@@ -232,7 +232,7 @@ impl Detector for CenterNet {
         let boxes = (centres + wh * sign) * scale;
         Ok(Candidates {
             boxes,
-            scores: activation::sigmoid(logits.clone()),
+            scores: crate::detect::activation::sigmoid(logits.clone()),
             logits,
         })
     }

@@ -5,8 +5,8 @@
 //! another order: agrees with `conv2d` to float rounding (tested). Not here: layouts or
 //! attribute parsing (the executors' own).
 
+use crate::detect::conv::conv2d;
 use anyhow::{bail, Result};
-use burn::tensor::module::conv2d;
 use burn::tensor::ops::{ConvOptions, PadMode};
 use burn::tensor::{Slice, Tensor};
 

@@ -15,8 +15,10 @@
 //! [`bench`] times detectors (and their TFJS and PyTorch references) for `cac bench detect`;
 //! [`draw`] draws detections into an image.
 
+pub mod activation;
 pub mod bench;
 pub mod centernet;
+pub mod conv;
 pub mod draw;
 pub mod fetch;
 pub mod frcnn;

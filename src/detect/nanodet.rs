@@ -424,7 +424,7 @@ impl Detector for NanoDet {
         let logits = Tensor::cat(all_logits, 1);
         Ok(Candidates {
             boxes: Tensor::cat(all_boxes, 1),
-            scores: activation::sigmoid(logits.clone()),
+            scores: crate::detect::activation::sigmoid(logits.clone()),
             logits,
         })
     }

@@ -1,7 +1,7 @@
 //! `cac bench detect`: forward and forward+backward time of both detectors at native
 //! resolution, batch 1 and 4, and the TFJS reference runner's wasm backend timed in the same
 //! run; then the Faster R-CNN models against PyTorch ([`super::frcnn`]); with `--onnx`, users'
-//! ONNX detectors against onnxruntime at the same thread count. Prints tables and writes
+//! ONNX detectors against onnxruntime and PyTorch (onnx2torch) at the same thread counts. Prints tables and writes
 //! CSVs. A benchmark, not a test: it asserts nothing. Measured by `cac::detect::bench`.
 
 use crate::cli::device;
@@ -43,6 +43,10 @@ pub struct DetectBench {
     /// onnxruntime (run by --python, same thread count).
     #[arg(long, value_delimiter = ',')]
     pub onnx: Vec<String>,
+    /// Thread counts for the ONNX table (comma-separated; default: rayon's pool size), the
+    /// same for cac, onnxruntime and PyTorch.
+    #[arg(long, value_delimiter = ',')]
+    pub threads: Vec<usize>,
     /// CSV output file of the ONNX table.
     #[arg(long, default_value = "bench-detect-onnx.csv")]
     pub onnx_csv: PathBuf,
@@ -78,14 +82,30 @@ fn bench_tfjs(a: &DetectBench) -> Result<()> {
 }
 
 fn bench_onnx(a: &DetectBench) -> Result<()> {
-    let threads = rayon::current_num_threads();
-    println!(
-        "onnxruntime column: CPU, {threads} threads (cac's CPU backend uses the same pool size)"
-    );
+    let counts = match a.threads.is_empty() {
+        true => vec![rayon::current_num_threads()],
+        false => a.threads.clone(),
+    };
     let devices = (&device::inference(), &device::training());
-    let rows = bench::onnx_models(&a.onnx, a.runs, &a.python, threads, devices, &mut |t| {
-        print!("{}", t.markdown_last())
-    })?;
+    let mut all: Option<cac::report::Table> = None;
+    for threads in counts {
+        println!(
+            "{threads} threads: cac's CPU backend, onnxruntime (CPU) and PyTorch (onnx2torch, CPU)"
+        );
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()?;
+        let rows = pool.install(|| {
+            bench::onnx_models(&a.onnx, a.runs, &a.python, threads, devices, &mut |t| {
+                print!("{}", t.markdown_last())
+            })
+        })?;
+        match &mut all {
+            Some(t) => t.rows.extend(rows.rows),
+            None => all = Some(rows),
+        }
+    }
+    let rows = all.expect("at least one thread count");
     cac::io::write_atomic(&a.onnx_csv, rows.csv().as_bytes())?;
     println!("wrote {}", a.onnx_csv.display());
     Ok(())

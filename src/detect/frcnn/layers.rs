@@ -5,7 +5,7 @@
 //! (torchvision's FrozenBatchNorm2d and eval BatchNorm2d compute the same `a`, `b`).
 
 use super::weights::Loader;
-use burn::tensor::module::conv2d;
+use crate::detect::conv::conv2d;
 use burn::tensor::ops::ConvOptions;
 use burn::tensor::{Device, Tensor, TensorData};
 

@@ -324,7 +324,9 @@ impl OnnxDetector {
             q.clone().log() - q.neg().log1p()
         };
         let (scores, logits) = match (self.head, mode) {
-            (Head::V8 | Head::Split, "logits") => (activation::sigmoid(cls_p.clone()), cls_p),
+            (Head::V8 | Head::Split, "logits") => {
+                (crate::detect::activation::sigmoid(cls_p.clone()), cls_p)
+            }
             (Head::V8 | Head::Split, "probabilities") => (cls_p.clone(), logit_of_prob(cls_p)),
             (Head::V8 | Head::Split, _) => (cls_p, cls_l),
             (Head::V5, _) => {

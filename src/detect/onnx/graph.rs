@@ -26,6 +26,10 @@ pub struct OnnxGraph {
     /// The node writing each slot (`None` for graph inputs and initializers).
     producer: Vec<Option<usize>>,
     consts: HashMap<usize, Val>,
+    /// `Mul(x, Sigmoid(x))` pairs run as one SiLU: Mul node → (Sigmoid node, slot of `x`). Only
+    /// where the sigmoid's output feeds that Mul alone and is not a graph output.
+    silu: HashMap<usize, (usize, usize)>,
+    silu_sigmoids: HashSet<usize>,
     pub device: Device,
 }
 
@@ -113,6 +117,8 @@ impl OnnxGraph {
                 );
             }
         }
+        let silu = silu_pairs(&model, &inputs, &outputs, &producer, &slots);
+        let silu_sigmoids = silu.values().map(|&(j, _)| j).collect();
         Ok(OnnxGraph {
             model,
             opset,
@@ -121,6 +127,8 @@ impl OnnxGraph {
             slots,
             producer,
             consts,
+            silu,
+            silu_sigmoids,
             device: device.clone(),
         })
     }
@@ -250,19 +258,44 @@ impl OnnxGraph {
         };
         let profile = std::env::var_os("CAC_PROFILE_GRAPH").is_some();
         let mut op_ms: HashMap<&str, f64> = HashMap::new();
+        // Sigmoids of SiLU pairs left to their Mul in this run (not tapped, not injected into,
+        // their input not on the pre-sigmoid pass, their output not asked for).
+        let mut deferred: HashSet<usize> = HashSet::new();
         for k in (0..n).filter(|&k| needed[k]) {
             let started = std::time::Instant::now();
             let node = &self.model.nodes[k];
-            let args: Vec<Option<Val>> = self.inputs[k]
-                .iter()
-                .map(|s| {
-                    s.map(|s| get(&vals, s).ok_or_else(|| anyhow!("{src}: value {s} missing")))
-                        .transpose()
-                })
-                .collect::<Result<_>>()?;
-            let refs: Vec<Option<&Val>> = args.iter().map(|v| v.as_ref()).collect();
-            let out = ops::eval(node, self.opset, &self.device, &refs)
-                .with_context(|| format!("{src}: node {:?} (op {})", node.name, node.op))?;
+            if self.silu_sigmoids.contains(&k) {
+                let (s, x) = (self.outputs[k][0], self.inputs[k][0]);
+                if !tapped.contains(&k)
+                    && !injected.contains_key(&s)
+                    && !keep.contains(&s)
+                    && x.is_some_and(|x| !alt.contains_key(&x))
+                {
+                    deferred.insert(k);
+                    continue;
+                }
+            }
+            let silu_x = (self.silu.get(&k))
+                .filter(|(j, _)| deferred.contains(j))
+                .map(|&(_, x)| x);
+            let (args, out) = if let Some(x) = silu_x {
+                let xv = get(&vals, x).ok_or_else(|| anyhow!("{src}: value {x} missing"))?;
+                let out = ops::silu(node, self.opset, &self.device, &[Some(&xv)])
+                    .with_context(|| format!("{src}: node {:?} (SiLU)", node.name))?;
+                (Vec::new(), out)
+            } else {
+                let args: Vec<Option<Val>> = self.inputs[k]
+                    .iter()
+                    .map(|s| {
+                        s.map(|s| get(&vals, s).ok_or_else(|| anyhow!("{src}: value {s} missing")))
+                            .transpose()
+                    })
+                    .collect::<Result<_>>()?;
+                let refs: Vec<Option<&Val>> = args.iter().map(|v| v.as_ref()).collect();
+                let out = ops::eval(node, self.opset, &self.device, &refs)
+                    .with_context(|| format!("{src}: node {:?} (op {})", node.name, node.op))?;
+                (args, out)
+            };
             if out.len() < self.outputs[k].len() {
                 bail!(
                     "{src}: node {:?} ({}) gave {} outputs, the file names {}",
@@ -296,8 +329,12 @@ impl OnnxGraph {
                 if let Some(Val::D(d)) = out.first() {
                     let _ = d.t.clone().sum().into_scalar::<f32>(); // wait for the op
                 }
-                *op_ms.entry(node.op.as_str()).or_default() +=
-                    started.elapsed().as_secs_f64() * 1e3;
+                let op = if silu_x.is_some() {
+                    "SiLU (Sigmoid+Mul)"
+                } else {
+                    node.op.as_str()
+                };
+                *op_ms.entry(op).or_default() += started.elapsed().as_secs_f64() * 1e3;
             }
             for (s, v) in self.outputs[k].iter().zip(out) {
                 let v = injected.get(s).cloned().unwrap_or(v);
@@ -341,6 +378,51 @@ impl OnnxGraph {
         };
         Ok((main, pre))
     }
+}
+
+/// The `Mul(x, Sigmoid(x))` pairs (SiLU, as PyTorch exports it) of the graph: Mul node →
+/// (Sigmoid node, slot of `x`), where the sigmoid's output has no other reader and is not a graph
+/// output.
+fn silu_pairs(
+    model: &Model,
+    inputs: &[Vec<Option<usize>>],
+    outputs: &[Vec<usize>],
+    producer: &[Option<usize>],
+    slots: &HashMap<String, usize>,
+) -> HashMap<usize, (usize, usize)> {
+    let mut readers = vec![0usize; producer.len()];
+    for s in inputs.iter().flatten().flatten() {
+        readers[*s] += 1;
+    }
+    for o in &model.outputs {
+        if let Some(&s) = slots.get(&o.name) {
+            readers[s] += 1;
+        }
+    }
+    let mut pairs = HashMap::new();
+    for (k, n) in model.nodes.iter().enumerate() {
+        let (Some(a), Some(b)) = (
+            inputs[k].first().copied().flatten(),
+            inputs[k].get(1).copied().flatten(),
+        ) else {
+            continue;
+        };
+        if n.op != "Mul" || inputs[k].len() != 2 {
+            continue;
+        }
+        for (s, x) in [(a, b), (b, a)] {
+            let Some(j) = producer[s] else { continue };
+            if model.nodes[j].op == "Sigmoid"
+                && inputs[j].first() == Some(&Some(x))
+                && outputs[j].first() == Some(&s)
+                && readers[s] == 1
+            {
+                pairs.insert(k, (j, x));
+                break;
+            }
+        }
+    }
+    pairs
 }
 
 /// Grad-CAM's view of an ONNX graph: layers are node output values, feature maps are NCHW.

@@ -7,10 +7,11 @@
 
 use super::args::{axis, broadcast, expand, Args};
 use super::value::{pad6, Dev, Host, Val, MAX_RANK};
+use crate::detect::conv::conv2d;
 use crate::detect::kernels::{conv_im2col, IM2COL_MAX_CHANNELS};
 use crate::detect::nms::non_max_suppression as nms;
 use anyhow::{anyhow, bail, ensure, Result};
-use burn::tensor::module::{avg_pool2d, conv2d, max_pool2d};
+use burn::tensor::module::{avg_pool2d, max_pool2d};
 use burn::tensor::ops::{AvgPoolOptions, ConvOptions, MaxPoolOptions, PadMode};
 use burn::tensor::{activation, Int, Tensor, TensorData};
 use ndarray::{ArrayD, Axis, IxDyn};
@@ -97,9 +98,8 @@ pub fn conv(a: &Args) -> Result<Val> {
         None => None,
     };
     // A stem with few input channels as im2col + one 1×1 convolution (as the TFJS executor
-    // does: burn's conv2d runs such a layer tap by tap); every other layer through conv2d (an
-    // im2col + matrix product for all dense layers was measured slower on YOLOv8n: 235–248
-    // against 171–188 ms per forward).
+    // does: burn's conv2d ran such a layer tap by tap); every other layer through
+    // `detect::conv::conv2d` (dense layers: tiled im2col + matrix products split over threads).
     let stem = group == 1 && s[1] <= IM2COL_MAX_CHANNELS && ws[2] * ws[3] > 1;
     let y = match stem {
         true => conv_im2col(

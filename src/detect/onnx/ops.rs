@@ -9,6 +9,7 @@ use super::elementwise::{self as ew, unary};
 use super::model::NodeDef;
 use super::value::{Dev, Host, Val};
 use super::{nn, shape};
+use crate::detect::activation as fast;
 use anyhow::{bail, Result};
 use burn::tensor::{activation, Device};
 
@@ -98,6 +99,18 @@ pub const SUPPORTED: &[&str] = &[
 ];
 
 /// Evaluates `node` (opset `opset`) on its inputs (`None`: an omitted optional input) on `dev`.
+/// `x · sigmoid(x)` for a `Mul(x, Sigmoid(x))` pair the executor runs as one op (`node` is the
+/// Mul; `args` holds `x` alone).
+pub fn silu(node: &NodeDef, opset: i64, dev: &Device, args: &[Option<&Val>]) -> Result<Vec<Val>> {
+    let a = Args {
+        node,
+        opset,
+        dev,
+        args,
+    };
+    unary(&a, fast::silu)
+}
+
 pub fn eval(node: &NodeDef, opset: i64, dev: &Device, args: &[Option<&Val>]) -> Result<Vec<Val>> {
     let a = Args {
         node,
@@ -109,7 +122,7 @@ pub fn eval(node: &NodeDef, opset: i64, dev: &Device, args: &[Option<&Val>]) -> 
     match node.op.as_str() {
         "Identity" | "Dropout" => one(a.input(0)?.clone()),
         "Relu" => unary(&a, activation::relu),
-        "Sigmoid" => unary(&a, activation::sigmoid),
+        "Sigmoid" => unary(&a, fast::sigmoid),
         "Tanh" => unary(&a, |t| t.tanh()),
         "Exp" => unary(&a, |t| t.exp()),
         "Log" => unary(&a, |t| t.log()),
@@ -127,8 +140,8 @@ pub fn eval(node: &NodeDef, opset: i64, dev: &Device, args: &[Option<&Val>]) -> 
         "Softplus" => unary(&a, |t| activation::softplus(t, 1.0)),
         "Mish" => unary(&a, |t| t.clone() * activation::softplus(t, 1.0).tanh()),
         "LeakyRelu" => {
-            let alpha = a.f("alpha").unwrap_or(0.01) as f64;
-            unary(&a, move |t| activation::leaky_relu(t, alpha))
+            let alpha = a.f("alpha").unwrap_or(0.01) as f32;
+            unary(&a, move |t| fast::leaky_relu(t, alpha))
         }
         "Elu" => {
             let alpha = a.f("alpha").unwrap_or(1.0) as f64;

@@ -8,11 +8,13 @@
 
 use super::model::{HostData, HostTensor};
 use super::value::{pad4, FloatValue, Node, Value};
+use crate::detect::activation as fast;
+use crate::detect::conv::conv2d;
 use crate::detect::kernels::{broadcast_shape, conv_im2col, IM2COL_MAX_CHANNELS};
 use crate::detect::preprocess::resize_bilinear;
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use burn::tensor::activation;
-use burn::tensor::module::{conv2d, max_pool2d};
+use burn::tensor::module::max_pool2d;
 use burn::tensor::ops::{ConvOptions, MaxPoolOptions, PadMode};
 use burn::tensor::{Device, Tensor, TensorData};
 use std::collections::HashMap;
@@ -40,13 +42,13 @@ pub fn eval(
                 t.clone().mul_scalar(scale) * activation::hard_sigmoid(t, 1.0 / 6.0, 0.5)
             })
         }
-        "Sigmoid" => unary(dev, args, activation::sigmoid),
+        "Sigmoid" => unary(dev, args, fast::sigmoid),
         "Tanh" => unary(dev, args, activation::tanh),
         "Exp" => unary(dev, args, |t| t.exp()),
         "Neg" => unary(dev, args, |t| t.neg()),
         "LeakyRelu" => {
             let alpha = attr_f(node, "alpha").unwrap_or(0.2);
-            unary(dev, args, |t| activation::leaky_relu(t, alpha))
+            unary(dev, args, |t| fast::leaky_relu(t, alpha as f32))
         }
         "Add" | "AddV2" | "Sub" | "Mul" | "RealDiv" | "Div" | "Maximum" | "Minimum" => {
             Ok(vec![binary(dev, node.op(), arg(args, 0)?, arg(args, 1)?)?])
@@ -349,11 +351,11 @@ fn conv(
         None => y,
         Some("Relu") => activation::relu(y),
         Some("Relu6") => y.clamp(0.0, 6.0),
-        Some("Sigmoid") => activation::sigmoid(y),
+        Some("Sigmoid") => fast::sigmoid(y),
         Some("Elu") => activation::elu(y, 1.0),
         Some(_) => {
             let alpha = attr_f(node, "leakyrelu_alpha").unwrap_or(0.2);
-            activation::leaky_relu(y, alpha)
+            fast::leaky_relu(y, alpha as f32)
         }
     };
     Ok(FloatValue::from_nchw(y))
