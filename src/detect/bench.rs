@@ -432,7 +432,7 @@ pub fn onnx_models(
 }
 
 /// PyTorch's (forward, forward+backward) ms of `model` converted by onnx2torch
-/// (`tools/onnx/torch_run.py`), run by `python` with `threads` threads; None (with the reason on
+/// (`tools/torch_bench.py onnx`), run by `python` with `threads` threads; None (with the reason on
 /// stderr) when it does not convert or run.
 fn onnx_torch_ms(
     python: &str,
@@ -441,10 +441,11 @@ fn onnx_torch_ms(
     threads: usize,
     runs: usize,
 ) -> Option<(f64, f64)> {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/onnx/torch_run.py");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/torch_bench.py");
     let dims = shape.map(|d| d.to_string()).join(",");
     let out = Command::new(python)
         .arg(script)
+        .arg("onnx")
         .arg(model)
         .args(["--shape", &dims, "--threads", &threads.to_string()])
         .args(["--runs", &runs.max(3).to_string()])
@@ -469,7 +470,7 @@ pub fn na(v: Option<f64>, p: usize) -> String {
 
 /// The detectors' hot ops as cac runs them (the fused activations of [`super::activation`], the
 /// dense convolutions of [`super::conv`]) against burn's own ops on the same backend and against
-/// PyTorch (`tools/torch_activations.py`, run by `python` with the same thread count), on one
+/// PyTorch (`tools/torch_bench.py ops`, run by `python` with the same thread count), on one
 /// seeded feature map of `shape` (convolutions: C to C channels, 3×3 padded and 1×1, seeded
 /// weights), at each of `threads`: fastest forward and forward + backward (of `y.sum()` to the
 /// input; weights take no gradient, as in an attack) ms of `runs`. `on_row` sees the table after
@@ -593,10 +594,10 @@ fn torch_activation_ms(
     threads: usize,
     runs: usize,
 ) -> Option<std::collections::HashMap<String, (f64, f64)>> {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/torch_activations.py");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/torch_bench.py");
     let out = Command::new(python)
         .arg(script)
-        .args(["--shape", shape, "--threads", &threads.to_string()])
+        .args(["ops", "--shape", shape, "--threads", &threads.to_string()])
         .args(["--runs", &runs.to_string()])
         .output()
         .ok()?;

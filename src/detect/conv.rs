@@ -29,17 +29,19 @@ use burn::tensor::ops::ConvOptions;
 use burn::tensor::{Bytes, DType, Tensor};
 use rayon::prelude::*;
 
-/// The convolution without bias, and its two gradients, per backend.
+/// The convolution without bias, and its two gradients, per backend. The default bodies are
+/// burn's own; Flex's implementation picks this module's kernels where the layer is dense or
+/// depthwise and f32, and burn's elsewhere.
 #[backend_extension(Flex, Autodiff, Cube: cfg(feature = "gpu"))]
 pub trait ConvKernels: Backend {
-    fn dense_conv2d(
+    fn cac_conv2d(
         x: FloatTensor<Self>,
         w: FloatTensor<Self>,
         options: ConvOptions<2>,
     ) -> FloatTensor<Self> {
         Self::conv2d(x, w, None, options)
     }
-    fn dense_conv2d_x_backward(
+    fn cac_conv2d_x_backward(
         x: FloatTensor<Self>,
         w: FloatTensor<Self>,
         g: FloatTensor<Self>,
@@ -47,31 +49,7 @@ pub trait ConvKernels: Backend {
     ) -> FloatTensor<Self> {
         Self::conv2d_x_backward(x, w, g, options)
     }
-    fn dense_conv2d_weight_backward(
-        x: FloatTensor<Self>,
-        w: FloatTensor<Self>,
-        g: FloatTensor<Self>,
-        options: ConvOptions<2>,
-    ) -> FloatTensor<Self> {
-        Self::conv2d_weight_backward(x, w, g, options)
-    }
-    /// A depthwise convolution (its forward is Flex's own depthwise path).
-    fn depthwise_conv2d(
-        x: FloatTensor<Self>,
-        w: FloatTensor<Self>,
-        options: ConvOptions<2>,
-    ) -> FloatTensor<Self> {
-        Self::conv2d(x, w, None, options)
-    }
-    fn depthwise_conv2d_x_backward(
-        x: FloatTensor<Self>,
-        w: FloatTensor<Self>,
-        g: FloatTensor<Self>,
-        options: ConvOptions<2>,
-    ) -> FloatTensor<Self> {
-        Self::conv2d_x_backward(x, w, g, options)
-    }
-    fn depthwise_conv2d_weight_backward(
+    fn cac_conv2d_weight_backward(
         x: FloatTensor<Self>,
         w: FloatTensor<Self>,
         g: FloatTensor<Self>,
@@ -81,21 +59,16 @@ pub trait ConvKernels: Backend {
     }
 }
 
-/// `conv2d` of NCHW `x` with OIHW `w` (and a bias per output channel): dense convolutions
-/// through [`ConvKernels`], grouped and depthwise ones through burn's own.
+/// `conv2d` of NCHW `x` with OIHW `w` (and a bias per output channel), through
+/// [`ConvKernels`]: this module's kernels for dense and depthwise layers on Flex, burn's for
+/// the rest.
 pub fn conv2d(
     x: Tensor<4>,
     w: Tensor<4>,
     bias: Option<Tensor<1>>,
     options: ConvOptions<2>,
 ) -> Tensor<4> {
-    let y = if options.groups == 1 {
-        <Dispatch as ConvKernels>::dense_conv2d(x.into_dispatch(), w.into_dispatch(), options)
-    } else if Geometry::depthwise(&x.dims(), &w.dims(), &options).is_some() {
-        <Dispatch as ConvKernels>::depthwise_conv2d(x.into_dispatch(), w.into_dispatch(), options)
-    } else {
-        return burn::tensor::module::conv2d(x, w, bias, options);
-    };
+    let y = <Dispatch as ConvKernels>::cac_conv2d(x.into_dispatch(), w.into_dispatch(), options);
     let y = Tensor::<4>::from_dispatch(y);
     match bias {
         Some(b) => add_bias(y, b),
@@ -394,17 +367,12 @@ struct Shared(*mut f32);
 unsafe impl Send for Shared {}
 unsafe impl Sync for Shared {}
 
-fn f32_data(x: FlexTensor) -> Option<(FlexTensor, Vec<usize>)> {
-    if x.dtype() != DType::F32 {
-        return None;
+/// `x` with its elements contiguous (a copy only where it is a strided view).
+fn contiguous(x: FlexTensor) -> FlexTensor {
+    match x.layout().contiguous_offsets() {
+        Some(_) => x,
+        None => x.to_contiguous(),
     }
-    let x = if x.layout().contiguous_offsets().is_some() {
-        x
-    } else {
-        x.to_contiguous()
-    };
-    let shape = x.layout().shape().to_vec();
-    Some((x, shape))
 }
 
 fn slice(x: &FlexTensor) -> &[f32] {
@@ -612,77 +580,60 @@ fn weight_backward(x: &[f32], gy: &[f32], g: &Geometry) -> Vec<f32> {
         )
 }
 
+/// Which kernel a layer takes on Flex.
+fn layer(x: &FlexTensor, w: &FlexTensor, o: &ConvOptions<2>) -> Option<(Geometry, bool)> {
+    let (xs, ws) = (x.layout().shape().as_slice(), w.layout().shape().as_slice());
+    if x.dtype() != DType::F32 || w.dtype() != DType::F32 {
+        return None;
+    }
+    match Geometry::new(xs, ws, o) {
+        Some(g) => Some((g, false)),
+        None => Geometry::depthwise(xs, ws, o).map(|g| (g, true)),
+    }
+}
+
 impl ConvKernels for Flex {
-    fn dense_conv2d(x: FlexTensor, w: FlexTensor, options: ConvOptions<2>) -> FlexTensor {
-        let geo = Geometry::new(
-            x.layout().shape().as_slice(),
-            w.layout().shape().as_slice(),
-            &options,
-        );
-        match (geo, f32_data(x.clone()), f32_data(w.clone())) {
-            (Some(g), Some((x, _)), Some((w, _))) => {
-                let y = forward(slice(&x), slice(&w), &g);
-                tensor(y, &[g.n, g.co, g.oh, g.ow])
+    fn cac_conv2d(x: FlexTensor, w: FlexTensor, options: ConvOptions<2>) -> FlexTensor {
+        match layer(&x, &w, &options) {
+            Some((g, false)) => {
+                let (x, w) = (contiguous(x), contiguous(w));
+                tensor(forward(slice(&x), slice(&w), &g), &[g.n, g.co, g.oh, g.ow])
             }
+            // Depthwise: Flex's own fast path.
             _ => Flex::conv2d(x, w, None, options),
         }
     }
-    fn dense_conv2d_x_backward(
+    fn cac_conv2d_x_backward(
         x: FlexTensor,
         w: FlexTensor,
         gy: FlexTensor,
         options: ConvOptions<2>,
     ) -> FlexTensor {
-        let geo = Geometry::new(
-            x.layout().shape().as_slice(),
-            w.layout().shape().as_slice(),
-            &options,
-        );
-        match (geo, f32_data(w.clone()), f32_data(gy.clone())) {
-            (Some(g), Some((w, _)), Some((gy, _))) => {
-                let (w, gy) = (slice(&w), slice(&gy));
-                let dx = x_backward_as_conv(w, gy, &g).unwrap_or_else(|| x_backward(w, gy, &g));
-                tensor(dx, &[g.n, g.ci, g.h, g.w])
-            }
-            _ => Flex::conv2d_x_backward(x, w, gy, options),
-        }
+        let Some((g, depthwise)) = layer(&x, &w, &options).filter(|_| gy.dtype() == DType::F32)
+        else {
+            return Flex::conv2d_x_backward(x, w, gy, options);
+        };
+        let (w, gy) = (contiguous(w), contiguous(gy));
+        let (w, gy) = (slice(&w), slice(&gy));
+        let dx = match depthwise {
+            true => depthwise_x_backward(w, gy, &g),
+            false => x_backward_as_conv(w, gy, &g).unwrap_or_else(|| x_backward(w, gy, &g)),
+        };
+        tensor(dx, &[g.n, g.ci, g.h, g.w])
     }
-    fn dense_conv2d_weight_backward(
+    fn cac_conv2d_weight_backward(
         x: FlexTensor,
         w: FlexTensor,
         gy: FlexTensor,
         options: ConvOptions<2>,
     ) -> FlexTensor {
-        let geo = Geometry::new(
-            x.layout().shape().as_slice(),
-            w.layout().shape().as_slice(),
-            &options,
-        );
-        match (geo, f32_data(x.clone()), f32_data(gy.clone())) {
-            (Some(g), Some((x, _)), Some((gy, _))) => {
+        match layer(&x, &w, &options).filter(|_| gy.dtype() == DType::F32) {
+            Some((g, false)) => {
+                let (x, gy) = (contiguous(x), contiguous(gy));
                 let dw = weight_backward(slice(&x), slice(&gy), &g);
                 tensor(dw, &[g.co, g.ci, g.kh, g.kw])
             }
             _ => Flex::conv2d_weight_backward(x, w, gy, options),
-        }
-    }
-    fn depthwise_conv2d_x_backward(
-        x: FlexTensor,
-        w: FlexTensor,
-        gy: FlexTensor,
-        options: ConvOptions<2>,
-    ) -> FlexTensor {
-        let geo = Geometry::depthwise(
-            x.layout().shape().as_slice(),
-            w.layout().shape().as_slice(),
-            &options,
-        );
-        match (geo, f32_data(w.clone()), f32_data(gy.clone())) {
-            (Some(g), Some((w, _)), Some((gy, _))) => {
-                let dx = depthwise_x_backward(slice(&w), slice(&gy), &g);
-                tensor(dx, &[g.n, g.ci, g.h, g.w])
-            }
-            _ => Flex::conv2d_x_backward(x, w, gy, options),
         }
     }
 }
@@ -719,29 +670,12 @@ fn depthwise_x_backward(w: &[f32], gy: &[f32], g: &Geometry) -> Vec<f32> {
     dx
 }
 
-/// A convolution as an autodiff op (`Dense` or `Depthwise`): keeps `x` and `w`, and computes
-/// the gradient of each tracked one with the kernels above.
-#[derive(Debug, Clone, Copy)]
-enum ConvOp {
-    Dense,
-    Depthwise,
-}
+/// The convolution as an autodiff op: keeps `x` and `w`, and computes the gradient of each
+/// tracked one with the kernels above.
+#[derive(Debug)]
+struct Conv;
 
-impl ConvOp {
-    fn forward<B: ConvKernels>(
-        self,
-        x: FloatTensor<B>,
-        w: FloatTensor<B>,
-        o: ConvOptions<2>,
-    ) -> FloatTensor<B> {
-        match self {
-            ConvOp::Dense => B::dense_conv2d(x, w, o),
-            ConvOp::Depthwise => B::depthwise_conv2d(x, w, o),
-        }
-    }
-}
-
-impl<B: Backend + ConvKernels> Backward<B, 2> for ConvOp {
+impl<B: Backend + ConvKernels> Backward<B, 2> for Conv {
     type State = (NodeId, NodeId, ConvOptions<2>);
 
     fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, cp: &mut Checkpointer) {
@@ -753,54 +687,34 @@ impl<B: Backend + ConvKernels> Backward<B, 2> for ConvOp {
             ops.parents,
             ops.node,
             grads,
-            |g| match self {
-                ConvOp::Dense => B::dense_conv2d_x_backward(x, w, g, options),
-                ConvOp::Depthwise => B::depthwise_conv2d_x_backward(x, w, g, options),
-            },
-            |g| match self {
-                ConvOp::Dense => B::dense_conv2d_weight_backward(x2, w2, g, o2),
-                ConvOp::Depthwise => B::depthwise_conv2d_weight_backward(x2, w2, g, o2),
-            },
+            |g| B::cac_conv2d_x_backward(x, w, g, options),
+            |g| B::cac_conv2d_weight_backward(x2, w2, g, o2),
         );
     }
 }
 
-fn tracked<B: Backend + ConvKernels, C: CheckpointStrategy>(
-    op: ConvOp,
-    x: FloatTensor<Autodiff<B, C>>,
-    w: FloatTensor<Autodiff<B, C>>,
-    options: ConvOptions<2>,
-) -> FloatTensor<Autodiff<B, C>> {
-    match op
-        .prepare::<C>([x.node(), w.node()])
-        .compute_bound()
-        .stateful()
-    {
-        OpsKind::Tracked(mut prep) => {
-            let (xs, ws) = (prep.checkpoint(&x), prep.checkpoint(&w));
-            let y = op.forward::<B>(x.into_primitive(), w.into_primitive(), options.clone());
-            prep.finish((xs, ws, options), y)
-        }
-        OpsKind::UnTracked(prep) => {
-            prep.finish(op.forward::<B>(x.into_primitive(), w.into_primitive(), options))
-        }
-    }
-}
-
 impl<B: Backend + ConvKernels, C: CheckpointStrategy> ConvKernels for Autodiff<B, C> {
-    fn dense_conv2d(
+    fn cac_conv2d(
         x: FloatTensor<Self>,
         w: FloatTensor<Self>,
         options: ConvOptions<2>,
     ) -> FloatTensor<Self> {
-        tracked::<B, C>(ConvOp::Dense, x, w, options)
-    }
-    fn depthwise_conv2d(
-        x: FloatTensor<Self>,
-        w: FloatTensor<Self>,
-        options: ConvOptions<2>,
-    ) -> FloatTensor<Self> {
-        tracked::<B, C>(ConvOp::Depthwise, x, w, options)
+        match Conv
+            .prepare::<C>([x.node(), w.node()])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(mut prep) => {
+                let (xs, ws) = (prep.checkpoint(&x), prep.checkpoint(&w));
+                let y = B::cac_conv2d(x.into_primitive(), w.into_primitive(), options.clone());
+                prep.finish((xs, ws, options), y)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::cac_conv2d(
+                x.into_primitive(),
+                w.into_primitive(),
+                options,
+            )),
+        }
     }
 }
 
