@@ -210,7 +210,7 @@ fn the_attack_lowers_its_loss_on_a_fixed_view() {
     let after = loss_on(&t, &t.atlas(), &fixed);
     eprintln!("loss on iteration 0's views: {before:.4} -> {after:.4} after 12 iterations");
     assert!(after < before, "loss did not decrease: {before} -> {after}");
-    assert_eq!(t.config.goal().unwrap(), Goal::Targeted(0));
+    assert_eq!(t.config.goal_for(d.as_ref()).unwrap(), Goal::Targeted(0));
 }
 
 /// The trainer's objective for `atlas` in the views `conds` (no step taken).
@@ -218,8 +218,7 @@ fn loss_on(t: &Trainer, atlas: &Texture, conds: &[Condition]) -> f64 {
     let a = cac::render::atlas_tensor(atlas, &inference());
     let (img, plans) = cac::environment::form(t.renderer, t.env, conds, a).unwrap();
     let objects: Vec<_> = plans.iter().map(|p| p.object_box).collect();
-    let goal = t.config.goal().unwrap();
-    let (l, _) = attack::ensemble_loss(&t.detectors, &img, &objects, &t.config, goal).unwrap();
+    let (l, _) = attack::ensemble_loss(&t.detectors, &img, &objects, &t.config).unwrap();
     l.into_data().convert::<f64>().try_to_vec::<f64>().unwrap()[0]
 }
 

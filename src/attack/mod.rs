@@ -47,13 +47,14 @@ pub struct AttackConfig {
     /// Source detectors, comma-separated (an ensemble when several).
     #[arg(long, default_value = "nanodet", value_delimiter = ',', value_parser = crate::detect::spec::MODEL_SPECS)]
     pub models: Vec<String>,
-    /// Target COCO class every proposal is pushed towards; ignored with --hide.
+    /// Target class every proposal is pushed towards, by name: one of each source model's
+    /// classes (COCO-80 labels for the built-in detectors); ignored with --hide.
     #[arg(long, default_value = "person")]
     pub target: String,
     /// Non-targeted mode: hide the object (suppress --hide-classes in the proposals).
     #[arg(long)]
     pub hide: bool,
-    /// The classes --hide suppresses: comma-separated COCO labels (default the vehicle classes
+    /// The classes --hide suppresses: comma-separated class names (default the vehicle classes
     /// P@0.5 counts), or `all` (every class; it does not hide the pickup: docs/attack.md).
     // Runs written before the setting existed suppressed every class: a run.json without it
     // reads as `all`.
@@ -184,22 +185,36 @@ fn legacy_rule() -> ProposalRule {
     ProposalRule::TopN
 }
 
-/// `all`, or comma-separated COCO-80 labels, as a class set.
-fn hide_set(labels: &str) -> Result<ClassSet> {
+/// `all`, or comma-separated class names, as a set of a model's classes (`classes`, its class
+/// list; `model` names it in errors).
+fn hide_set(labels: &str, classes: &[&str], model: &str) -> Result<ClassSet> {
     if labels.trim().eq_ignore_ascii_case("all") {
         return Ok(ClassSet::ALL);
     }
     let mut ids = Vec::new();
-    for l in labels.split(',').map(str::trim).filter(|l| !l.is_empty()) {
-        match crate::detect::labels::class_id(l) {
-            Some(c) => ids.push(c),
-            None => bail!("--hide-classes: unknown class {l:?} (use `all` or COCO-80 labels such as \"car,bus,truck\")"),
-        }
+    for l in hide_labels(labels)? {
+        ids.push(
+            crate::detect::labels::resolve(l, classes, model)
+                .with_context(|| format!("--hide-classes {labels:?}"))?,
+        );
     }
-    if ids.is_empty() {
-        bail!("--hide-classes is empty (use `all` or COCO-80 labels such as \"car,bus,truck\")");
+    if ids.iter().any(|&c| c >= 128) {
+        bail!("--hide-classes: {model} has {} classes; a hidden class must be one of the first 128 (use `all`)", classes.len());
     }
     Ok(ClassSet::of(&ids))
+}
+
+/// The names of `--hide-classes` (not `all`), checked to be a non-empty list.
+fn hide_labels(labels: &str) -> Result<Vec<&str>> {
+    let v: Vec<&str> = labels
+        .split(',')
+        .map(str::trim)
+        .filter(|l| !l.is_empty())
+        .collect();
+    if v.is_empty() {
+        bail!("--hide-classes is empty (use `all` or class names such as \"car,bus,truck\")");
+    }
+    Ok(v)
 }
 
 impl AttackConfig {
@@ -214,17 +229,25 @@ impl AttackConfig {
         }
     }
 
-    pub fn goal(&self) -> Result<Goal> {
+    /// The goal against one detector: the target or hidden classes named by the config,
+    /// resolved by name against the detector's classes ([`Detector::classes`]), so each model
+    /// of an ensemble gets its own class ids; a name the model lacks is an error that lists
+    /// the model's classes.
+    pub fn goal_for(&self, detector: &dyn Detector) -> Result<Goal> {
+        self.goal_in(detector.classes(), detector.name())
+    }
+
+    /// [`Self::goal_for`] with a class list `classes` of model `model`.
+    pub fn goal_in(&self, classes: &[&str], model: &str) -> Result<Goal> {
         if !self.method.is_targeted() {
             return Ok(Goal::Hide(ClassSet::ALL));
         }
         if self.hide {
-            return Ok(Goal::Hide(hide_set(&self.hide_classes)?));
+            return Ok(Goal::Hide(hide_set(&self.hide_classes, classes, model)?));
         }
-        match crate::detect::labels::class_id(&self.target) {
-            Some(c) => Ok(Goal::Targeted(c)),
-            None => bail!("unknown target class {:?} (use a COCO-80 label such as \"person\" or \"stop sign\")", self.target),
-        }
+        let t = crate::detect::labels::resolve(&self.target, classes, model)
+            .context("the attack's target class (--target)")?;
+        Ok(Goal::Targeted(t))
     }
 
     pub fn validate(&self) -> Result<()> {
@@ -285,7 +308,16 @@ impl AttackConfig {
         if self.method.is_2d() && !(1..=64).contains(&self.patch_tiles) {
             bail!("--patch-tiles must be 1..=64, got {}", self.patch_tiles);
         }
-        self.goal().map(|_| ())
+        // The class names are resolved against each model when the models are loaded
+        // (`goal_for`); here only their form is checked.
+        if self.method.is_targeted() {
+            if self.hide && !self.hide_classes.trim().eq_ignore_ascii_case("all") {
+                hide_labels(&self.hide_classes)?;
+            } else if !self.hide && self.target.trim().is_empty() {
+                bail!("--target is empty (name one of the model's classes, e.g. \"person\")");
+            }
+        }
+        Ok(())
     }
 }
 
@@ -332,13 +364,13 @@ pub fn draw_conditions(env: &Environment, config: &AttackConfig, i: usize) -> Ve
 
 /// The loss of one image batch averaged over the source detectors (an ensemble), and the number of
 /// fixed proposals it was taken over; `objects` are the object's boxes in the images. The trainer's
-/// objective for every method.
+/// objective for every method; each detector's goal is the config's classes resolved against its
+/// own class list ([`AttackConfig::goal_for`]).
 pub fn ensemble_loss(
     detectors: &[&dyn Detector],
     images: &Tensor<4>,
     objects: &[Option<[f32; 4]>],
     config: &AttackConfig,
-    goal: Goal,
 ) -> Result<(Tensor<1>, usize)> {
     let mut total: Option<Tensor<1>> = None;
     let mut proposals = 0;
@@ -351,6 +383,7 @@ pub fn ensemble_loss(
         image_power: config.image_power,
     };
     for det in detectors {
+        let goal = config.goal_for(*det)?;
         let c = det.candidates(images.clone())?;
         let (l, n) = baselines::objective(config.method, c, &sel, goal)?;
         proposals += n;

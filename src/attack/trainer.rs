@@ -68,6 +68,9 @@ impl<'a> Trainer<'a> {
                 config.models.len()
             );
         }
+        for d in &detectors {
+            config.goal_for(*d)?;
+        }
         let res = renderer.settings.atlas_res;
         let init = if init.width != res || init.height != res {
             init.resized(res, res)
@@ -223,7 +226,6 @@ impl<'a> Trainer<'a> {
     /// `ms_render` is the compositing plus any wait for those views.
     pub fn step(&mut self) -> Result<IterationLog> {
         let i = self.state.iteration;
-        let goal = self.config.goal()?;
         let t0 = Instant::now();
         let r = self.state.atlas_res;
         let leaf = Tensor::<4>::from_data(TensorData::new(self.leaf(), [1, r, r, 3]), &self.device)
@@ -239,7 +241,7 @@ impl<'a> Trainer<'a> {
                     environment::plans(renderer, env, &conds)
                 })
             });
-            let detected = self.detect_and_differentiate(&images, &objects, &leaf, goal);
+            let detected = self.detect_and_differentiate(&images, &objects, &leaf);
             let t = Instant::now();
             let next = next.map(|h| h.join().expect("the view prefetch panicked"));
             (detected, next.map(|n| (n, t.elapsed().as_secs_f64() * 1e3)))
@@ -280,11 +282,9 @@ impl<'a> Trainer<'a> {
         images: &Tensor<4>,
         objects: &[Option<[f32; 4]>],
         leaf: &Tensor<4>,
-        goal: super::Goal,
     ) -> Result<(f64, Vec<f32>, usize, f64, f64)> {
         let t1 = Instant::now();
-        let (mut loss, proposals) =
-            ensemble_loss(&self.detectors, images, objects, &self.config, goal)?;
+        let (mut loss, proposals) = ensemble_loss(&self.detectors, images, objects, &self.config)?;
         if self.config.method == Method::Advpat {
             loss = loss + patch::total_variation(leaf.clone()) * patch::TV_WEIGHT;
         }

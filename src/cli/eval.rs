@@ -41,10 +41,12 @@ pub struct Args {
     /// Seed of the views (and of the generated natural/naive/random textures).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// True classes (COCO labels, comma-separated; `none` for objects without one).
+    /// True classes (class names, comma-separated, each one of every model's classes; `none`
+    /// for objects without one).
     #[arg(long, default_value = "car,truck")]
     pub true_classes: String,
-    /// Target class for targeted success (a COCO label such as "person" or "stop sign").
+    /// Target class for targeted success, by name (a COCO label such as "person" or "stop
+    /// sign" for the built-in detectors, one of its own classes for a user's model).
     #[arg(long)]
     pub target: Option<String>,
     /// Image side in pixels (overrides the config's render width and height).

@@ -14,7 +14,8 @@ pub struct Args {
     /// Detector: centernet, nanodet, or onnx:MODEL.onnx (a head whose sigmoid cac taps).
     #[arg(long, default_value = "nanodet")]
     pub model: String,
-    /// COCO class whose score is explained.
+    /// The class whose score is explained, by name (one of the model's classes; COCO-80 labels
+    /// for the built-in detectors).
     #[arg(long, default_value = "car")]
     pub class: String,
     /// Graph node (feature map) to explain at (default: the model's late feature map).
@@ -32,9 +33,8 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let class =
-        labels::class_id(&a.class).with_context(|| format!("unknown COCO class {:?}", a.class))?;
     let det = train::load_detectors(std::slice::from_ref(&a.model))?.remove(0);
+    let class = labels::resolve(&a.class, det.classes(), det.name()).context("--class")?;
     let img = cac::io::load_rgb(&a.image)?;
     let x = preprocess::image_to_tensor(&img, &device::inference());
     if a.list_layers {

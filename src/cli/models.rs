@@ -64,7 +64,10 @@ pub fn run(cmd: ModelsCmd) -> Result<()> {
                         d.config()
                     );
                 }
-                Err(e) => println!("  as a detector: not usable: {e:#}"),
+                Err(e) => {
+                    println!("  as a detector: not usable: {e:#}");
+                    anyhow::bail!("{}: not usable as a detector (see above)", path.display());
+                }
             }
         }
     }

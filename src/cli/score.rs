@@ -16,6 +16,9 @@ pub struct Args {
     /// Output folder (default: SESSION/score).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// True classes (class names, comma-separated, each one of every model's classes).
+    #[arg(long, default_value = "car,truck")]
+    pub true_classes: String,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -23,7 +26,8 @@ pub fn run(a: Args) -> Result<()> {
     let names: Vec<&str> = a.models.split(',').map(str::trim).collect();
     let models = detect::load_all(&names, None, &device)?;
     let refs: Vec<&dyn detect::Detector> = models.iter().map(|m| m.as_ref()).collect();
-    let s = cac::physical::score::score(&a.session, &refs, &Protocol::default(), &device, true)?;
+    let protocol = Protocol::from_labels(&a.true_classes, None)?;
+    let s = cac::physical::score::score(&a.session, &refs, &protocol, &device, true)?;
     let out = a.out.unwrap_or_else(|| a.session.join("score"));
     cac::physical::score::write(&out, &s, &a.session.display().to_string())?;
     for r in &s.by_ratio {

@@ -70,9 +70,12 @@ pub struct Args {
     /// Annotated output: a video (.mp4/.mkv/.avi) or a folder of PNGs.
     #[arg(long)]
     pub annotated: Option<PathBuf>,
-    /// Attack target class (COCO label) for the targeted-success column.
+    /// Attack target class (by name; one of the models' classes) for the targeted-success column.
     #[arg(long)]
     pub target: Option<String>,
+    /// True classes (class names, comma-separated, each one of every model's classes).
+    #[arg(long, default_value = "car,truck")]
+    pub true_classes: String,
     /// Folder holding the model files (default: the cache, fetched on first use).
     #[arg(long = "models-dir")]
     pub models_dir: Option<PathBuf>,
@@ -124,7 +127,7 @@ fn job(a: &Args) -> Result<VideoJob> {
         at: a.at.clone(),
         window: a.window,
         max_frames: a.max_frames,
-        protocol: Protocol::from_labels("car,truck", a.target.as_deref())?,
+        protocol: Protocol::from_labels(&a.true_classes, a.target.as_deref())?,
         annotated: a.annotated.clone(),
         tools: Tools::from_env(),
     })

@@ -198,7 +198,7 @@ impl Detector for CenterNet {
         Ok(Some(super::CamIo {
             graph: &self.graph,
             feeds: vec![(INPUT.to_string(), self.network_input(images)?)],
-            logits: vec![(self.logits.clone(), 3)],
+            logits: vec![(self.logits.clone(), 3, 0)],
             default_layer: CAM_LAYER.to_string(),
         }))
     }

@@ -45,16 +45,18 @@ pub use nanodet::{NanoDet, NanoDetConfig};
 pub struct Candidates {
     /// `[B, N, 4]` boxes `x1, y1, x2, y2` in input-image pixels.
     pub boxes: Tensor<3>,
-    /// `[B, N, 80]` per-class probabilities (independent sigmoids, not a softmax).
+    /// `[B, N, C]` per-class probabilities (independent sigmoids, not a softmax); C = 80 for
+    /// COCO models, the model's own class count otherwise ([`Detector::classes`]).
     pub scores: Tensor<3>,
-    /// `[B, N, 80]` the pre-sigmoid logits of `scores` (use log-sigmoid for stable losses).
+    /// `[B, N, C]` the pre-sigmoid logits of `scores` (use log-sigmoid for stable losses).
     pub logits: Tensor<3>,
 }
 
 /// One final detection.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Detection {
-    /// 0-based COCO-80 class id.
+    /// 0-based class id in the model's class list ([`Detector::classes`]; COCO-80 for the
+    /// built-in detectors).
     pub class_id: usize,
     pub label: &'static str,
     pub score: f32,
@@ -85,8 +87,9 @@ pub struct CamIo<'a> {
     pub graph: &'a dyn CamGraph,
     /// Graph inputs (placeholder name, pre-processed network input).
     pub feeds: Vec<(String, Tensor<4>)>,
-    /// Graph values of class logits, each with the logical axis of its classes.
-    pub logits: Vec<(String, usize)>,
+    /// Graph values of class logits, each with the logical axis of its classes and the index
+    /// of class 0 on that axis (0, or 5 where box and objectness come first: YOLOv5's head).
+    pub logits: Vec<(String, usize, usize)>,
     /// The default layer: a late feature map of good spatial resolution.
     pub default_layer: String,
 }
@@ -123,6 +126,13 @@ pub trait CamGraph {
 /// A differentiable object detector. Object-safe.
 pub trait Detector {
     fn name(&self) -> &str;
+    /// The names of the classes, indexed by the class axis of [`Candidates`] and by
+    /// [`Detection::class_id`]: COCO-80 for the built-in detectors, a user's own for an ONNX
+    /// model trained on them. Classes are named by the user and matched by name
+    /// ([`labels::resolve`]).
+    fn classes(&self) -> &[&'static str] {
+        &labels::COCO80
+    }
     /// `(width, height)` of the network input.
     fn input_size(&self) -> (usize, usize);
     /// Dense pre-NMS candidates of `images` (`[B, 3, H, W]` in [0, 1], any H, W).

@@ -366,7 +366,11 @@ impl Detector for NanoDet {
         Ok(Some(super::CamIo {
             graph: &self.graph,
             feeds: vec![(self.input.clone(), self.network_input(images)?)],
-            logits: self.levels.iter().map(|l| (l.logits.clone(), 1)).collect(),
+            logits: self
+                .levels
+                .iter()
+                .map(|l| (l.logits.clone(), 1, 0))
+                .collect(),
             default_layer: CAM_LAYER.to_string(),
         }))
     }

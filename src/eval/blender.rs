@@ -495,7 +495,7 @@ pub fn score_views(
     device: &Device,
 ) -> Result<Vec<Vec<ImageScore>>> {
     let mut out = vec![vec![]; dets.len()];
-    let scorer = Scorer::new(dets, p);
+    let scorer = Scorer::new(dets, p)?;
     for (i, v) in views.iter().enumerate() {
         let gt = v
             .object_box

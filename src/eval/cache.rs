@@ -48,6 +48,29 @@ struct StoredExample {
     gt: [f32; 4],
     /// Per model: (class id, score, box).
     detections: Vec<Vec<(usize, f32, [f32; 4])>>,
+    /// Per model, the detections' labels, where a model's are not COCO-80's (its own classes).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    labels: Vec<Vec<String>>,
+}
+
+/// The labels of `ds` where one is not the COCO-80 label of its id (a model's own classes).
+fn own_labels(detections: &[Vec<Detection>]) -> Vec<Vec<String>> {
+    let coco = |d: &Detection| COCO80.get(d.class_id) == Some(&d.label);
+    if detections.iter().flatten().all(coco) {
+        return vec![];
+    }
+    detections
+        .iter()
+        .map(|ds| ds.iter().map(|d| d.label.to_string()).collect())
+        .collect()
+}
+
+/// A stored label as a detection's `&'static str` (COCO labels without allocating).
+fn static_label(l: &str) -> &'static str {
+    match COCO80.iter().find(|c| **c == l) {
+        Some(c) => c,
+        None => Box::leak(l.to_string().into_boxed_str()),
+    }
 }
 
 /// The file-name stem of a texture's cache files (letters and digits, others as `_`).
@@ -126,6 +149,7 @@ fn store_stem(
                     .iter()
                     .map(|ds| ds.iter().map(|d| (d.class_id, d.score, d.bbox)).collect())
                     .collect(),
+                labels: own_labels(&e.detections),
             })
             .collect(),
     };
@@ -261,11 +285,16 @@ fn restore(dir: &Path, stem: &str, st: Stored) -> Result<TextureResult> {
             detections: e
                 .detections
                 .into_iter()
-                .map(|ds| {
+                .enumerate()
+                .map(|(m, ds)| {
                     ds.into_iter()
-                        .map(|(c, score, bbox)| Detection {
+                        .enumerate()
+                        .map(|(k, (c, score, bbox))| Detection {
                             class_id: c,
-                            label: COCO80[c.min(79)],
+                            label: match e.labels.get(m).and_then(|l| l.get(k)) {
+                                Some(l) => static_label(l),
+                                None => COCO80[c.min(79)],
+                            },
                             score,
                             bbox,
                         })

@@ -43,7 +43,7 @@ pub fn layers(det: &dyn Detector, image: Tensor<4>) -> Result<Vec<Layer>> {
     let io = io(det, image)?;
     let g = io.graph;
     // Only the ancestors of the class logits can carry their gradient.
-    let outs: Vec<&str> = io.logits.iter().map(|(n, _)| n.as_str()).collect();
+    let outs: Vec<&str> = io.logits.iter().map(|(n, ..)| n.as_str()).collect();
     let found = g.feature_layers(&outs)?;
     let names: Vec<&str> = found.iter().map(|(n, _)| n.as_str()).collect();
     let f = feeds(&io, &g.device());
@@ -117,9 +117,6 @@ pub fn class_score(
     class: usize,
     grad: bool,
 ) -> Result<(f32, Option<Vec<f32>>)> {
-    if class >= 80 {
-        bail!("class id {class} is not a COCO-80 class");
-    }
     let dev = if grad {
         Device::autodiff(io.graph.device())
     } else {
@@ -131,14 +128,20 @@ pub fn class_score(
     }
     let f = feeds(io, &dev);
     let fr: Vec<(&str, Tensor<4>)> = f.iter().map(|(n, t)| (n.as_str(), t.clone())).collect();
-    let outs: Vec<&str> = io.logits.iter().map(|(n, _)| n.as_str()).collect();
+    let outs: Vec<&str> = io.logits.iter().map(|(n, ..)| n.as_str()).collect();
     let vals = io
         .graph
         .run_cam(&fr, Some((layer, a.clone(), &act.shape)), &outs)?;
     let mut maxes = vec![];
-    for ((t, shape), (_, axis)) in vals.into_iter().zip(&io.logits) {
+    for ((t, shape), (name, axis, first)) in vals.into_iter().zip(&io.logits) {
         let dim = 4 - shape.len() + axis;
-        maxes.push(t.narrow(dim, class, 1).max());
+        if first + class >= shape[*axis] {
+            bail!(
+                "class id {class} is out of range: {name:?} holds {} classes",
+                shape[*axis] - first
+            );
+        }
+        maxes.push(t.narrow(dim, first + class, 1).max());
     }
     let score = Tensor::cat(maxes, 0).max();
     let s = crate::detect::to_vec(&score)?[0];

@@ -6,7 +6,6 @@
 use super::run::{level_name, set_name, Example, ImageRecord, ViewPlan};
 use super::summary::{self, breakdown, Factor, Metric, Select};
 use super::Protocol;
-use crate::detect::labels::COCO80;
 use crate::render::RenderSettings;
 use crate::report::{draw, plot, Html, Plot, Series, Table};
 use anyhow::Result;
@@ -30,12 +29,12 @@ pub struct EvalInfo {
     pub seconds: f64,
 }
 
-fn class_names(ids: &[usize]) -> String {
+fn class_names(p: &Protocol, ids: &[usize]) -> String {
     if ids.is_empty() {
         return "none".into();
     }
     ids.iter()
-        .map(|&c| COCO80[c])
+        .map(|&c| p.label(c))
         .collect::<Vec<_>>()
         .join(", ")
 }
@@ -68,14 +67,14 @@ pub fn protocol_text(i: &EvalInfo) -> String {
         spp = i.render.samples,
         fov = i.render.vfov_deg,
         atlas = i.render.atlas_res,
-        tc = class_names(&p.true_classes),
+        tc = class_names(p, &p.true_classes),
         iou = p.iou,
         conf = p.confidence,
         reference = i.reference,
         targeted = match p.target {
             Some(t) => format!(
                 "targeted success: a {} detection with IoU >= {} and confidence >= {}",
-                COCO80[t], p.iou, p.confidence
+                p.label(t), p.iou, p.confidence
             ),
             None => "targeted success: not measured (no target class given)".into(),
         },

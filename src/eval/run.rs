@@ -151,7 +151,7 @@ pub fn evaluate_texture_in(
         examples: vec![],
     };
     let a = render::atlas_tensor(atlas, device);
-    let scorer = Scorer::new(dets, p);
+    let scorer = Scorer::new(dets, p)?;
     for &(gi, i) in views {
         let g = &groups[gi];
         let c = &g.conditions[i];

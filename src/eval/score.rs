@@ -59,18 +59,27 @@ pub struct ModelOutcome {
 }
 
 /// The detectors and the protocol that score frames.
-#[derive(Clone, Copy)]
+#[derive(Clone)]
 pub struct Scorer<'a> {
     pub detectors: &'a [&'a dyn Detector],
     pub protocol: &'a Protocol,
+    /// The protocol's classes in each detector's own class ids ([`Protocol::for_model`]).
+    per_model: Vec<Protocol>,
 }
 
 impl<'a> Scorer<'a> {
-    pub fn new(detectors: &'a [&'a dyn Detector], protocol: &'a Protocol) -> Self {
-        Scorer {
+    /// The scorer of `detectors` under `protocol`; an error when a detector lacks a class the
+    /// protocol names (it lists that detector's classes).
+    pub fn new(detectors: &'a [&'a dyn Detector], protocol: &'a Protocol) -> Result<Self> {
+        let per_model = detectors
+            .iter()
+            .map(|d| protocol.for_model(d.classes(), d.name()))
+            .collect::<Result<_>>()?;
+        Ok(Scorer {
             detectors,
             protocol,
-        }
+            per_model,
+        })
     }
 
     /// The models' names, in the order of the detectors.
@@ -91,7 +100,7 @@ impl<'a> Scorer<'a> {
         label: Option<&dyn Fn() -> String>,
     ) -> Result<Vec<ModelOutcome>> {
         let mut out = Vec::with_capacity(self.detectors.len());
-        for d in self.detectors {
+        for (d, p) in self.detectors.iter().zip(&self.per_model) {
             let t0 = Instant::now();
             let found = d.detect(image.clone());
             let found = match label {
@@ -101,7 +110,7 @@ impl<'a> Scorer<'a> {
             let detections = found.into_iter().next().unwrap_or_default();
             let ms = t0.elapsed().as_secs_f64() * 1e3;
             out.push(ModelOutcome {
-                score: score_image(&detections, gt, self.protocol),
+                score: score_image(&detections, gt, p),
                 detections,
                 ms,
             });

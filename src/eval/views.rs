@@ -33,6 +33,7 @@ pub fn evaluate(
         detections: vec![vec![]; dets.len()],
         images: vec![],
     };
+    let scorer = Scorer::new(dets, p)?;
     for (i, c) in conds.iter().enumerate() {
         let plan = environment::plan(r, env, c)?;
         let gt = plan
@@ -40,7 +41,7 @@ pub fn evaluate(
             .with_context(|| format!("view {i}: the object is not visible"))?;
         let a = render::atlas_tensor(atlas, device);
         let img = environment::form_planned(&[plan], a, std::slice::from_ref(c));
-        for (m, o) in Scorer::new(dets, p)
+        for (m, o) in scorer
             .frame(img.clone(), &gt, None)?
             .into_iter()
             .enumerate()

@@ -77,7 +77,7 @@ pub fn score(
     let entries = manifest::read(&dir.join("manifest.jsonl"))?;
     let rig = Rig::new(info.rig.clone(), info.lens.clone())
         .with_context(|| format!("the rig of session {}", dir.display()))?;
-    let scorer = Scorer::new(detectors, protocol);
+    let scorer = Scorer::new(detectors, protocol)?;
     let mut frames = Vec::with_capacity(entries.len());
     let bar = if progress {
         indicatif::ProgressBar::new(entries.len() as u64)
@@ -301,7 +301,7 @@ pub fn write(out: &Path, s: &SessionScore, session: &str) -> Result<()> {
     ));
     h.pre(&format!(
         "protocol: a frame is a hit when a detection of class {:?} has IoU >= {} with the ground-truth box (the object's silhouette projected through the calibrated lens) at confidence >= {}; P@0.5 = hits / frames; ± is the standard deviation over repeats",
-        s.protocol.true_classes, s.protocol.iou, s.protocol.confidence
+        s.protocol.true_labels(), s.protocol.iou, s.protocol.confidence
     ));
     h.figures(
         &[

@@ -12,12 +12,12 @@ pub mod topn;
 
 use crate::attack::{loss::ProposalRule, run::RunDir, AttackConfig, Trainer};
 use crate::config::{SceneConfig, Stage};
-use crate::detect::{labels, Detector};
+use crate::detect::Detector;
 use crate::environment::ViewpointSet;
 use crate::eval::job::EvalJob;
 use crate::eval::run::ViewPlan;
 use crate::eval::Protocol;
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use burn::tensor::Device;
 use std::path::Path;
 
@@ -116,8 +116,6 @@ pub fn protocol_job(
     target: &str,
     out: &Path,
 ) -> Result<EvalJob> {
-    let target =
-        labels::class_id(target).with_context(|| format!("unknown target class {target:?}"))?;
     Ok(EvalJob {
         scene,
         textures,
@@ -127,10 +125,7 @@ pub fn protocol_job(
             sets,
             ..Default::default()
         },
-        protocol: Protocol {
-            target: Some(target),
-            ..Default::default()
-        },
+        protocol: Protocol::from_labels("car,truck", Some(target))?,
         examples_per_group: 1,
         figures: vec![],
         out: out.join("eval"),

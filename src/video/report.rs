@@ -317,7 +317,7 @@ pub fn write_all(
         .pre(&format!(
             "protocol: hit = class in {:?} with IoU >= {} and confidence >= {}; P@0.5 = hits / frames; \
              ± is the sample standard deviation (n − 1) over segments",
-            p.true_classes, p.iou, p.confidence
+            p.true_labels(), p.iou, p.confidence
         ));
     for n in notes {
         h.paragraph(n);

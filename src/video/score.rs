@@ -235,7 +235,7 @@ pub fn score_stream(
         }
     }
     let mut sampler = Sampler::new(opts.sampling.clone())?;
-    let scorer = Scorer::new(detectors, &opts.protocol);
+    let scorer = Scorer::new(detectors, &opts.protocol)?;
     let mut res = VideoScores {
         source: stream.describe(),
         ground_truth: gt.describe(),

@@ -8,6 +8,12 @@ Writes, all deterministic (fixed numpy / torch seeds):
   OUTDIR/yolov5_anchor.onnx       a small anchor-based YOLOv5-style detector (classic Detect decode)
   OUTDIR/yolov8n.onnx             ultralytics YOLOv8n, random weights (only when ultralytics imports)
   OUTDIR/yolov5su.onnx            ultralytics anchor-free YOLOv5su, random weights (idem)
+  OUTDIR/yolov8n_own.onnx         YOLOv8n with 3 classes of its own (forklift, dog, pallet in its
+                                  `names` metadata), random weights (idem; no oracle: for the CLI)
+  OUTDIR/yolov8n_half.onnx        YOLOv8n exported with half=True (fp16 weights and arithmetic;
+                                  ultralytics writes its nodes out of topological order), with
+                                  onnxruntime's output optimised and not (its own fp16 spread),
+                                  and on the file widened to f32 (yolov8n_half.widened.*)
 and next to every model <stem>.input.json (the seeded feeds) and <stem>.expected.json
 (onnxruntime's CPU outputs for all graph outputs), plus OUTDIR/manifest.json.
 
@@ -568,6 +574,8 @@ ULTRALYTICS_SIMPLIFY = True
 # spread (box logits std 2, class logits std 1, class bias -5.5: ~50 cells score above 0.3).
 BOX_LOGIT_STD, CLS_LOGIT_STD, CLS_LOGIT_BIAS = 2.0, 1.0, -5.5
 CALIB_BATCH = 8
+# A model trained on a user's own classes, as ultralytics writes it: nc = 3 and their names.
+OWN_CLASSES = ["forklift", "dog", "pallet"]
 
 
 def ultralytics_offline_env(workdir):
@@ -617,6 +625,67 @@ def calibrate_ultralytics(net, torch, image):
                 conv.bias.fill_(bias)
 
 
+def export_own_classes(outdir, image, torch, YOLO):
+    """YOLOv8n built with nc = len(OWN_CLASSES) and those names, exported as yolov8n_own.onnx."""
+    from ultralytics.nn.tasks import DetectionModel
+
+    torch.manual_seed(0)
+    model = YOLO("yolov8n.yaml")
+    net = DetectionModel("yolov8n.yaml", nc=len(OWN_CLASSES), verbose=False)
+    net.args, net.task = model.model.args, model.model.task
+    net.names = dict(enumerate(OWN_CLASSES))
+    model.model = net
+    calibrate_ultralytics(net, torch, image)
+    path = model.export(format="onnx", imgsz=320, opset=17, simplify=ULTRALYTICS_SIMPLIFY,
+                        dynamic=False, batch=1, device="cpu")
+    exported = onnx.load(str(path))
+    keep = [p for p in exported.metadata_props if p.key != "date"]
+    del exported.metadata_props[:]
+    exported.metadata_props.extend(keep)
+    names = next(p.value for p in exported.metadata_props if p.key == "names")
+    assert all(n in names for n in OWN_CLASSES), f"yolov8n_own: names metadata {names!r}"
+    onnx.save(exported, str(outdir / "yolov8n_own.onnx"))
+
+
+def export_half(outdir, image, torch, YOLO):
+    """The calibrated YOLOv8n exported with half=True as yolov8n_half.onnx (not checked by
+    onnx.checker, which rejects its node order), and onnxruntime's outputs on `image`."""
+    torch.manual_seed(0)
+    model = YOLO("yolov8n.yaml")
+    calibrate_ultralytics(model.model, torch, image)
+    path = model.export(format="onnx", imgsz=320, opset=17, simplify=ULTRALYTICS_SIMPLIFY,
+                        dynamic=False, batch=1, device="cpu", half=True)
+    exported = onnx.load(str(path))
+    keep = [p for p in exported.metadata_props if p.key != "date"]
+    del exported.metadata_props[:]
+    exported.metadata_props.extend(keep)
+    out = outdir / "yolov8n_half.onnx"
+    onnx.save(exported, str(out))
+    feeds = {"images": image}
+    write_tensors(str(outdir / "yolov8n_half.input.json"), feeds)
+    write_tensors(str(outdir / "yolov8n_half.expected.json"), run_session(session(str(out), threads=1), feeds))
+    write_tensors(str(outdir / "yolov8n_half.unoptimised.json"),
+                  run_session(session(str(out), threads=1, optimize=False), feeds))
+    # The same file computed in f32: f16 initializers, constants and casts widened (exact on the
+    # weights), the oracle for cac, which runs an fp16 file in f32 arithmetic.
+    wide = onnx.load(str(out))
+    for t in list(wide.graph.initializer):
+        if t.data_type == TensorProto.FLOAT16:
+            t.CopyFrom(numpy_helper.from_array(numpy_helper.to_array(t).astype(np.float32), t.name))
+    for n in wide.graph.node:
+        for a in n.attribute:
+            if a.name == "to" and a.i == TensorProto.FLOAT16:
+                a.i = TensorProto.FLOAT
+            if a.type == onnx.AttributeProto.TENSOR and a.t.data_type == TensorProto.FLOAT16:
+                a.t.CopyFrom(numpy_helper.from_array(numpy_helper.to_array(a.t).astype(np.float32), a.t.name))
+    for v in list(wide.graph.value_info) + list(wide.graph.input) + list(wide.graph.output):
+        if v.type.tensor_type.elem_type == TensorProto.FLOAT16:
+            v.type.tensor_type.elem_type = TensorProto.FLOAT
+    wide_path = outdir / "yolov8n_half.widened.onnx"
+    onnx.save(wide, str(wide_path))
+    write_tensors(str(outdir / "yolov8n_half.widened.json"), run_session(session(str(wide_path), threads=1), feeds))
+
+
 def export_ultralytics(outdir, image):
     """Exports the ultralytics models to outdir; returns their stems ([] when unavailable)."""
     workdir = Path(tempfile.mkdtemp(prefix="cac-ultralytics-"))
@@ -653,6 +722,8 @@ def export_ultralytics(outdir, image):
             exported.metadata_props.extend(keep)
             onnx.save(exported, str(outdir / f"{stem}.onnx"))
             stems.append(stem)
+        export_own_classes(outdir, image, torch, YOLO)
+        export_half(outdir, image, torch, YOLO)
     finally:
         os.chdir(cwd)
         shutil.rmtree(workdir, ignore_errors=True)

@@ -45,7 +45,7 @@ pub struct Args {
     /// CSV output file.
     #[arg(long, default_value = "bench-realism.csv")]
     pub csv: PathBuf,
-    /// Target class (a COCO label such as "person"): also report each detector's targeted
+    /// Target class (by name, such as "person"): also report each detector's targeted
     /// success (a target-class box with IoU >= 0.5 and confidence >= 0.3).
     #[arg(long)]
     pub target: Option<String>,

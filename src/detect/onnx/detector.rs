@@ -76,6 +76,7 @@ impl OnnxDetector {
             None => OnnxConfig::default(),
         };
         let graph = OnnxGraph::new(Model::load(path)?, device)?;
+        not_a_detector(&graph.model, &src)?;
         let input_io = match &config.input {
             Some(n) => graph
                 .graph_inputs()
@@ -192,10 +193,6 @@ impl OnnxDetector {
     pub fn graph(&self) -> &OnnxGraph {
         &self.graph
     }
-    pub fn classes(&self) -> &[&'static str] {
-        &self.classes
-    }
-
     /// The network input of `images` (`[B, 3, H, W]` in [0, 1]) and where it sits in them.
     pub fn network_input(&self, images: Tensor<4>) -> Result<(Tensor<4>, Geometry)> {
         let [_, _, h, w] = check_images(&images)?;
@@ -358,6 +355,29 @@ impl OnnxDetector {
     }
 }
 
+/// Refuses an ultralytics model of another task (its `task` metadata): a segmentation, pose,
+/// oriented-box or classification output read as class scores would be a wrong answer in
+/// silence (a pose model's 51 keypoint values read as 51 "classes").
+fn not_a_detector(model: &Model, src: &str) -> Result<()> {
+    let Some(task) = model.meta("task").map(str::trim) else {
+        return Ok(());
+    };
+    let (what, suffix) = match task {
+        "detect" => return Ok(()),
+        "segment" => ("32 mask coefficients per box", "-seg"),
+        "pose" => ("keypoints", "-pose"),
+        "obb" => ("rotation angles", "-obb"),
+        "classify" => ("no boxes at all", "-cls"),
+        _ => ("outputs of an unknown kind", ""),
+    };
+    bail!(
+        "{src}: an ultralytics {task:?} model (its metadata says task = {task}), not a detection model: \
+         its output holds {what} beside the class scores, which cac would misread. cac attacks \
+         detectors: export the detection variant of the model (task = detect, e.g. yolo11n.pt \
+         rather than yolo11n{suffix}.pt)"
+    )
+}
+
 /// Class names: the config's list, ultralytics' `names` metadata, COCO-80, or numbered.
 fn class_names(config: &OnnxConfig, meta: Option<&str>, n: usize) -> Result<Vec<&'static str>> {
     let leak = |v: Vec<String>| -> Vec<&'static str> {
@@ -372,6 +392,16 @@ fn class_names(config: &OnnxConfig, meta: Option<&str>, n: usize) -> Result<Vec<
             c.len()
         );
         return Ok(leak(c.clone()));
+    }
+    // A `names` list of another length than the class scores: the output is not what it seems.
+    if let Some(names) = meta.and_then(parse_names) {
+        ensure!(
+            names.len() == n,
+            "the file's `names` metadata lists {} classes but the output has {n} class scores: \
+             the head is not the plain detection head cac reads (name the output and its classes \
+             in a config, `output = \"...\"` and `classes = [...]`, if it is)",
+            names.len()
+        );
     }
     // A model built without a dataset carries its indices as names ("0", "1", ...): no names.
     let numbered = |v: &Vec<String>| v.iter().enumerate().all(|(k, s)| *s == k.to_string());
@@ -459,6 +489,9 @@ impl Detector for OnnxDetector {
     fn name(&self) -> &str {
         &self.name
     }
+    fn classes(&self) -> &[&'static str] {
+        &self.classes
+    }
     /// The class logits are the tapped sigmoids' inputs (rank <= 4, one axis of the class
     /// count). The default layer: after the neck's last upsampling (where there is one), the
     /// last concatenation on the finest grid (in YOLO necks it feeds every level's head), else
@@ -477,14 +510,33 @@ impl Detector for OnnxDetector {
                 .run_cam(&[(&self.input, x.clone())], None, &[name])?
                 .remove(0)
                 .1;
-            if let Some(axis) = s.iter().rposition(|&d| d == n) {
-                logits.push((name.clone(), axis));
+            // A YOLOv5-repository head sigmoids box, objectness and classes at once
+            // ([.., 5 + C] last): its classes start at 5.
+            if self.head == Head::V5 && s.last() == Some(&(n + 5)) {
+                logits.push((name.clone(), s.len() - 1, 5));
+            } else if let Some(axis) = s.iter().rposition(|&d| d == n) {
+                logits.push((name.clone(), axis, 0));
             }
         }
         if logits.is_empty() {
-            return Ok(None);
+            bail!(
+                "{}: Grad-CAM needs the class logits, and {}",
+                self.graph.source(),
+                if self.taps.is_empty() {
+                    format!(
+                        "this model's scores are {:?} with no Sigmoid node cac taps (a softmax head, \
+                         such as SSDlite's, has none)",
+                        self.config.scores
+                    )
+                } else {
+                    format!(
+                        "none of its {} tapped Sigmoid inputs has an axis of its {n} classes",
+                        self.taps.len()
+                    )
+                }
+            );
         }
-        let outs: Vec<&str> = logits.iter().map(|(n, _)| n.as_str()).collect();
+        let outs: Vec<&str> = logits.iter().map(|(n, ..)| n.as_str()).collect();
         let layers = self.graph.feature_layers(&outs)?;
         let names: Vec<&str> = layers.iter().map(|(n, _)| n.as_str()).collect();
         let shapes = self
@@ -520,7 +572,10 @@ impl Detector for OnnxDetector {
     fn candidates(&self, images: Tensor<4>) -> Result<Candidates> {
         self.candidates_with(images)
     }
+    /// Class-aware NMS over the candidates, then the kept boxes clipped to the image (as
+    /// ultralytics clips them after its NMS).
     fn detect(&self, images: Tensor<4>) -> Result<Vec<Vec<Detection>>> {
+        let [_, _, ih, iw] = check_images(&images)?;
         let c = self.candidates_with(images.detach())?;
         let [b, n, k] = c.scores.dims();
         let boxes = to_vec(&c.boxes)?;
@@ -558,12 +613,18 @@ impl Detector for OnnxDetector {
             out.push(
                 keep.into_iter()
                     .map(|q| {
-                        let (c, score, bbox) = cand[q];
+                        let (c, score, [x1, y1, x2, y2]) = cand[q];
+                        let (w, h) = (iw as f32, ih as f32);
                         Detection {
                             class_id: c,
                             label: self.classes[c],
                             score,
-                            bbox,
+                            bbox: [
+                                x1.clamp(0.0, w),
+                                y1.clamp(0.0, h),
+                                x2.clamp(0.0, w),
+                                y2.clamp(0.0, h),
+                            ],
                         }
                     })
                     .collect(),

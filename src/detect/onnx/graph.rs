@@ -36,6 +36,62 @@ pub struct OnnxGraph {
 /// Initializers with more elements than this go to the device at load time.
 const UPLOAD_OVER: usize = 16;
 
+/// Every op type of `model` that cac does not run, at once (with how many nodes use it and the
+/// first one's name), or Ok. A file with NMS or top-k selection inside is told how to export
+/// the dense head instead.
+fn unsupported(model: &Model) -> Result<()> {
+    let mut missing: Vec<(String, usize, &str)> = vec![];
+    for n in &model.nodes {
+        let std = n.domain.is_empty() || n.domain == "ai.onnx";
+        if std && ops::SUPPORTED.contains(&n.op.as_str()) {
+            continue;
+        }
+        let op = if std {
+            n.op.clone()
+        } else {
+            format!("{} (domain {})", n.op, n.domain)
+        };
+        match missing.iter_mut().find(|m| m.0 == op) {
+            Some(m) => m.1 += 1,
+            None => missing.push((op, 1, n.name.as_str())),
+        }
+    }
+    if missing.is_empty() {
+        return Ok(());
+    }
+    let list: Vec<String> = missing
+        .iter()
+        .map(|(op, k, first)| match k {
+            1 => format!("{op} (node {first:?})"),
+            _ => format!("{op} ({k} nodes, first {first:?})"),
+        })
+        .collect();
+    let selection = ["NonMaxSuppression", "TopK", "NonZero", "GatherElements"];
+    let selects = model
+        .nodes
+        .iter()
+        .any(|n| selection[..2].contains(&n.op.as_str()))
+        && missing.iter().any(|m| selection.contains(&m.0.as_str()));
+    let hint = if selects {
+        "\n  The file has NMS or top-k selection inside (an `nms=True` export, or the end-to-end head \
+         of YOLOv10 / YOLO26): cac needs the dense head, every candidate box with its class \
+         scores, because the attack and the overlap rule work on the candidates before any \
+         selection. Export the dense head instead: ultralytics `model.export(format=\"onnx\")` \
+         with `nms` left at its default (`nms=True` embeds NMS, `nms=False` picks the NMS-free \
+         end-to-end head; both select boxes inside the file)."
+    } else {
+        ""
+    };
+    bail!(
+        "{}: cac does not support {} op type{} of this file: {}{hint}\n  (supported: {})",
+        model.source(),
+        missing.len(),
+        if missing.len() == 1 { "" } else { "s" },
+        list.join(", "),
+        ops::SUPPORTED.join(", ")
+    )
+}
+
 impl OnnxGraph {
     /// Resolves `model` for `device`: checks the opset and that every node's inputs exist and
     /// its op is supported (an error names the file, the node and its op type).
@@ -72,24 +128,10 @@ impl OnnxGraph {
         for i in &model.inputs {
             slot(&mut slots, &i.name, None, &mut producer);
         }
+        unsupported(&model)?;
         let mut inputs = Vec::new();
         let mut outputs = Vec::new();
         for (k, n) in model.nodes.iter().enumerate() {
-            if !(n.domain.is_empty() || n.domain == "ai.onnx")
-                || !ops::SUPPORTED.contains(&n.op.as_str())
-            {
-                bail!(
-                    "{src}: node {:?} has op type {}{} which cac does not support (supported: {})",
-                    n.name,
-                    n.op,
-                    if n.domain.is_empty() {
-                        String::new()
-                    } else {
-                        format!(" (domain {})", n.domain)
-                    },
-                    ops::SUPPORTED.join(", ")
-                );
-            }
             let mut ins = Vec::new();
             for r in &n.inputs {
                 if r.is_empty() {
@@ -471,9 +513,21 @@ impl crate::detect::CamGraph for OnnxGraph {
         };
         let (vals, _) = self.run_full(&feeds, &inj, outputs, &[])?;
         vals.into_iter()
-            .map(|v| {
+            .zip(outputs)
+            .map(|(v, name)| {
                 let d = v.dev(&self.device)?;
-                let t = d.t4()?;
+                // Rank 5 and 6 (YOLOv5's [1, 3, h, w, 5 + C] head): the leading axes folded
+                // into one, so the last three keep their meaning.
+                let r = d.rank();
+                if r > 4 {
+                    let s = &d.shape;
+                    let lead: usize = s[..r - 3].iter().product();
+                    let shape = [lead, s[r - 3], s[r - 2], s[r - 1]];
+                    return Ok((d.t.clone().reshape(shape), shape.to_vec()));
+                }
+                let t = d
+                    .t4()
+                    .with_context(|| format!("{}: value {name:?}", self.source()))?;
                 Ok((t, d.shape))
             })
             .collect()

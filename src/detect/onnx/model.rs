@@ -103,8 +103,75 @@ pub struct Model {
     pub nodes: Vec<NodeDef>,
 }
 
+/// The nodes in an order where each comes after the producers of its inputs. ONNX requires
+/// that order, but some exporters (ultralytics' fp16 export) write nodes out of it and
+/// onnxruntime sorts them; so does cac. A graph already in order keeps its order (among the
+/// nodes ready at a time, the earliest in the file goes first); a value that no node, graph
+/// input or initializer (`defined`) produces is left for the graph to report; a cycle is an
+/// error naming its nodes.
+fn topological(
+    nodes: Vec<NodeDef>,
+    defined: &std::collections::HashSet<&str>,
+) -> Result<Vec<NodeDef>> {
+    use std::cmp::Reverse;
+    use std::collections::BinaryHeap;
+    let mut producer: HashMap<&str, usize> = HashMap::new();
+    for (k, n) in nodes.iter().enumerate() {
+        for o in n.outputs.iter().filter(|o| !o.is_empty()) {
+            producer.entry(o.as_str()).or_insert(k);
+        }
+    }
+    let mut waits = vec![0usize; nodes.len()];
+    let mut users: Vec<Vec<usize>> = vec![vec![]; nodes.len()];
+    for (k, n) in nodes.iter().enumerate() {
+        let mut deps: Vec<usize> = n
+            .inputs
+            .iter()
+            .filter(|i| !i.is_empty() && !defined.contains(i.as_str()))
+            .filter_map(|i| producer.get(i.as_str()).copied())
+            .collect();
+        deps.sort_unstable();
+        deps.dedup();
+        waits[k] = deps.len();
+        for d in deps {
+            users[d].push(k);
+        }
+    }
+    let mut ready: BinaryHeap<Reverse<usize>> = (0..nodes.len())
+        .filter(|&k| waits[k] == 0)
+        .map(Reverse)
+        .collect();
+    let mut order = Vec::with_capacity(nodes.len());
+    while let Some(Reverse(k)) = ready.pop() {
+        order.push(k);
+        for &u in &users[k] {
+            waits[u] -= 1;
+            if waits[u] == 0 {
+                ready.push(Reverse(u));
+            }
+        }
+    }
+    if order.len() < nodes.len() {
+        let stuck: Vec<&str> = (0..nodes.len())
+            .filter(|&k| waits[k] > 0)
+            .take(5)
+            .map(|k| nodes[k].name.as_str())
+            .collect();
+        bail!(
+            "the graph has a cycle: {} nodes wait on each other (among them {})",
+            nodes.len() - order.len(),
+            stuck.join(", ")
+        );
+    }
+    let mut slots: Vec<Option<NodeDef>> = nodes.into_iter().map(Some).collect();
+    Ok(order
+        .into_iter()
+        .map(|k| slots[k].take().expect("each node once"))
+        .collect())
+}
+
 impl Model {
-    /// Reads and decodes `path`.
+    /// Reads and decodes `path`; the nodes are put in topological order ([`topological`]).
     pub fn load(path: &Path) -> Result<Self> {
         let bytes =
             std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
@@ -151,6 +218,13 @@ impl Model {
                 attrs,
             });
         }
+        let defined: std::collections::HashSet<&str> = g
+            .input
+            .iter()
+            .map(|i| i.name.as_str())
+            .chain(initializers.keys().map(String::as_str))
+            .collect();
+        let nodes = topological(nodes, &defined).with_context(|| src.clone())?;
         let io = |v: &[ValueInfoProto]| -> Vec<Io> {
             v.iter()
                 .filter(|i| !initializers.contains_key(&i.name))
@@ -441,4 +515,67 @@ fn external_data(t: &TensorProto, dir: &Path) -> Result<Vec<u8>> {
                 offset + length
             )
         })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn node(name: &str, inputs: &[&str], outputs: &[&str]) -> NodeDef {
+        NodeDef {
+            name: name.into(),
+            op: "Relu".into(),
+            domain: String::new(),
+            inputs: inputs.iter().map(|s| s.to_string()).collect(),
+            outputs: outputs.iter().map(|s| s.to_string()).collect(),
+            attrs: BTreeMap::new(),
+        }
+    }
+
+    fn names(v: &[NodeDef]) -> Vec<&str> {
+        v.iter().map(|n| n.name.as_str()).collect()
+    }
+
+    #[test]
+    fn nodes_out_of_order_are_sorted_and_ordered_graphs_keep_their_order() {
+        let defined: std::collections::HashSet<&str> = ["x", "w"].into_iter().collect();
+        // c reads b's output, b reads a's: written c, a, b (as an fp16 export writes them).
+        let shuffled = vec![
+            node("c", &["vb", "w"], &["vc"]),
+            node("a", &["x"], &["va"]),
+            node("b", &["va", ""], &["vb"]),
+        ];
+        assert_eq!(
+            names(&topological(shuffled, &defined).unwrap()),
+            ["a", "b", "c"]
+        );
+        // Already in order, with independent branches: unchanged.
+        let ordered = vec![
+            node("p", &["x"], &["vp"]),
+            node("q", &["x"], &["vq"]),
+            node("r", &["vq", "vp"], &["vr"]),
+            node("s", &["w"], &["vs"]),
+        ];
+        assert_eq!(
+            names(&topological(ordered, &defined).unwrap()),
+            ["p", "q", "r", "s"]
+        );
+        // A value nothing defines: left in place for the graph's error.
+        let missing = vec![
+            node("m", &["nowhere"], &["vm"]),
+            node("n", &["vm"], &["vn"]),
+        ];
+        assert_eq!(names(&topological(missing, &defined).unwrap()), ["m", "n"]);
+        // A cycle: named.
+        let cycle = vec![
+            node("u", &["vv"], &["vu"]),
+            node("v", &["vu"], &["vv"]),
+            node("t", &["x"], &["vt"]),
+        ];
+        let e = topological(cycle, &defined).unwrap_err().to_string();
+        assert!(
+            e.contains("cycle") && e.contains('u') && e.contains('v'),
+            "{e}"
+        );
+    }
 }
