@@ -929,6 +929,17 @@ fn tiny_model(path: &Path, op: &str, opset: i64, dims: &[Option<i64>]) {
 /// Encodes a chain of nodes `ops` (the first named "the_node", then "node1", ...; each reads
 /// the previous one's output) with an input of shape `dims`.
 fn tiny_chain(path: &Path, ops: &[&str], opset: i64, dims: &[Option<i64>]) {
+    tiny_chain_meta(path, ops, opset, dims, &[])
+}
+
+/// [`tiny_chain`] with metadata `meta` (key, value).
+fn tiny_chain_meta(
+    path: &Path,
+    ops: &[&str],
+    opset: i64,
+    dims: &[Option<i64>],
+    meta: &[(&str, &str)],
+) {
     use cac::detect::onnx::proto::*;
     use prost::Message;
     let dim = |d: &Option<i64>| Dimension {
@@ -981,6 +992,13 @@ fn tiny_chain(path: &Path, ops: &[&str], opset: i64, dims: &[Option<i64>]) {
             output: vec![io("output0")],
             ..Default::default()
         }),
+        metadata_props: meta
+            .iter()
+            .map(|(k, v)| StringStringEntryProto {
+                key: k.to_string(),
+                value: v.to_string(),
+            })
+            .collect(),
         ..Default::default()
     };
     std::fs::write(path, m.encode_to_vec()).unwrap();
@@ -1035,6 +1053,20 @@ fn bad_files_are_refused_naming_the_file_node_and_op() {
         "{e}"
     );
     assert!(!err(&unsupported).contains("NMS"), "Einsum alone is no NMS");
+    // An ultralytics segmentation export: refused as not a detector, before its ops are listed.
+    let seg = tmp.path().join("seg.onnx");
+    tiny_chain_meta(
+        &seg,
+        &["ConvTranspose"],
+        17,
+        &[Some(1), Some(3), Some(32), Some(32)],
+        &[("task", "segment")],
+    );
+    let e = err(&seg);
+    assert!(
+        e.contains("seg.onnx") && e.contains("not a detection model") && e.contains("mask"),
+        "{e}"
+    );
 
     let opset = tmp.path().join("opset.onnx");
     tiny_model(
@@ -1389,4 +1421,41 @@ fn an_fp16_export_loads_out_of_order_and_runs_its_weights_in_f32() {
         cac_16 <= 1.5 * ort_16.max(spread_16),
         "cac is further from onnxruntime's fp16 output ({cac_16:.2e}) than fp16 rounding moves it"
     );
+    // As a detector with no config: the class sigmoids are tapped through the closing Cast, so
+    // the logits are exact (their sigmoids are the scores).
+    let det = OnnxDetector::load(&half, None, &dev).unwrap();
+    assert_eq!(det.classes().len(), 80);
+    let x = Tensor::<4>::from_data(
+        TensorData::new(
+            (0..3 * 200 * 300)
+                .map(|i| ((i * 31) % 97) as f32 / 96.0)
+                .collect::<Vec<f32>>(),
+            [1, 3, 200, 300],
+        ),
+        &dev,
+    );
+    let c = det.candidates(x.clone()).unwrap();
+    let (l, p) = (
+        c.logits
+            .into_data()
+            .convert::<f32>()
+            .try_into_vec::<f32>()
+            .unwrap(),
+        c.scores
+            .into_data()
+            .convert::<f32>()
+            .try_into_vec::<f32>()
+            .unwrap(),
+    );
+    assert!(l.iter().all(|v| v.is_finite()));
+    let worst = l
+        .iter()
+        .zip(&p)
+        .map(|(l, p)| (1.0 / (1.0 + (-l).exp()) - p).abs())
+        .fold(0.0f32, f32::max);
+    assert!(
+        worst < 1e-5,
+        "sigmoid(logit) differs from the score by {worst}"
+    );
+    det.detect(x).unwrap();
 }

@@ -75,8 +75,9 @@ impl OnnxDetector {
             None if beside.is_file() => OnnxConfig::load(&beside)?,
             None => OnnxConfig::default(),
         };
-        let graph = OnnxGraph::new(Model::load(path)?, device)?;
-        not_a_detector(&graph.model, &src)?;
+        let model = Model::load(path)?;
+        not_a_detector(&model, &src)?;
+        let graph = OnnxGraph::new(model, device)?;
         let input_io = match &config.input {
             Some(n) => graph
                 .graph_inputs()
@@ -459,6 +460,9 @@ fn sigmoid_taps(g: &OnnxGraph, output: &str) -> Vec<usize> {
         "Flatten",
         "Squeeze",
         "Unsqueeze",
+        // Float casts (an fp16 export's closing Cast to f32): cac computes them in f32 anyway.
+        "Cast",
+        "CastLike",
     ];
     let mut taps = Vec::new();
     let mut seen = std::collections::HashSet::new();
