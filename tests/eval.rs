@@ -307,7 +307,7 @@ fn study_methods_trains_each_method_and_tables_the_protocols_records() {
         std::fs::read_to_string(out.join("methods.csv")).unwrap(),
         csv
     );
-    // A hide class that is not a COCO label is refused before anything is trained.
+    // A hide class the source model lacks is refused before anything is trained.
     let bad = support::cac(&[
         "study",
         "methods",
@@ -321,6 +321,7 @@ fn study_methods_trains_each_method_and_tables_the_protocols_records() {
         dir.path().join("bad").to_str().unwrap(),
     ]);
     assert!(!bad.status.success());
-    assert!(String::from_utf8_lossy(&bad.stderr).contains("unknown class \"tank\""));
+    let e = String::from_utf8_lossy(&bad.stderr);
+    assert!(e.contains("has no class \"tank\""), "{e}");
     assert!(!dir.path().join("bad").exists());
 }

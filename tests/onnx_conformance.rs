@@ -1261,6 +1261,10 @@ fn a_model_with_its_own_classes_is_attacked_and_judged_on_them() {
             && e.contains("--target"),
         "{e}"
     );
+    assert!(
+        !tmp.path().join("r0").exists(),
+        "a refused run leaves no folder behind"
+    );
     // Hidden classes likewise.
     let args = train(&tmp.path().join("r1"), &spec, &["--hide"]);
     let e = fails(&strs(&args));

@@ -36,6 +36,20 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    // A new run's classes are resolved against its models before its folder is made, so a
+    // class a model lacks leaves nothing behind to clash with the corrected command.
+    let checked = match &a.resume {
+        Some(_) => None,
+        None => {
+            let ac = attack_config(&a);
+            ac.validate()?;
+            let dets = load_detectors(&ac.models)?;
+            for d in &dets {
+                ac.goal_for(d.as_ref())?;
+            }
+            Some(dets)
+        }
+    };
     let run = match &a.resume {
         Some(dir) => {
             let mut run = RunDir::open(dir)?;
@@ -59,7 +73,10 @@ pub fn run(a: Args) -> Result<()> {
         ),
         None => stage.original.clone(),
     };
-    let dets = load_detectors(&run.attack.models)?;
+    let dets = match checked {
+        Some(d) => d,
+        None => load_detectors(&run.attack.models)?,
+    };
     let dets_ref = cac::detect::refs(&dets);
     let tr = Trainer::new(
         run.attack.clone(),

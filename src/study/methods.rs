@@ -134,6 +134,12 @@ impl MethodsJob {
         let stage = self.scene.stage()?;
         let sources = detect::load_all(&self.source.models, None, device)?;
         let src = detect::refs(&sources);
+        // Every row's classes against every source before anything is trained.
+        for r in &rows {
+            for d in &src {
+                r.attack.goal_for(*d).with_context(|| r.name.clone())?;
+            }
+        }
         let mut trained = vec![];
         for r in &rows {
             let dir = self.out.join(&r.dir);

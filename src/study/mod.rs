@@ -17,7 +17,7 @@ use crate::environment::ViewpointSet;
 use crate::eval::job::EvalJob;
 use crate::eval::run::ViewPlan;
 use crate::eval::Protocol;
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use burn::tensor::Device;
 use std::path::Path;
 
@@ -73,6 +73,9 @@ pub fn train_run(
     read_only: Option<&str>,
 ) -> Result<f64> {
     let iterations = ac.iterations;
+    for d in src {
+        ac.goal_for(*d).with_context(|| label.to_string())?;
+    }
     let run = RunDir::open_or_create(dir, cfg.clone(), ac.clone())?;
     let tr = Trainer::new(
         ac,
