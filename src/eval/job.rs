@@ -178,6 +178,8 @@ impl Prepared {
 }
 
 fn prepare(job: &EvalJob, dets: &[&dyn Detector]) -> Result<Prepared> {
+    // The protocol's classes against every model, before anything is rendered or written.
+    super::Scorer::new(dets, &job.protocol)?;
     let scene = job.scene.object.load()?;
     let res = job.scene.render.atlas_res;
     let texs = textures::resolve_all(&job.textures, &scene, res, job.plan.seed)?;
