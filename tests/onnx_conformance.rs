@@ -139,6 +139,14 @@ fn exports_and_shared() -> Option<(&'static Path, PathBuf)> {
     has_ultralytics(dir).then_some((dir, shared))
 }
 
+/// A deterministic `[1, 3, h, w]` image in [0, 1] where no photo is needed.
+fn pattern(h: usize, w: usize, dev: &burn::tensor::Device) -> Tensor<4> {
+    let v: Vec<f32> = (0..3 * h * w)
+        .map(|i| ((i * 37) % 101) as f32 / 100.0)
+        .collect();
+    Tensor::from_data(TensorData::new(v, [1, 3, h, w]), dev)
+}
+
 /// A reference photo from ../shared as an image and as a `[1, 3, H, W]` tensor.
 fn photo(shared: &Path, name: &str) -> (image::RgbImage, Tensor<4>) {
     let rgb = cac::io::load_rgb(&shared.join("reference/images").join(name)).unwrap();
@@ -670,15 +678,7 @@ fn grad_cam_reads_a_rank_5_yolov5_head_and_names_why_a_softmax_head_has_none() {
     let dev = support::device();
     let det = OnnxDetector::load(&dir.join("yolov5_anchor.onnx"), None, &dev).unwrap();
     let n = det.classes().len();
-    let x = Tensor::<4>::from_data(
-        TensorData::new(
-            (0..3 * 64 * 64)
-                .map(|i| ((i * 37) % 101) as f32 / 100.0)
-                .collect::<Vec<f32>>(),
-            [1, 3, 64, 64],
-        ),
-        &dev,
-    );
+    let x = pattern(64, 64, &dev);
     let io = det.cam_io(x.clone()).unwrap().expect("a graph");
     assert!(!io.logits.is_empty());
     for (name, axis, first) in &io.logits {
@@ -1429,15 +1429,7 @@ fn an_fp16_export_loads_out_of_order_and_runs_its_weights_in_f32() {
     // the logits are exact (their sigmoids are the scores).
     let det = OnnxDetector::load(&half, None, &dev).unwrap();
     assert_eq!(det.classes().len(), 80);
-    let x = Tensor::<4>::from_data(
-        TensorData::new(
-            (0..3 * 200 * 300)
-                .map(|i| ((i * 31) % 97) as f32 / 96.0)
-                .collect::<Vec<f32>>(),
-            [1, 3, 200, 300],
-        ),
-        &dev,
-    );
+    let x = pattern(200, 300, &dev);
     let c = det.candidates(x.clone()).unwrap();
     let (l, p) = (
         c.logits
