@@ -139,6 +139,19 @@ fn exports_and_shared() -> Option<(&'static Path, PathBuf)> {
     has_ultralytics(dir).then_some((dir, shared))
 }
 
+/// A small scene config for CLI runs (the pickup at 96², one sample, a 32² atlas), written in
+/// `dir`; returns its path.
+fn small_scene(dir: &Path) -> PathBuf {
+    let scene = dir.join("small.toml");
+    std::fs::write(
+        &scene,
+        "[object]\nmesh = \"pickup\"\n[render]\nwidth = 96\nheight = 96\nsamples = 1\n\
+         atlas_res = 32\n[environment]\ndistance_ratio = [1.5, 2.0]\n",
+    )
+    .unwrap();
+    scene
+}
+
 /// A deterministic `[1, 3, h, w]` image in [0, 1] where no photo is needed.
 fn pattern(h: usize, w: usize, dev: &burn::tensor::Device) -> Tensor<4> {
     let v: Vec<f32> = (0..3 * h * w)
@@ -1158,13 +1171,7 @@ fn the_cli_inspects_detects_trains_and_evaluates_with_an_onnx_model() {
 
     // A source of cac train and a column of cac eval.
     let run = tmp.path().join("run");
-    let scene = tmp.path().join("small.toml");
-    std::fs::write(
-        &scene,
-        "[object]\nmesh = \"pickup\"\n[render]\nwidth = 96\nheight = 96\nsamples = 1\n\
-         atlas_res = 32\n[environment]\ndistance_ratio = [1.5, 2.0]\n",
-    )
-    .unwrap();
+    let scene = small_scene(tmp.path());
     support::cac_ok(&[
         "train",
         "--config",
@@ -1215,13 +1222,7 @@ fn a_model_with_its_own_classes_is_attacked_and_judged_on_them() {
     let text = support::cac_ok(&["models", "inspect", model.to_str().unwrap()]);
     assert!(text.contains("3 classes (forklift, dog, pallet"), "{text}");
     let tmp = tempfile::tempdir().unwrap();
-    let scene = tmp.path().join("small.toml");
-    std::fs::write(
-        &scene,
-        "[object]\nmesh = \"pickup\"\n[render]\nwidth = 96\nheight = 96\nsamples = 1\n\
-         atlas_res = 32\n[environment]\ndistance_ratio = [1.5, 2.0]\n",
-    )
-    .unwrap();
+    let scene = small_scene(tmp.path());
     let fails = |args: &[&str]| {
         let out = support::cac(args);
         assert!(!out.status.success(), "{args:?} succeeded");
