@@ -66,12 +66,14 @@ fn unsupported(model: &Model) -> Result<()> {
             _ => format!("{op} ({k} nodes, first {first:?})"),
         })
         .collect();
-    let selection = ["NonMaxSuppression", "TopK", "NonZero", "GatherElements"];
-    let selects = model
-        .nodes
-        .iter()
-        .any(|n| selection[..2].contains(&n.op.as_str()))
-        && missing.iter().any(|m| selection.contains(&m.0.as_str()));
+    // Ops that select boxes (NMS, top-k) and the unsupported ops that come with them in
+    // `nms=True` and end-to-end exports: both present means selection inside the file.
+    const SELECTS: [&str; 2] = ["NonMaxSuppression", "TopK"];
+    const WITH_SELECTION: [&str; 4] = ["NonMaxSuppression", "TopK", "NonZero", "GatherElements"];
+    let selects = model.nodes.iter().any(|n| SELECTS.contains(&n.op.as_str()))
+        && missing
+            .iter()
+            .any(|m| WITH_SELECTION.contains(&m.0.as_str()));
     let hint = if selects {
         "\n  The file has NMS or top-k selection inside (an `nms=True` export, or the end-to-end head \
          of YOLOv10 / YOLO26): cac needs the dense head, every candidate box with its class \
