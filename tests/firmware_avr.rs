@@ -4,6 +4,7 @@
 //! Skips (with a message) when gcc-avr/simavr are missing, except under `CI=true`.
 #![cfg(unix)]
 
+mod fakecam_support;
 mod firmware_avr_support;
 
 use cac::physical::{Axis, SerialTransport, Transport, Turntable, TurntableError};
@@ -788,6 +789,247 @@ fn capture_session_with_twin_camera_on_the_firmware_then_scored() {
         c.get("tpulses"),
         c.get("rpulses"),
         c.get("us") as f64 * 1e-6,
+        t0.elapsed().as_secs_f64()
+    );
+}
+
+/// `cac capture --port PTY --camera /dev/video7`: the firmware in simavr drives the table and
+/// the rail, an emulated UVC webcam (tools/fakecam) shows the twin's picture of the pose the
+/// mechanics hold at each moment (ttsim's pose file). The link drops, garbles and delays bytes;
+/// the camera stalls in the first run, which is killed mid-session; the `--resume` run meets a
+/// corrupt frame and an unplugged camera. Every planned frame is in the manifest exactly once,
+/// each is the picture of its planned pose (frames the camera filled while the table was still
+/// turning are not taken), what was recovered is on the frame it delayed, the camera's settings
+/// are recorded and held again on resume, and `cac score` scores the session.
+#[test]
+fn capture_session_with_an_emulated_webcam_on_the_firmware_killed_resumed_then_scored() {
+    use cac::physical::rig::Rig;
+    use cac::physical::session::{SessionInfo, SessionPlan};
+    use cac::physical::twin::{DigitalTwin, Pose};
+    let Some(b) = built() else { return };
+    let shim = match fakecam_support::shim() {
+        Ok(s) => s,
+        Err(what) => {
+            support::missing(&what, "apt-get install gcc");
+            return;
+        }
+    };
+    let _g = lock();
+    let t0 = Instant::now();
+    let dir = tempfile::tempdir().unwrap();
+    let pose = dir.path().join("pose");
+    let avr = Arc::new(Mutex::new(Avr::spawn_with_pose(
+        &b,
+        10_000,
+        4_000,
+        Some(&pose),
+    )));
+    let rig_path = avr_rig_file(dir.path());
+    let rig = Arc::new(Rig::load(&rig_path).unwrap());
+    let (ratios, angles) = (vec![1.5, 2.0], "0,90,180,270");
+    let plan = SessionPlan::new(
+        ratios.clone(),
+        SessionPlan::parse_angles(angles).unwrap(),
+        2,
+    )
+    .unwrap();
+    // The camera's bank: the twin's picture of every planned pose, keyed by the steps the
+    // mechanics hold there (table within a revolution from the index mark, rail from its switch).
+    let atlas = rig
+        .renderer
+        .scene
+        .initial_atlas(rig.renderer.settings.atlas_res);
+    let twin = DigitalTwin::new(rig.clone(), &atlas, Box::new(|| Err("unused".into())), 3);
+    let mut shots = Vec::new();
+    let mut keys = Vec::new();
+    for &ratio in &ratios {
+        let rail_um = i64::from(rig.rail_target(ratio).unwrap());
+        for &angle in &plan.angles {
+            let mdeg = (angle * 1000.0).round() as i64;
+            let p = Pose {
+                angle_deg: angle,
+                horizontal_m: rig.horizontal_distance(ratio).unwrap(),
+            };
+            let img = twin.render(p, 0).unwrap().image;
+            let t = table_steps(mdeg).rem_euclid(TABLE_STEPS_PER_REV);
+            shots.push((t, rail_steps(rail_um), img));
+            keys.push(cac::physical::manifest::key_of(ratio, angle));
+        }
+    }
+    let bank = fakecam_support::write_bank(&dir.path().join("bank"), TABLE_STEPS_PER_REV, &shots);
+    let camera = |run: &str, faults: &str| fakecam_support::Camera {
+        bank: dir.path().join("bank"),
+        pose: Some(pose.clone()),
+        faults: faults.into(),
+        formats: String::new(),
+        log: dir.path().join(format!("{run}.log")),
+    };
+    let link_faults = |seed| FaultConfig {
+        seed,
+        drop_byte: 0.003,
+        garble_byte: 0.003,
+        delay_chunk: 0.05,
+        max_delay: Duration::from_millis(300),
+        ..FaultConfig::none()
+    };
+    let out = dir.path().join("session");
+    let capture = |cam: &fakecam_support::Camera, port: &str, resume: bool| {
+        let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_cac"));
+        cmd.arg("capture")
+            .arg("--rig")
+            .arg(&rig_path)
+            .args([
+                "--ratios",
+                "1.5,2",
+                "--angles",
+                angles,
+                "--repeats",
+                "2",
+                "--seed",
+                "3",
+            ])
+            .arg("--out")
+            .arg(&out)
+            .args(["--port", port, "--camera", fakecam_support::DEV]);
+        if resume {
+            cmd.arg("--resume");
+        }
+        cam.apply(&shim, &mut cmd);
+        cmd.stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped());
+        cmd.spawn().expect("start cac capture")
+    };
+    let manifest = out.join("manifest.jsonl");
+    let lines = || {
+        std::fs::read_to_string(&manifest)
+            .map(|t| t.matches('\n').count())
+            .unwrap_or(0)
+    };
+
+    // Run 1: a stall (frames 0-9 are the warm-ups), killed once 5 frames are in.
+    let dev = avr.lock().unwrap().path().to_string();
+    let cam1 = camera("run1", "stall@12");
+    let link = FaultyLink::spawn(&dev, link_faults(11), avr.clone());
+    let mut child = capture(&cam1, link.path(), false);
+    let deadline = Instant::now() + Duration::from_secs(240);
+    while lines() < 5 {
+        if let Some(st) = child.try_wait().unwrap() {
+            let o = child.wait_with_output().unwrap();
+            panic!(
+                "cac capture ended ({st}) before the kill:\n{}",
+                String::from_utf8_lossy(&o.stderr)
+            );
+        }
+        assert!(Instant::now() < deadline, "no progress");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    drop(link);
+    let killed_at = lines();
+    assert!(killed_at < plan.frames().len(), "killed mid-session");
+    assert_eq!(cam1.fired(), ["stall@12"]);
+    let info = SessionInfo::load(&out).unwrap();
+    let settings = info
+        .camera_settings
+        .clone()
+        .expect("the camera's settings recorded");
+    assert!(
+        !info.simulated && info.camera.contains("uvcvideo"),
+        "{info:?}"
+    );
+    assert_eq!(
+        (settings.format.as_str(), settings.width, settings.height),
+        ("MJPG", 96, 72)
+    );
+    let exposure = settings
+        .controls
+        .iter()
+        .find(|c| c.name == "exposure")
+        .unwrap();
+    assert!(
+        exposure.auto_off && exposure.value.is_some(),
+        "{settings:?}"
+    );
+
+    // Run 2: resumed; a corrupt frame and the camera unplugged for 0.3 s.
+    let cam2 = camera("run2", "corrupt@11,unplug@14:300");
+    let link = FaultyLink::spawn(&dev, link_faults(12), avr.clone());
+    let o = capture(&cam2, link.path(), true)
+        .wait_with_output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "cac capture --resume:\n{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    println!("{}", String::from_utf8_lossy(&o.stdout).trim());
+    let fired2 = cam2.fired();
+    assert!(fired2.contains(&"unplug@14:300".to_string()), "{fired2:?}");
+    // Resumed at the session's values, not where this run's auto exposure would have settled.
+    assert!(
+        cam2.log_lines()
+            .contains(&format!("s_ctrl 0x9a0902 {}", exposure.value.unwrap())),
+        "exposure held at the session's value on resume"
+    );
+
+    // The manifest: every planned frame once, in plan order, each the picture of its pose.
+    let entries = cac::physical::manifest::read(&manifest).unwrap();
+    let planned = plan.frames();
+    assert_eq!(entries.len(), planned.len());
+    for (e, f) in entries.iter().zip(&planned) {
+        assert_eq!(
+            (&e.frame, e.angle, e.ratio, e.repeat),
+            (&f.file, f.angle, f.ratio, f.repeat)
+        );
+        let got = image::open(out.join(&e.frame)).unwrap().to_rgb8();
+        let k = keys
+            .iter()
+            .position(|k| *k == cac::physical::manifest::key_of(f.ratio, f.angle))
+            .unwrap();
+        let want = bank[k].mjpeg_rgb();
+        assert!(
+            got == want,
+            "{}: not the camera's picture of its planned pose",
+            e.frame
+        );
+        assert!(
+            e.camera.starts_with("/dev/video7 MJPG 96x72 frame"),
+            "{}",
+            e.camera
+        );
+    }
+    let events: Vec<&String> = entries.iter().flat_map(|e| &e.camera_events).collect();
+    let count = |what: &str| events.iter().filter(|e| e.contains(what)).count();
+    assert_eq!(count("no frame within"), 1, "the stall: {events:?}");
+    assert_eq!(count("device lost"), 1, "the unplug: {events:?}");
+    // A corrupt frame the camera filled while the table turned is discarded unseen.
+    let corrupt_fired = fired2.iter().any(|f| f.starts_with("corrupt"));
+    assert!(
+        count("corrupt frame dropped") <= usize::from(corrupt_fired),
+        "{events:?}"
+    );
+    assert_eq!(
+        events.len(),
+        2 + count("corrupt frame dropped"),
+        "{events:?}"
+    );
+    let c = avr.lock().unwrap().counts();
+    assert_eq!((c.get("bad"), c.get("wdt")), (0, 0));
+
+    // Scored.
+    let out_s = out.to_str().unwrap();
+    let o = cac_cmd(&["score", out_s, "--models", "nanodet"]);
+    println!("{}", String::from_utf8_lossy(&o.stdout).trim());
+    let s: cac::physical::score::SessionScore =
+        serde_json::from_str(&std::fs::read_to_string(out.join("score/scores.json")).unwrap())
+            .unwrap();
+    assert_eq!(s.frames.len(), planned.len());
+    support::score_report::check(&out.join("score"), &s, &entries, out_s);
+    println!(
+        "webcam session: {} frames ({killed_at} before the kill), events {events:?}, {:.1} s wall",
+        planned.len(),
         t0.elapsed().as_secs_f64()
     );
 }

@@ -85,10 +85,25 @@ fn corrupt_mjpeg_frames_are_errors_not_panics() {
     ));
     assert!(decode_mjpeg(&[]).is_err());
     assert!(decode_mjpeg(&[0xFF, 0xD8, 0xFF, 0xD9]).is_err());
-    // Every truncation and a sweep of single-byte corruptions: errors or images, never a panic.
+    // Every truncation is refused (a decoder would grey-fill the rest), also with the zero
+    // padding cameras leave after the data; the whole frame with padding decodes.
     for n in 0..stripped.len() {
-        let _ = decode_mjpeg(&stripped[..n]);
+        let mut cut = stripped[..n].to_vec();
+        assert!(
+            decode_mjpeg(&cut).is_err(),
+            "cut at {n} of {}",
+            stripped.len()
+        );
+        cut.resize(n + 64, 0);
+        assert!(decode_mjpeg(&cut).is_err(), "cut at {n}, padded");
     }
+    let mut padded = stripped.clone();
+    padded.resize(stripped.len() + 100, 0);
+    assert_eq!(
+        decode_mjpeg(&padded).unwrap(),
+        decode_mjpeg(&stripped).unwrap()
+    );
+    // A sweep of single-byte corruptions: errors or images, never a panic.
     let mut seed = 0x1234_5678u32;
     for i in 0..2000 {
         let mut f = stripped.clone();

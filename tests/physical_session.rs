@@ -197,6 +197,7 @@ fn run_session(name: &str, faults: FaultConfig, rail: bool) -> Outcome {
         lens: rig.lens.clone(),
         texture: None,
         camera: "twin".into(),
+        camera_settings: None,
         simulated: true,
     }
     .prepare(&out, false)

@@ -19,7 +19,7 @@ pub struct Args {
     /// Serial port of the turntable (real rig).
     #[arg(long)]
     pub port: Option<String>,
-    /// V4L2 camera device (real rig; needs the v4l2 feature).
+    /// V4L2 camera device (real rig, Linux).
     #[arg(long, conflicts_with = "twin_camera")]
     pub camera: Option<PathBuf>,
     /// With --port: render the frames with the digital twin, posed from the table angle and

@@ -4,6 +4,7 @@ use anyhow::Result;
 use clap::{Parser, Subcommand};
 
 pub mod bench;
+pub mod camera;
 pub mod capture;
 pub mod config;
 pub mod demo;
@@ -62,6 +63,9 @@ pub enum Command {
     ScoreVideo(score_video::Args),
     /// Physical test: turn, settle and capture frames into a session folder (or simulate).
     Capture(capture::Args),
+    /// Check a V4L2 camera as a session will use it: lock it, capture a few frames, record
+    /// what it runs at (camera.json).
+    Camera(cac::physical::camera_check::CameraCheck),
     /// Score a capture session: P@0.5 per distance ratio and angle, JSON/CSV/HTML report.
     Score(score::Args),
     /// Evaluate textures: P@0.5, drop and targeted success in FV/RV, bright/dark views; reports.
@@ -118,6 +122,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Export(a) => export::run(a),
         Command::ScoreVideo(a) => score_video::run(a),
         Command::Capture(a) => capture::run(a),
+        Command::Camera(a) => camera::run(a),
         Command::Score(a) => score::run(a),
         Command::Bench(BenchCmd::Render(a)) => bench::render::run(a),
         Command::Bench(BenchCmd::Detect(a)) => bench::detect::run(a),

@@ -1,10 +1,10 @@
-//! Cameras of the physical rig: the [`FrameSource`] trait, a folder-of-images source (replays
-//! recorded or rendered frames in name order), and — behind the `v4l2` cargo feature — a V4L2
-//! webcam source on the `v4l` crate. The pixel decoders (MJPEG with missing Huffman tables,
-//! YUYV) live in [`decode`].
+//! Cameras of the physical rig: the [`FrameSource`] trait, what a camera was locked to for a
+//! session ([`CameraSettings`]), a folder-of-images source (replays recorded or rendered frames
+//! in name order), and on Linux a V4L2 webcam source ([`v4l2`]). The pixel decoders (MJPEG with
+//! missing Huffman tables, YUYV) live in [`decode`].
 
 pub mod decode;
-#[cfg(all(feature = "v4l2", target_os = "linux"))]
+#[cfg(target_os = "linux")]
 pub mod v4l2;
 
 use image::RgbImage;
@@ -46,6 +46,46 @@ pub struct Frame {
     pub index: u64,
     /// Where it came from (file name, device and format), for manifests.
     pub origin: String,
+    /// What went wrong on the way to this frame and was recovered (a corrupt frame dropped, a
+    /// stalled stream restarted, a camera reopened), for the manifest.
+    pub events: Vec<String>,
+}
+
+/// What a camera ran at for a session, read back from it: recorded in `session.json`, held
+/// again on `--resume`, so frames of one session are comparable.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CameraSettings {
+    /// Device node.
+    pub device: String,
+    /// Driver, card and bus as the device names them.
+    pub driver: String,
+    pub card: String,
+    pub bus: String,
+    /// Pixel format streamed (`MJPG`, `YUYV`).
+    pub format: String,
+    /// Frame size delivered.
+    pub width: u32,
+    pub height: u32,
+    /// Frame rate asked, the one the driver reports, and the one measured over the warm-up
+    /// frames (a camera may accept a rate and not keep it).
+    pub fps_asked: Option<f64>,
+    pub fps_reported: Option<f64>,
+    pub fps_measured: Option<f64>,
+    /// Exposure, white balance and focus as locked.
+    pub controls: Vec<LockedControl>,
+}
+
+/// One control held for a session.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct LockedControl {
+    /// `exposure` (driver units, 100 µs on UVC), `white_balance_k`, `focus`.
+    pub name: String,
+    /// The V4L2 control id of the value.
+    pub id: u32,
+    /// The value read back after locking; `None`: the camera has no such control.
+    pub value: Option<i32>,
+    /// Whether an automatic mode was switched off for it.
+    pub auto_off: bool,
 }
 
 /// Anything that yields frames on request: a webcam, a folder of images, a renderer.
@@ -54,6 +94,10 @@ pub trait FrameSource {
     fn capture(&mut self) -> Result<Frame, CameraError>;
     /// A one-line description for logs and manifests.
     fn describe(&self) -> String;
+    /// What the camera is locked to, for cameras that have settings.
+    fn settings(&self) -> Option<CameraSettings> {
+        None
+    }
 }
 
 /// Image files of a folder (`.png`, `.jpg`, `.jpeg`, any case), in file-name order.
@@ -132,6 +176,7 @@ impl FrameSource for FolderSource {
             image,
             index: i as u64,
             origin: path.display().to_string(),
+            events: Vec::new(),
         })
     }
 

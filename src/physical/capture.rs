@@ -5,14 +5,14 @@
 //! job on the simulated rig (firmware on a pseudo-terminal, the twin as camera) is
 //! `crate::sim::rig::capture`, built from [`CaptureJob::prepare`] and [`CaptureJob::info`].
 
-use super::camera::FrameSource;
+use super::camera::{CameraSettings, FrameSource};
 use super::rig::Rig;
 use super::session::{self, CaptureOptions, CaptureSummary, SessionInfo, SessionPlan};
 use super::stage::{terminal_operator, TurntableStage};
 use super::twin::DigitalTwin;
 use super::{Axis, SerialTransport, Turntable, TurntableConfig};
 use crate::scene::Texture;
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
@@ -94,9 +94,14 @@ impl CaptureJob {
         camera: Option<&std::path::Path>,
     ) -> Result<CaptureOutcome> {
         // A real camera is opened before the port, so a wrong camera fails before anything moves.
+        // Resuming holds it at the settings the session was captured with.
+        let recorded = match (camera, self.resume) {
+            (Some(_), true) => SessionInfo::load(&self.out)?.camera_settings,
+            _ => None,
+        };
         let real_cam = match camera {
             None => None,
-            Some(dev) => Some(open_camera(dev, rig.lens.width, rig.lens.height)?),
+            Some(dev) => Some(open_camera(dev, rig, recorded.as_ref())?),
         };
         let t = SerialTransport::open(port, 115_200)
             .with_context(|| format!("cannot open --port {port}"))?;
@@ -116,7 +121,7 @@ impl CaptureJob {
                 self.seed,
             )),
         };
-        let info = self.info(plan, rig, cam.describe(), twin)?;
+        let info = self.info(plan, rig, cam.describe(), cam.settings(), twin)?;
         let settle = Duration::from_millis(rig.config.turntable.settle_ms);
         let opts = CaptureOptions {
             settle: Box::new(move || std::thread::sleep(settle)),
@@ -133,6 +138,7 @@ impl CaptureJob {
         plan: SessionPlan,
         rig: &Rig,
         camera: String,
+        camera_settings: Option<CameraSettings>,
         simulated: bool,
     ) -> Result<SessionInfo> {
         let texture = self
@@ -146,18 +152,38 @@ impl CaptureJob {
             texture,
             camera,
             simulated,
+            camera_settings,
         }
         .prepare(&self.out, self.resume)
     }
 }
 
-#[cfg(all(feature = "v4l2", target_os = "linux"))]
-fn open_camera(dev: &std::path::Path, w: usize, h: usize) -> Result<Box<dyn FrameSource>> {
+/// The V4L2 camera at the lens's size, with the rig file's frame rate and control values, or
+/// (resuming) the values the session recorded.
+#[cfg(target_os = "linux")]
+pub fn open_camera(
+    dev: &std::path::Path,
+    rig: &Rig,
+    recorded: Option<&CameraSettings>,
+) -> Result<Box<dyn FrameSource>> {
     use super::camera::v4l2::{V4l2Config, V4l2Source};
+    let mount = &rig.config.camera;
+    let held = |name: &str| {
+        recorded.and_then(|s| {
+            s.controls
+                .iter()
+                .find(|c| c.name == name)
+                .and_then(|c| c.value)
+        })
+    };
     let cfg = V4l2Config {
         path: dev.to_path_buf(),
-        width: w as u32,
-        height: h as u32,
+        width: rig.lens.width as u32,
+        height: rig.lens.height as u32,
+        fps: mount.fps,
+        exposure: held("exposure").or(mount.exposure),
+        white_balance_k: held("white_balance_k").or(mount.white_balance_k),
+        focus: held("focus").or(mount.focus),
         ..V4l2Config::default()
     };
     Ok(Box::new(
@@ -165,7 +191,14 @@ fn open_camera(dev: &std::path::Path, w: usize, h: usize) -> Result<Box<dyn Fram
     ))
 }
 
-#[cfg(not(all(feature = "v4l2", target_os = "linux")))]
-fn open_camera(dev: &std::path::Path, _w: usize, _h: usize) -> Result<Box<dyn FrameSource>> {
-    bail!("--camera {}: this cac was built without the v4l2 feature (cargo build --release --features v4l2)", dev.display())
+#[cfg(not(target_os = "linux"))]
+pub fn open_camera(
+    dev: &std::path::Path,
+    _: &Rig,
+    _: Option<&CameraSettings>,
+) -> Result<Box<dyn FrameSource>> {
+    anyhow::bail!(
+        "--camera {}: V4L2 cameras are read on Linux only",
+        dev.display()
+    )
 }

@@ -25,6 +25,10 @@ pub struct Entry {
     pub device: serde_json::Value,
     /// The camera's description of the frame.
     pub camera: String,
+    /// What the camera recovered from on the way to this frame (corrupt frames dropped, a
+    /// stalled stream restarted, the device reopened); absent when nothing happened.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub camera_events: Vec<String>,
 }
 
 impl Entry {

@@ -1,11 +1,12 @@
 //! The physical test rig, host side: the turntable driver speaking `firmware-protocol` over any
 //! [`Transport`] — a real serial port ([`SerialTransport`]), the simulator's pseudo-terminal, or its
-//! in-memory link (`crate::sim`) — camera frame sources, the calibrated lens, the rig file, the
+//! in-memory link (`crate::sim`) — camera frame sources (a V4L2 webcam checked with [`camera_check`]), the calibrated lens, the rig file, the
 //! one camera model of the rig ([`rig_camera`]), the digital twin, ground-truth boxes, capture sessions with their manifest, and
 //! the whole capture run on a real rig ([`capture`]; on the simulated rig: `crate::sim::rig`).
 
 pub mod calib;
 pub mod camera;
+pub mod camera_check;
 pub mod capture;
 pub mod manifest;
 pub mod rig;

@@ -29,6 +29,19 @@ pub struct CameraMount {
     pub height_m: f64,
     /// Elevation: the optical axis points this many degrees below the horizontal.
     pub elevation_deg: f64,
+    /// Frame rate to ask a V4L2 camera for (default: the camera's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fps: Option<f64>,
+    /// Exposure to lock a V4L2 camera at, in its units (100 µs on UVC); default: where auto
+    /// exposure settles during the warm-up.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exposure: Option<i32>,
+    /// White balance to lock (kelvin); default: where auto white balance settles.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub white_balance_k: Option<i32>,
+    /// Focus position to lock; default: where autofocus settles.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub focus: Option<i32>,
 }
 
 /// The `[turntable]` table.

@@ -4,7 +4,7 @@
 //! frame missing from the manifest exactly once.
 
 use super::calib::CameraModel;
-use super::camera::FrameSource;
+use super::camera::{CameraSettings, FrameSource};
 use super::manifest::{key_of, Entry, Manifest};
 use super::rig::{Rig, RigConfig};
 use super::stage::Stage;
@@ -116,6 +116,10 @@ pub struct SessionInfo {
     /// The camera, as described by its frame source.
     pub camera: String,
     pub simulated: bool,
+    /// What a real camera was locked to and runs at (format, size, frame rate asked, reported
+    /// and measured, exposure, white balance, focus); absent for the twin and folders.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_settings: Option<CameraSettings>,
 }
 
 impl SessionInfo {
@@ -153,6 +157,18 @@ impl SessionInfo {
                     "--resume: the rig file or its calibration changed since the session in {} started",
                     dir.display()
                 );
+            }
+            if let (Some(was), Some(now)) = (&old.camera_settings, &new.camera_settings) {
+                let held =
+                    |s: &CameraSettings| (s.format.clone(), s.width, s.height, s.controls.clone());
+                if held(was) != held(now) {
+                    bail!(
+                        "--resume: the camera runs at {:?}, the session in {} was captured at {:?} (format, size, controls)",
+                        held(now),
+                        dir.display(),
+                        held(was)
+                    );
+                }
             }
             return Ok(old);
         }
@@ -252,6 +268,7 @@ pub fn capture(
             timestamp,
             device: stage.status(),
             camera: frame.origin,
+            camera_events: frame.events,
         })?;
         sum.captured += 1;
         bar.inc(1);

@@ -179,6 +179,7 @@ impl FrameSource for DigitalTwin {
                 "twin angle={:.3} distance={:.4}",
                 pose.angle_deg, pose.horizontal_m
             ),
+            events: Vec::new(),
         })
     }
 

@@ -163,6 +163,7 @@ pub fn capture(job: &CaptureJob, faults: &str, speedup: f64) -> Result<CaptureOu
         plan,
         &rig,
         crate::physical::camera::FrameSource::describe(&cam),
+        None,
         true,
     )?;
     let sim = Arc::new(sim);

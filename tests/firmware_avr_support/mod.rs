@@ -142,9 +142,24 @@ impl Avr {
     /// Start the firmware with the table `table_start` steps past an index mark and the rail
     /// `rail_start` steps from its near-end switch.
     pub fn spawn(b: &Built, table_start: i64, rail_start: i64) -> Avr {
+        Self::spawn_with_pose(b, table_start, rail_start, None)
+    }
+
+    /// [`Avr::spawn`] that also keeps the physical position in `pose` ("<table steps> <rail
+    /// steps>", rewritten after every step: what the emulated camera shows).
+    pub fn spawn_with_pose(
+        b: &Built,
+        table_start: i64,
+        rail_start: i64,
+        pose: Option<&Path>,
+    ) -> Avr {
         let dir = tempfile::tempdir().unwrap();
         let link = dir.path().join("ttyAVR");
-        let mut child = Command::new(&b.ttsim)
+        let mut cmd = Command::new(&b.ttsim);
+        if let Some(p) = pose {
+            cmd.arg("--pose-file").arg(p);
+        }
+        let mut child = cmd
             .arg("--elf")
             .arg(&b.elf)
             .arg("--link")

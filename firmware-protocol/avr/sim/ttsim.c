@@ -23,6 +23,10 @@
  *   QUIT              -> exits
  * Options: --elf PATH --link PATH [--speed S (emulated/real time, 0 = as fast as possible)]
  *          [--table-rev 12800] [--index-width 36] [--table-start STEPS] [--rail-start STEPS]
+ *          [--pose-file PATH]
+ * --pose-file: the physical position, "<table steps> <rail steps>\n" in fixed-width fields, is
+ * rewritten in place after every step, so another process (the emulated camera of
+ * tools/fakecam) can show the object as the mechanics hold it at that moment.
  * The physical positions survive chip resets (the mechanics do not move when the MCU reboots). */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -121,6 +125,19 @@ static void drive_sensors(int force)
     drive(estop_irq, &in_estop, estop, force);
 }
 
+static int pose_fd = -1;
+
+static void write_pose(void)
+{
+    if (pose_fd < 0)
+        return;
+    char line[48];
+    int n = snprintf(line, sizeof line, "%20lld %20lld\n", (long long)table_phys(),
+                     (long long)rail_phys());
+    if (pwrite(pose_fd, line, (size_t)n, 0) != n)
+        fprintf(stderr, "ttsim: cannot write the pose file: %s\n", strerror(errno));
+}
+
 static void on_step(int axis, uint32_t value)
 {
     if (!value)
@@ -148,6 +165,7 @@ static void on_step(int axis, uint32_t value)
         last_rstep = t;
     }
     drive_sensors(0); /* the sensors see the new position before the firmware reads them */
+    write_pose();
 }
 
 static void tstep_cb(avr_irq_t *irq, uint32_t value, void *p) { (void)irq; (void)p; on_step(0, value); }
@@ -313,7 +331,7 @@ static void poll_uart(void)
 
 int main(int argc, char **argv)
 {
-    const char *elf = 0, *link = 0;
+    const char *elf = 0, *link = 0, *pose = 0;
     double speed = 1.0;
     for (int i = 1; i + 1 < argc; i += 2) {
         if (!strcmp(argv[i], "--elf"))
@@ -330,6 +348,8 @@ int main(int argc, char **argv)
             table_start = atoll(argv[i + 1]);
         else if (!strcmp(argv[i], "--rail-start"))
             rail_start = atoll(argv[i + 1]);
+        else if (!strcmp(argv[i], "--pose-file"))
+            pose = argv[i + 1];
         else {
             fprintf(stderr, "ttsim: unknown option %s\n", argv[i]);
             return 2;
@@ -337,7 +357,7 @@ int main(int argc, char **argv)
     }
     if (!elf || !link || table_rev <= 0) {
         fprintf(stderr, "usage: ttsim --elf FIRMWARE.elf --link PTY_SYMLINK [--speed S] "
-                        "[--table-rev N] [--index-width N] [--table-start N] [--rail-start N]\n");
+                        "[--table-rev N] [--index-width N] [--table-start N] [--rail-start N] [--pose-file PATH]\n");
         return 2;
     }
     elf_firmware_t fw;
@@ -345,6 +365,14 @@ int main(int argc, char **argv)
     if (elf_read_firmware(elf, &fw)) {
         fprintf(stderr, "ttsim: cannot read the firmware %s\n", elf);
         return 2;
+    }
+    if (pose) {
+        pose_fd = open(pose, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+        if (pose_fd < 0) {
+            fprintf(stderr, "ttsim: cannot create the pose file %s: %s\n", pose, strerror(errno));
+            return 2;
+        }
+        write_pose();
     }
     avr = avr_make_mcu_by_name("atmega328p");
     if (!avr) {

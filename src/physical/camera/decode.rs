@@ -106,8 +106,16 @@ pub fn with_huffman_tables(jpeg: &[u8]) -> Result<std::borrow::Cow<'_, [u8]>, Ca
     }
 }
 
-/// Decode one MJPEG frame (with or without Huffman tables) to RGB.
+/// Decode one MJPEG frame (with or without Huffman tables) to RGB. A frame cut short (no
+/// end-of-image marker before the zero padding some cameras add) is refused: JPEG decoders fill
+/// the missing part with grey instead of failing, and a truncated USB transfer looks like that.
 pub fn decode_mjpeg(frame: &[u8]) -> Result<RgbImage, CameraError> {
+    let end = frame.iter().rposition(|&b| b != 0).map_or(0, |i| i + 1);
+    if end < 4 || frame[end - 2..end] != [0xFF, 0xD9] {
+        return Err(bad(format!(
+            "no end-of-image marker: the frame was cut short ({end} bytes)"
+        )));
+    }
     let jpeg = with_huffman_tables(frame)?;
     image::load_from_memory_with_format(&jpeg, image::ImageFormat::Jpeg)
         .map(|i| i.to_rgb8())
