@@ -12,6 +12,7 @@
 
 use super::printcheck::{weld, weld_and_check};
 use super::{Paint, PrintMesh, PrintTri};
+use crate::scene::polygon::{ear_clip, OnEdge};
 use anyhow::Result;
 use glam::{Vec2, Vec3};
 use serde::Serialize;
@@ -347,41 +348,9 @@ fn triangulate(pos: &mut Vec<Vec3>, ring: &[u32]) -> Vec<[u32; 3]> {
     let u = normal.any_orthonormal_vector();
     let w = normal.cross(u);
     let q: Vec<Vec2> = p.iter().map(|x| Vec2::new(x.dot(u), x.dot(w))).collect();
-    let mut idx: Vec<usize> = (0..n).collect();
-    let mut out = vec![];
-    let area2 = |a: Vec2, b: Vec2, c: Vec2| (b - a).perp_dot(c - a);
-    let mut guard = 0;
-    while idx.len() > 3 && guard < n * n {
-        guard += 1;
-        let m = idx.len();
-        let mut clipped = false;
-        for i in 0..m {
-            let (ia, ib, ic) = (idx[(i + m - 1) % m], idx[i], idx[(i + 1) % m]);
-            let (a, b, c) = (q[ia], q[ib], q[ic]);
-            if area2(a, b, c) <= 0.0 {
-                continue;
-            }
-            let inside = idx.iter().any(|&j| {
-                j != ia && j != ib && j != ic && {
-                    let x = q[j];
-                    area2(a, b, x) >= 0.0 && area2(b, c, x) >= 0.0 && area2(c, a, x) >= 0.0
-                }
-            });
-            if inside {
-                continue;
-            }
-            out.push([ring[ia], ring[ib], ring[ic]]);
-            idx.remove(i);
-            clipped = true;
-            break;
-        }
-        if !clipped {
-            break;
-        }
-    }
-    if idx.len() == 3 {
-        out.push([ring[idx[0]], ring[idx[1]], ring[idx[2]]]);
-        return out;
+    let ears = ear_clip(&q, OnEdge::Blocks);
+    if ears.len() == n - 2 {
+        return ears.iter().map(|t| t.map(|i| ring[i])).collect();
     }
     // Fallback: fan around the centroid of the whole ring.
     let c = p.iter().copied().sum::<Vec3>() / n as f32;

@@ -177,49 +177,22 @@ impl<T: Transport> Turntable<T> {
     pub fn move_to(&mut self, axis: Axis, target: i32) -> Result<MoveReport> {
         self.check_axis(axis)?;
         let deadline = self.t.now() + self.cfg.move_deadline;
-        let mut recoveries = 0;
-        let mut last = String::from("none");
-        loop {
-            if recoveries > self.cfg.max_recoveries || self.t.now() >= deadline {
-                return Err(TurntableError::GaveUp {
-                    axis,
-                    recoveries,
-                    last,
-                });
+        let (seq, pos, end, recoveries) =
+            self.run_until_ended(axis, Command::MoveAbs(axis, target), deadline)?;
+        if end == DoneEnd::Reached && pos == target {
+            let a = &mut self.axes[axis.index()];
+            if a.homed {
+                a.pos = Some(pos);
             }
-            self.check_fault()?;
-            if !self.axes[axis.index()].homed {
-                self.home_until(axis, deadline)?;
-            }
-            self.restore_settings(axis, deadline)?;
-            match self.run_motion(axis, Command::MoveAbs(axis, target), deadline)? {
-                MotionOutcome::Ended {
-                    seq,
-                    pos,
-                    end: DoneEnd::Reached,
-                } if pos == target => {
-                    let a = &mut self.axes[axis.index()];
-                    if a.homed {
-                        a.pos = Some(pos);
-                    }
-                    return Ok(MoveReport {
-                        axis,
-                        position: pos,
-                        seq,
-                        recoveries,
-                    });
-                }
-                MotionOutcome::Ended { pos, end, .. } => {
-                    self.axes[axis.index()].pos = Some(pos);
-                    return Err(TurntableError::Interrupted { axis, pos, end });
-                }
-                other => {
-                    last = self.recover(axis, other, deadline)?;
-                    recoveries += 1;
-                    self.stats.redone_moves += 1;
-                }
-            }
+            return Ok(MoveReport {
+                axis,
+                position: pos,
+                seq,
+                recoveries,
+            });
         }
+        self.axes[axis.index()].pos = Some(pos);
+        Err(TurntableError::Interrupted { axis, pos, end })
     }
 
     /// Move `axis` by `delta` from the driver's known position (homing first when needed); sent
@@ -321,6 +294,30 @@ impl<T: Transport> Turntable<T> {
     }
 
     fn home_until(&mut self, axis: Axis, deadline: Duration) -> Result<i32> {
+        let (_, pos, end, _) = self.run_until_ended(axis, Command::Home(axis), deadline)?;
+        if end != DoneEnd::Reached {
+            return Err(TurntableError::Interrupted { axis, pos, end });
+        }
+        self.stats.homings += 1;
+        let a = &mut self.axes[axis.index()];
+        a.homed = true;
+        a.pos = Some(pos);
+        Ok(pos)
+    }
+
+    /// Runs a homing or a move (`cmd`) until the device reports it ended, before `deadline`.
+    /// Before each attempt a latched fault stops it, an axis whose homing was lost is homed
+    /// first (for a move) and the settings a reset lost are restored; a motion that did not
+    /// end (a reset, a lost reply, a refusal to recover from) is recovered and sent again, up to
+    /// `max_recoveries` times (a redone move is counted in the statistics). Returns the
+    /// motion's sequence number, where it ended, how, and the recoveries it took.
+    fn run_until_ended(
+        &mut self,
+        axis: Axis,
+        cmd: Command,
+        deadline: Duration,
+    ) -> Result<(Seq, i32, DoneEnd, u32)> {
+        let is_move = !matches!(cmd, Command::Home(_));
         let mut recoveries = 0;
         let mut last = String::from("none");
         loop {
@@ -332,25 +329,18 @@ impl<T: Transport> Turntable<T> {
                 });
             }
             self.check_fault()?;
+            if is_move && !self.axes[axis.index()].homed {
+                self.home_until(axis, deadline)?;
+            }
             self.restore_settings(axis, deadline)?;
-            match self.run_motion(axis, Command::Home(axis), deadline)? {
-                MotionOutcome::Ended {
-                    pos,
-                    end: DoneEnd::Reached,
-                    ..
-                } => {
-                    self.stats.homings += 1;
-                    let a = &mut self.axes[axis.index()];
-                    a.homed = true;
-                    a.pos = Some(pos);
-                    return Ok(pos);
-                }
-                MotionOutcome::Ended { pos, end, .. } => {
-                    return Err(TurntableError::Interrupted { axis, pos, end })
-                }
+            match self.run_motion(axis, cmd.clone(), deadline)? {
+                MotionOutcome::Ended { seq, pos, end } => return Ok((seq, pos, end, recoveries)),
                 other => {
                     last = self.recover(axis, other, deadline)?;
                     recoveries += 1;
+                    if is_move {
+                        self.stats.redone_moves += 1;
+                    }
                 }
             }
         }

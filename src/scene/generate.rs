@@ -5,6 +5,7 @@
 //! consistently oriented shell. Paintable faces are packed into one UV atlas (shelf packing, area
 //! proportional to metres), so a texel covers about the same surface everywhere.
 
+use super::polygon::{ear_clip, OnEdge};
 use super::{Material, Scene, Texture, Triangle};
 use glam::{Mat4, Vec2, Vec3};
 
@@ -166,7 +167,7 @@ impl Builder {
             );
         }
         // Caps, by ear clipping.
-        let ears = ear_clip(profile);
+        let ears = ear_clip(profile, OnEdge::Allowed);
         let (lo, hi) = profile.iter().fold(
             (Vec2::splat(f32::MAX), Vec2::splat(f32::MIN)),
             |(l, h), &q| (l.min(q), h.max(q)),
@@ -297,54 +298,6 @@ impl Builder {
         }
         self.scene
     }
-}
-
-/// Triangulates a simple counter-clockwise polygon by ear clipping; returns index triples.
-pub fn ear_clip(poly: &[Vec2]) -> Vec<[usize; 3]> {
-    let mut idx: Vec<usize> = (0..poly.len()).collect();
-    let area: f32 = (0..poly.len())
-        .map(|i| poly[i].perp_dot(poly[(i + 1) % poly.len()]))
-        .sum();
-    if area < 0.0 {
-        idx.reverse();
-    }
-    let mut out = Vec::new();
-    let inside = |p: Vec2, a: Vec2, b: Vec2, c: Vec2| {
-        let d1 = (b - a).perp_dot(p - a);
-        let d2 = (c - b).perp_dot(p - b);
-        let d3 = (a - c).perp_dot(p - c);
-        d1 > 0.0 && d2 > 0.0 && d3 > 0.0
-    };
-    let mut guard = 0;
-    while idx.len() > 3 && guard < 10_000 {
-        guard += 1;
-        let m = idx.len();
-        let mut clipped = false;
-        for i in 0..m {
-            let (ia, ib, ic) = (idx[(i + m - 1) % m], idx[i], idx[(i + 1) % m]);
-            let (a, b, c) = (poly[ia], poly[ib], poly[ic]);
-            if (b - a).perp_dot(c - b) <= 0.0 {
-                continue; // reflex vertex
-            }
-            if idx
-                .iter()
-                .any(|&k| k != ia && k != ib && k != ic && inside(poly[k], a, b, c))
-            {
-                continue;
-            }
-            out.push([ia, ib, ic]);
-            idx.remove(i);
-            clipped = true;
-            break;
-        }
-        if !clipped {
-            break;
-        }
-    }
-    if idx.len() == 3 {
-        out.push([idx[0], idx[1], idx[2]]);
-    }
-    out
 }
 
 fn v2(x: f32, y: f32) -> Vec2 {
@@ -806,23 +759,5 @@ mod tests {
         assert_eq!(overlap, 0, "atlas faces overlap");
         let used = covered.iter().filter(|&&c| c > 0).count();
         assert!(used > 256 * 256 / 3, "atlas poorly used: {used} texels");
-    }
-
-    #[test]
-    fn ear_clipping_covers_a_concave_polygon() {
-        let p = [
-            v2(0.0, 0.0),
-            v2(2.0, 0.0),
-            v2(2.0, 2.0),
-            v2(1.0, 1.0),
-            v2(0.0, 2.0),
-        ];
-        let t = ear_clip(&p);
-        assert_eq!(t.len(), 3);
-        let area: f32 = t
-            .iter()
-            .map(|k| 0.5 * (p[k[1]] - p[k[0]]).perp_dot(p[k[2]] - p[k[0]]))
-            .sum();
-        assert!((area - 3.0).abs() < 1e-5, "{area}");
     }
 }

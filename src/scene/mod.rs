@@ -6,7 +6,7 @@
 //! contact at `y = 0`, the object's length along **+X** (its front facing +X), centred on the
 //! origin in X and Z. The [`generate`] module builds the project's default meshes, [`textures`] the
 //! simple baseline textures (Natural, Naive, Random), [`paint`] the paintable-texel mask and the
-//! painting of a whole-atlas texture onto it.
+//! painting of a whole-atlas texture onto it, [`polygon`] ear clipping (profiles, hole filling).
 //!
 //! This module does not render and knows nothing about tensors.
 
@@ -16,6 +16,7 @@ pub mod hostile;
 mod obj_load;
 pub mod obj_write;
 pub mod paint;
+pub mod polygon;
 pub mod textures;
 
 use anyhow::{bail, Context, Result};

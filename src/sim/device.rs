@@ -284,26 +284,36 @@ impl SimDevice {
     }
 
     fn finish_motion(&mut self, axis: Axis) {
-        let a = &mut self.axes[axis.index()];
-        let Some(m) = a.motion.take() else { return };
-        a.true_pos = m.profile.end();
-        if m.kind == MotionKind::Home && m.end == DoneEnd::Reached {
-            let home = if axis == Axis::Rail {
-                self.cfg.rail.map_or(0, |r| r.0)
-            } else {
-                0
-            };
-            a.offset = a.true_pos - f64::from(home);
-            a.homed = true;
-        }
-        let pos = self.reported(axis);
-        self.log[m.record].end = Some((m.end, pos));
+        let Some(m) = self.axes[axis.index()].motion.take() else {
+            return;
+        };
+        let pos = self.complete(axis, &m);
         self.emit(&Event::Done {
             seq: m.seq,
             axis,
             pos,
             end: m.end,
         });
+    }
+
+    /// Ends motion `m` of `axis` (already taken off the axis): the axis stands at the profile's
+    /// end, homed when it was a homing that reached its switch; the log records how it ended.
+    /// Returns the position the device reports.
+    fn complete(&mut self, axis: Axis, m: &Motion) -> i32 {
+        let home = if axis == Axis::Rail {
+            self.cfg.rail.map_or(0, |r| r.0)
+        } else {
+            0
+        };
+        let a = &mut self.axes[axis.index()];
+        a.true_pos = m.profile.end();
+        if m.kind == MotionKind::Home && m.end == DoneEnd::Reached {
+            a.offset = a.true_pos - f64::from(home);
+            a.homed = true;
+        }
+        let pos = self.reported(axis);
+        self.log[m.record].end = Some((m.end, pos));
+        pos
     }
 
     /// Reboot now: motion halts where it is, homing, settings, fault and reply cache are lost,
@@ -628,20 +638,8 @@ impl SimDevice {
         });
         if profile.duration() == 0.0 {
             // Zero-length: DONE right after the reply.
-            let a = &mut self.axes[axis.index()];
-            let m = a.motion.take().expect("just set");
-            a.true_pos = profile.end();
-            if kind == MotionKind::Home {
-                let home = if axis == Axis::Rail {
-                    self.cfg.rail.map_or(0, |r| r.0)
-                } else {
-                    0
-                };
-                a.offset = a.true_pos - f64::from(home);
-                a.homed = true;
-            }
-            let pos = self.reported(axis);
-            self.log[m.record].end = Some((DoneEnd::Reached, pos));
+            let m = self.axes[axis.index()].motion.take().expect("just set");
+            let pos = self.complete(axis, &m);
             after.push(OwnedEvent::Done(seq, axis, pos, DoneEnd::Reached));
         }
     }

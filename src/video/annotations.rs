@@ -69,16 +69,9 @@ impl Annotations {
 
     /// Parses the CSV form.
     pub fn from_csv(text: &str) -> Result<Annotations> {
-        let mut lines = text
-            .lines()
-            .enumerate()
-            .filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
-        let (_, header) = lines.next().context("empty file: no header line")?;
-        let cols: Vec<String> = header
-            .split(',')
-            .map(|c| c.trim().to_ascii_lowercase())
-            .collect();
-        let col = |n: &str| cols.iter().position(|c| c == n);
+        let table = super::csv::Table::parse(text)?;
+        let header = table.header;
+        let col = |n: &str| table.col(&[n]);
         let need =
             |n: &str| col(n).with_context(|| format!("header {header:?} has no {n:?} column"));
         let [x1, y1, x2, y2] = [need("x1")?, need("y1")?, need("x2")?, need("y2")?];
@@ -89,25 +82,13 @@ impl Annotations {
             _ => bail!("header {header:?} needs either a frame column or t_start and t_end"),
         };
         let mut out = Annotations::default();
-        for (n, line) in lines {
-            let f: Vec<&str> = line.split(',').map(str::trim).collect();
-            let ln = n + 1;
-            let get = |i: usize| -> Result<f64> {
-                let s = f
-                    .get(i)
-                    .with_context(|| format!("line {ln}: missing column {}", cols[i]))?;
-                let v: f64 = s
-                    .parse()
-                    .with_context(|| format!("line {ln}: {} {s:?} is not a number", cols[i]))?;
-                if !v.is_finite() {
-                    bail!("line {ln}: {} is not finite", cols[i]);
-                }
-                Ok(v)
-            };
+        for row in table.rows() {
+            let ln = row.line;
+            let get = |i: usize| row.num(i);
             let bbox = [get(x1)?, get(y1)?, get(x2)?, get(y2)?].map(|v| v as f32);
             check_box(&bbox).with_context(|| format!("line {ln}"))?;
             let segment = seg
-                .and_then(|i| f.get(i))
+                .and_then(|i| row.field(i))
                 .filter(|s| !s.is_empty())
                 .map(|s| s.to_string());
             let gt = GtBox {

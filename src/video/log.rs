@@ -123,31 +123,14 @@ impl TurntableLog {
 }
 
 fn parse_csv(text: &str) -> Result<Vec<LogSample>> {
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
-    let (_, header) = lines.next().context("empty file: no header line")?;
-    let cols: Vec<String> = header
-        .split(',')
-        .map(|c| c.trim().to_ascii_lowercase())
-        .collect();
-    let col = |names: &[&str]| cols.iter().position(|c| names.contains(&c.as_str()));
+    let table = super::csv::Table::parse(text)?;
+    let col = |names: &[&str]| table.col(names);
     let t = col(&["t", "time", "timestamp"]).context("header needs a t column")?;
     let a = col(&["angle_deg", "angle"]).context("header needs an angle_deg column")?;
     let (r, rep) = (col(&["ratio", "distance_ratio"]), col(&["repeat"]));
     let mut out = Vec::new();
-    for (n, line) in lines {
-        let f: Vec<&str> = line.split(',').map(str::trim).collect();
-        let num = |i: usize| -> Result<f64> {
-            let s = f
-                .get(i)
-                .with_context(|| format!("line {}: missing column {}", n + 1, cols[i]))?;
-            s.parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite())
-                .with_context(|| format!("line {}: {} {s:?} is not a number", n + 1, cols[i]))
-        };
+    for row in table.rows() {
+        let num = |i: usize| row.num(i);
         out.push(LogSample {
             t: num(t)?,
             angle_deg: num(a)?,

@@ -1,6 +1,6 @@
 //! Offline scoring of recorded videos and image sequences (`cac score-video`): decode with the
 //! ffmpeg command-line tools as a subprocess ([`probe`], [`decode`]), ground truth from
-//! annotation files ([`annotations`]) or a turntable log projected through the digital twin
+//! annotation files ([`annotations`]) or a turntable log (both hand-written CSV: [`csv`]) projected through the digital twin
 //! ([`log`]; projected by the rig camera model, `physical::rig_camera`: the viewpoint twin or the
 //! calibrated rig), frame sampling and P@0.5 per segment ([`score`], an adapter of the scoring
 //! core `eval::score`), rendered turntable sequences ([`twin`]), boxes drawn into an
@@ -13,6 +13,7 @@
 pub mod annotate;
 pub mod annotations;
 pub mod bench;
+pub mod csv;
 pub mod decode;
 pub mod encode;
 pub mod job;
