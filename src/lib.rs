@@ -14,21 +14,23 @@
 //! simulated turntable firmware that `physical`'s driver talks to, and the simulated rig around it; `video` scores recordings
 //! with the detectors and the protocol.
 //!
+//! The stages live in the workspace's crates (`crates/`, see `docs/pipeline.md`): `cac-core`
+//! (`io`, `memory`, `report`), `cac-scene`, `cac-render` (`render`, `environment`, `config`),
+//! `cac-detect`, `cac-export`, `cac-attack` (`attack`, `eval`, `study`), `cac-physical`
+//! (`physical`, `sim`) and `cac-video`; this crate re-exports each module under the name above
+//! and holds the `cac` binary.
+//!
 //! Library code never names a concrete compute backend: tensors live on a [`burn::tensor::Device`]
 //! chosen once at the edge (the `cac` binary, the tests, the benchmarks).
 
-pub mod attack;
-pub mod config;
-pub mod detect;
-pub mod environment;
-pub mod eval;
-pub mod export;
-pub mod io;
-pub mod memory;
-pub mod physical;
-pub mod render;
-pub mod report;
-pub mod scene;
-pub mod sim;
-pub mod study;
-pub mod video;
+pub use cac_attack as attack;
+pub use cac_attack::{eval, study};
+pub use cac_core::{io, memory, report};
+pub use cac_detect as detect;
+pub use cac_export as export;
+pub use cac_physical as physical;
+pub use cac_physical::sim;
+pub use cac_render as render;
+pub use cac_render::{config, environment};
+pub use cac_scene as scene;
+pub use cac_video as video;

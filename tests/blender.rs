@@ -29,6 +29,17 @@ fn conditions() -> Vec<Condition> {
     vec![a, b]
 }
 
+/// Blender's settings for these tests: the defaults, with the executable and the kept job
+/// folder the command line would take from `$CAC_BLENDER` and `$CAC_BLENDER_WORK`.
+fn cycles() -> BlenderSettings {
+    let mut s = BlenderSettings::default();
+    if let Some(exe) = std::env::var_os("CAC_BLENDER") {
+        s.executable = exe.into();
+    }
+    s.work_dir = std::env::var_os("CAC_BLENDER_WORK").map(Into::into);
+    s
+}
+
 /// The pickup at 96×64 without a ground (cac's ambient term is an unoccluded sky, which Cycles
 /// matches only without one), cac at 16 samples, and the two views of [`conditions`] rendered by
 /// both; checks mask and box, and returns per view the mean colour (cac, Blender) over the pixels
@@ -150,7 +161,7 @@ fn blender_matches_cac_in_mask_box_and_mean_colour() {
         samples: 64,
         mask_samples: 16,
         threads: 2,
-        ..Default::default()
+        ..cycles()
     };
     means_agree_within(&s, 0.07);
 }
@@ -166,7 +177,7 @@ fn blender_with_cacs_image_formation_and_direct_light_matches_cac_closely() {
         threads: 2,
         bounces: 0,
         shading: blender::Shading::Cac,
-        ..Default::default()
+        ..cycles()
     };
     means_agree_within(&s, 0.03);
     // Tables name the settings, so rows of this formation are not taken for the physical one.
@@ -178,7 +189,7 @@ fn blender_with_cacs_image_formation_and_direct_light_matches_cac_closely() {
 fn a_missing_blender_is_a_clear_error() {
     let s = BlenderSettings {
         executable: "/nonexistent/blender".into(),
-        ..Default::default()
+        ..cycles()
     };
     let e = format!("{:#}", blender::check(&s).unwrap_err());
     assert!(
@@ -201,7 +212,7 @@ fn a_failing_blender_run_reports_its_stderr() {
     std::fs::set_permissions(&fake, std::fs::Permissions::from_mode(0o755)).unwrap();
     let s = BlenderSettings {
         executable: fake,
-        ..Default::default()
+        ..cycles()
     };
     assert_eq!(blender::check(&s).unwrap(), "Blender 9.9");
     let mut scene = generate::barrel();
@@ -254,7 +265,7 @@ fn with_a_ground_the_box_still_matches_and_the_ground_is_opaque() {
         samples: 8,
         mask_samples: 16,
         threads: 2,
-        ..Default::default()
+        ..cycles()
     };
     let v = blender::render_views(&r, &env, &[c.clone()], &atlas, &s, &device())
         .unwrap()

@@ -1,9 +1,13 @@
 //! The module-level import graph flows forward only (docs/pipeline.md, "How the direction is
-//! checked"). This reads the sources as text, no compiler involved:
+//! checked"). The compiler keeps the crates of `crates/` from naming each other in a circle; this
+//! checks the order of the pipeline's modules inside and across them, reading the sources as
+//! text, no compiler involved:
 //!
 //! 1. **Stages.** `src/lib.rs` states the order of the top-level modules in one doc line
-//!    (`a` / `b` → `c` → …; modules joined by `/` share a rank). A module may name (`crate::x…`)
-//!    only modules of an earlier rank. The exceptions are listed below, each with its reason.
+//!    (`a` / `b` → `c` → …; modules joined by `/` share a rank). A module may name (`crate::x…`,
+//!    `cac_y::x…`) only modules of an earlier rank. A crate is one module (`cac-scene` is
+//!    `scene`) or several (`cac-attack` is `attack`, with `eval` and `study` beside it; see
+//!    [`CRATES`]). The exceptions are listed below, each with its reason.
 //! 2. **No circle among siblings.** In every folder of `src/` (the library and the `cac` binary's
 //!    `cli/` alike) the files that name each other directly (`super::x`, `crate::…::x`) form no
 //!    circle.
@@ -21,6 +25,46 @@ const EXCEPTIONS: &[(&str, &str, &str, &str)] = &[];
 
 fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The path roots that name the project's own modules.
+const ROOTS: [&str; 11] = [
+    "crate",
+    "super",
+    "self",
+    "cac_core",
+    "cac_scene",
+    "cac_render",
+    "cac_detect",
+    "cac_export",
+    "cac_attack",
+    "cac_physical",
+    "cac_video",
+];
+
+/// The crates under `crates/`: folder, the module its `lib.rs` is (none: only the listed
+/// modules), and the pipeline modules declared beside it.
+const CRATES: &[(&str, Option<&str>, &[&str])] = &[
+    ("core", None, &["io", "memory", "report"]),
+    ("scene", Some("scene"), &[]),
+    ("render", Some("render"), &["config", "environment"]),
+    ("detect", Some("detect"), &[]),
+    ("export", Some("export"), &[]),
+    ("attack", Some("attack"), &["eval", "study"]),
+    ("physical", Some("physical"), &["sim"]),
+    ("video", Some("video"), &[]),
+];
+
+/// The module path where crate `krate`'s `crate::first…` lies in the pipeline's module tree.
+fn crate_base(krate: &str, first: Option<&str>) -> Vec<String> {
+    let (_, main, extra) = CRATES
+        .iter()
+        .find(|c| c.0 == krate)
+        .unwrap_or_else(|| panic!("crates/{krate} is not listed in CRATES"));
+    match main {
+        Some(m) if !first.is_some_and(|f| extra.contains(&f)) => vec![m.to_string()],
+        _ => vec![],
+    }
 }
 
 /// The source without comments and string/char literals (replaced by spaces, lines kept).
@@ -224,41 +268,72 @@ fn find_word(s: &str, w: &str) -> Option<usize> {
 /// A source file: which crate, its module path, and the text to read.
 struct Source {
     file: String,
-    /// `true` for the library (`src/lib.rs` tree), `false` for the `cac` binary.
+    /// `true` for the library crates, `false` for the `cac` binary.
     lib: bool,
+    /// The crate's folder under `crates/` (empty for the `cac` package).
+    krate: String,
     module: Vec<String>,
     code: String,
 }
 
 fn sources() -> Vec<Source> {
+    let mut out = Vec::new();
+    // The `cac` package: the binary's `cli/` (its `lib.rs` only re-exports the crates).
     let mut files = Vec::new();
     walk(&root().join("src"), &mut files);
     files.sort();
-    files
-        .into_iter()
-        .filter_map(|p| {
-            let rel = p.strip_prefix(root().join("src")).unwrap();
-            let mut module: Vec<String> = rel
-                .with_extension("")
-                .components()
-                .map(|c| c.as_os_str().to_string_lossy().to_string())
-                .collect();
+    for p in files {
+        let rel = p.strip_prefix(root()).unwrap().to_path_buf();
+        let mut module = module_of(p.strip_prefix(root().join("src")).unwrap());
+        if module == ["lib"] || module == ["main"] {
+            continue;
+        }
+        if module.last().is_some_and(|m| m == "mod") {
+            module.pop();
+        }
+        out.push(source(&p, rel, false, "", module));
+    }
+    for (krate, _, _) in CRATES {
+        let src = root().join("crates").join(krate).join("src");
+        let mut files = Vec::new();
+        walk(&src, &mut files);
+        files.sort();
+        for p in files {
+            let mut module = module_of(p.strip_prefix(&src).unwrap());
             if module.last().is_some_and(|m| m == "mod") {
                 module.pop();
             }
-            if module == ["lib"] || module == ["main"] {
-                return None;
+            if module == ["lib"] {
+                module.clear();
             }
-            let lib = module.first().is_some_and(|m| m != "cli");
-            let text = std::fs::read_to_string(&p).unwrap();
-            Some(Source {
-                file: format!("src/{}", rel.display()),
-                lib,
-                module,
-                code: without_inline_modules(&strip(&text)),
-            })
-        })
+            let mut full = crate_base(krate, module.first().map(String::as_str));
+            full.extend(module);
+            if full.is_empty() {
+                continue; // a lib.rs that only declares its modules
+            }
+            let rel = p.strip_prefix(root()).unwrap().to_path_buf();
+            out.push(source(&p, rel, true, krate, full));
+        }
+    }
+    out
+}
+
+fn module_of(rel: &Path) -> Vec<String> {
+    rel.with_extension("")
+        .components()
+        .map(|c| c.as_os_str().to_string_lossy().to_string())
         .collect()
+}
+
+fn source(p: &Path, rel: PathBuf, lib: bool, krate: &str, module: Vec<String>) -> Source {
+    let text = std::fs::read_to_string(p).unwrap();
+    Source {
+        file: rel.display().to_string(),
+        lib,
+        krate: krate.to_string(),
+        module,
+        code: without_inline_modules(&strip(&text)),
+    }
 }
 
 fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
@@ -272,14 +347,19 @@ fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
     }
 }
 
-/// The module path (in the same crate) that a path names, or `None` for another crate.
+/// The module path (in the pipeline's module tree) that a path names, or `None` for a crate
+/// outside the project.
 fn resolve(src: &Source, path: &str) -> Option<Vec<String>> {
     let segs: Vec<&str> = path.split("::").collect();
     let mut base: Vec<String> = match segs[0] {
+        "crate" if src.lib => crate_base(&src.krate, segs.get(1).copied()),
         "crate" => vec![],
         "self" => src.module.clone(),
         "super" => src.module.clone(),
-        _ => return None,
+        c => match c.strip_prefix("cac_") {
+            Some(k) if CRATES.iter().any(|x| x.0 == k) => crate_base(k, segs.get(1).copied()),
+            _ => return None,
+        },
     };
     let mut k = 0;
     while segs.get(k) == Some(&"super") {
@@ -316,13 +396,12 @@ fn stage_order() -> BTreeMap<String, usize> {
             );
         }
     }
-    // Every top-level module of the library has a place.
-    for l in lib.lines() {
-        if let Some(m) = l.trim().strip_prefix("pub mod ") {
-            let m = m.trim_end_matches(';');
+    // Every module the library re-exports has a place.
+    for (_, main, extra) in CRATES {
+        for m in main.iter().chain(extra.iter()) {
             assert!(
-                rank.contains_key(m),
-                "src/lib.rs declares `{m}` but its stage order does not place it: {line}"
+                rank.contains_key(*m),
+                "`{m}` has no place in the stage order of src/lib.rs: {line}"
             );
         }
     }
@@ -334,9 +413,16 @@ fn no_module_imports_from_a_later_stage() {
     let rank = stage_order();
     let mut bad = BTreeSet::new();
     let mut used_exceptions = BTreeSet::new();
-    for s in sources().iter().filter(|s| s.lib) {
+    let srcs = sources();
+    for (k, _, _) in CRATES {
+        assert!(
+            srcs.iter().filter(|s| s.krate == *k).count() > 1,
+            "no sources read in crates/{k}"
+        );
+    }
+    for s in srcs.iter().filter(|s| s.lib) {
         let from = &s.module[0];
-        for p in paths(&s.code, &["crate", "super", "self"]) {
+        for p in paths(&s.code, &ROOTS) {
             let Some(to) = resolve(s, &p) else { continue };
             let Some(to) = to.first() else { continue };
             if to == from || !rank.contains_key(to) {
@@ -379,7 +465,7 @@ fn sibling_modules_form_no_circle() {
         srcs.iter().map(|s| (s.lib, s.module.clone())).collect();
     let mut edges: BTreeMap<(bool, Vec<String>), BTreeSet<(String, String)>> = BTreeMap::new();
     for s in &srcs {
-        for p in paths(&s.code, &["crate", "super", "self"]) {
+        for p in paths(&s.code, &ROOTS) {
             let Some(to) = resolve(s, &p) else { continue };
             let common = s.module.iter().zip(&to).take_while(|(a, b)| a == b).count();
             if common >= s.module.len() || common >= to.len() {

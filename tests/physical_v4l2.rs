@@ -111,13 +111,7 @@ impl Fixture {
 }
 
 fn ok(o: &Output) -> String {
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    assert!(o.status.success(), "cac camera failed:\n{text}");
-    text
+    support::ok_text("camera", o)
 }
 
 fn control(r: &CameraReport, name: &str) -> i32 {

@@ -8,6 +8,11 @@
 //! The complete specification — grammar, commands, replies, events, error codes, timing,
 //! retry/idempotency rules and boot behaviour — is `docs/protocol.md` at the repository root.
 //!
+//! The firmware for a real board (`avr/`, in C) implements the same specification on its own; what
+//! it shares with this crate is the test vectors, `tests/vectors.txt` (lines with their expected
+//! parse), which this crate's `tests/vectors.rs` and the C parser's host unit test (`make test`)
+//! both run.
+//!
 //! * [`LineAssembler`] turns a byte stream into lines, resynchronising on `\n`.
 //! * [`Frame::parse`] checks a line's framing and CRC; [`Command`], [`Reply`] and [`Event`] parse and
 //!   encode the bodies.

@@ -129,6 +129,12 @@ fn job(a: &Args) -> Result<VideoJob> {
         max_frames: a.max_frames,
         protocol: Protocol::from_labels(&a.true_classes, a.target.as_deref())?,
         annotated: a.annotated.clone(),
-        tools: Tools::from_env(),
+        tools: tools(),
     })
+}
+
+/// ffmpeg and ffprobe: `$CAC_FFMPEG` / `$CAC_FFPROBE` when set, else on `PATH`.
+pub fn tools() -> Tools {
+    let var = |k| std::env::var_os(k).map(std::path::PathBuf::from);
+    Tools::locate(var("CAC_FFMPEG"), var("CAC_FFPROBE"))
 }

@@ -60,7 +60,8 @@ impl Fixture {
 }
 
 pub fn tools() -> Tools {
-    let t = Tools::from_env();
+    let var = |k| std::env::var_os(k).map(std::path::PathBuf::from);
+    let t = Tools::locate(var("CAC_FFMPEG"), var("CAC_FFPROBE"));
     t.check()
         .expect("ffmpeg and ffprobe are needed for the video tests (.ci/run installs them)");
     t

@@ -62,6 +62,10 @@ pub fn run(a: Args) -> Result<()> {
     let b = &mut job.blender;
     (b.samples, b.bounces, b.shading) = (a.blender_samples, a.blender_bounces, a.blender_shading);
     b.sky_reflections = a.blender_sky_reflections;
+    if let Some(exe) = std::env::var_os("CAC_BLENDER") {
+        b.executable = exe.into();
+    }
+    b.work_dir = std::env::var_os("CAC_BLENDER_WORK").map(Into::into);
     job.protocol = Protocol::from_labels("car,truck", a.target.as_deref())?;
     let dev = device::inference();
     let dets = detect::load_all(&["nanodet", "centernet"], None, &dev)?;

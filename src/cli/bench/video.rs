@@ -8,7 +8,6 @@ use crate::cli::device;
 use anyhow::Result;
 use cac::detect::{self, Detector};
 use cac::video::bench::VideoBench;
-use cac::video::Tools;
 use clap::Args as ClapArgs;
 use std::path::PathBuf;
 
@@ -25,7 +24,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let tools = Tools::from_env();
+    let tools = crate::cli::score_video::tools();
     tools.check()?;
     let device = device::inference();
     let dets = detect::load_all(&a.models, None, &device)?;

@@ -1,0 +1,508 @@
+//! A second, independent renderer: Blender (Cycles on the CPU, headless), driven at the same
+//! camera poses and lighting levels as cac's own renderer, so that a texture's P@0.5 can be
+//! reported in both (adversarial textures often lose much of their effect when re-rendered).
+//!
+//! cac writes the object as OBJ (its own frame, +Y up, kept in Blender unchanged), the paint
+//! texture(s) and ground textures as PNG, and a JSON job file; `tools/blender/render_views.py`
+//! (embedded here) builds the scene and renders every view in one `blender -b` run. Conversions:
+//! - camera: cac's OpenCV pose (columns right, down, forward) → Blender's camera matrix (columns
+//!   right, up, backward); focal length and principal point → lens, sensor and shift;
+//! - light: cac multiplies display (sRGB) values by `ambient + sun·cos`; Blender works in linear
+//!   light, so the uniform world's strength is `lin(ambient)` and the sun's irradiance is
+//!   `π (lin(ambient + sun) − lin(ambient))`: a white surface facing the sun, or in shade under an
+//!   open sky, gets the same display value in both. The ground, GI, soft sky occlusion and
+//!   Fresnel reflections are Cycles' own (that is the point of a second renderer); [`Shading`]
+//!   takes Cycles step by step towards cac's own image formation instead, to find which
+//!   difference a texture's loss comes from;
+//! - materials: Principled BSDF, base colour = texture or colour (sRGB decoded), roughness from the
+//!   Blinn-Phong exponent (`(2 / (n + 2))^¼`), reflectance at normal incidence as cac's mirror
+//!   term (`0.04 · min(1.5 · specular, 1)`);
+//! - backdrop: rendered with a transparent film and composited here with cac's own sky, flat
+//!   colour or image (so both renderers show the same background; cac's aerial perspective on
+//!   the far ground is not reproduced).
+//!
+//! Sampling: `samples` per pixel (box filter one pixel wide), no denoising by default, a fixed
+//! seed; `bounces` light bounces (0: direct light only). The object mask comes from a second
+//! view layer in which the ground is a holdout: its alpha is the object's coverage, from which
+//! the ground-truth box is taken as in cac.
+
+use super::{ImageScore, Protocol, Scorer};
+use anyhow::{bail, Context, Result};
+use burn::tensor::Device;
+use cac_detect::Detector;
+use cac_render::environment::{self, Condition, Environment};
+use cac_render::{self as render, shade, Camera, Renderer};
+use cac_scene::{obj_write, Texture};
+use glam::Vec3;
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::Arc;
+
+/// The Python side, run by Blender.
+pub const SCRIPT: &str = include_str!("../../../../tools/blender/render_views.py");
+
+/// How Blender is run.
+#[derive(Clone, Debug)]
+pub struct BlenderSettings {
+    /// The Blender executable (default: `blender` on the PATH; the command line takes
+    /// `$CAC_BLENDER`).
+    pub executable: PathBuf,
+    /// Cycles samples per pixel.
+    pub samples: usize,
+    /// Samples of the coverage mask.
+    pub mask_samples: usize,
+    /// Cycles' light-path bounce limit (default 4, diffuse and glossy at most 2); 0 renders
+    /// direct light only (sun and sky with their shadows, no bounce light), the closest to cac's
+    /// own shading, to tell a loss from indirect light apart from one from the rest.
+    pub bounces: usize,
+    /// How Cycles forms the image: physically (the default), or step by step closer to cac's own
+    /// image formation, to tell which difference a texture's loss comes from.
+    pub shading: Shading,
+    /// Glossy rays that leave for the sky see the sky cac composites behind the object (its
+    /// horizon-to-zenith gradient, decoded in linear light) rather than the uniform ambient world
+    /// (always so with cac's surfaces).
+    pub sky_reflections: bool,
+    /// CPU threads (0: Blender's choice).
+    pub threads: usize,
+    /// Denoise (OpenImageDenoise, when the Blender build has it).
+    pub denoise: bool,
+    /// Keep the job folder here (default: a temporary folder that is removed afterwards; the
+    /// command line takes `$CAC_BLENDER_WORK`).
+    pub work_dir: Option<PathBuf>,
+}
+
+impl BlenderSettings {
+    /// The renderer's name in tables: "blender" with the default image formation, else the
+    /// settings that differ from it (e.g. "blender:cac,b0"), so rows of different settings
+    /// cannot be mistaken for each other.
+    pub fn label(&self) -> String {
+        let mut parts = vec![];
+        if self.shading != Shading::Linear {
+            use clap::ValueEnum;
+            let v = self
+                .shading
+                .to_possible_value()
+                .expect("no skipped variants");
+            parts.push(v.get_name().to_string());
+        }
+        if self.bounces != 4 {
+            parts.push(format!("b{}", self.bounces));
+        }
+        if self.sky_reflections {
+            parts.push("sky".into());
+        }
+        match parts.is_empty() {
+            true => "blender".into(),
+            false => format!("blender:{}", parts.join(",")),
+        }
+    }
+}
+
+impl Default for BlenderSettings {
+    fn default() -> Self {
+        BlenderSettings {
+            executable: "blender".into(),
+            samples: 32,
+            mask_samples: 16,
+            bounces: 4,
+            shading: Shading::Linear,
+            sky_reflections: false,
+            threads: 0,
+            denoise: false,
+            work_dir: None,
+        }
+    }
+}
+
+/// How Cycles forms the image: see [`BlenderSettings::shading`]. Each step towards cac's own
+/// image formation keeps the one before it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Shading {
+    /// Physical: colours and textures decoded from sRGB, lights converted so that a white
+    /// surface facing the sun or the open sky shows cac's display value, Principled BSDF, the
+    /// ambient a uniform world (occluded by the ground and the body), the image encoded to sRGB.
+    Linear,
+    /// As `Linear`, but colours, textures and light levels taken as display values and the image
+    /// written as computed (view transform "Raw"): albedo × light on display values, as in cac.
+    Display,
+    /// As `Display`, with cac's surfaces: a Lambert diffuse, a GGX glossy lobe weighted by cac's
+    /// gloss × dielectric Fresnel, and glossy rays that leave for the sky seeing cac's reflected
+    /// sky (horizon to zenith by the square root of the ray's height); the ambient is still the
+    /// uniform world, occluded by the ground and the body.
+    CacSurfaces,
+    /// As `CacSurfaces`, with cac's ambient term: albedo × ambient whatever occludes the sky (an
+    /// emission; the world lights glossy rays only). Left to Cycles: shadows, the highlight's
+    /// shape (GGX), bounce light and its sampling.
+    Cac,
+}
+
+/// The horizon and zenith colours cac's mirror term reflects (`shade`'s environment colour above
+/// the horizon): the sky's, a flat background's colour, an image background's mean.
+fn reflected_sky(bg: &render::Background) -> [[f32; 3]; 2] {
+    match bg {
+        render::Background::Sky {
+            horizon, zenith, ..
+        } => [*horizon, *zenith],
+        render::Background::Color(c) => [*c, *c],
+        render::Background::Image(img) => [shade::mean_colour(img); 2],
+    }
+}
+
+/// One view rendered by Blender.
+pub struct BlenderView {
+    pub image: image::RgbImage,
+    /// Fraction of each pixel covered by the object (row-major).
+    pub coverage: Vec<f32>,
+    /// Tight box `[x1, y1, x2, y2]` of the pixels the object covers (`None`: not visible).
+    pub object_box: Option<[f32; 4]>,
+}
+
+/// sRGB decoding, extended linearly-in-power above 1 (cac's light levels may exceed 1).
+pub fn srgb_to_linear(x: f32) -> f32 {
+    if x <= 0.04045 {
+        x / 12.92
+    } else {
+        ((x + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Blender's camera for a cac camera: `matrix_world` (row-major 4×4), lens and sensor (mm),
+/// sensor fit and shift. Assumes square pixels (`fx == fy`).
+pub fn blender_camera(cam: &Camera) -> serde_json::Value {
+    let k = cam.intrinsics;
+    let (w, h) = (k.width as f32, k.height as f32);
+    let big = w.max(h);
+    let (fit, sensor) = if w >= h {
+        ("HORIZONTAL", 36.0 * w / big)
+    } else {
+        ("VERTICAL", 36.0 * h / big)
+    };
+    // Focal length in pixels over the fitted side, in millimetres of the sensor.
+    let lens = if w >= h {
+        k.fx * sensor / w
+    } else {
+        k.fy * sensor / h
+    };
+    // Blender's shift is in units of the larger image side; +x moves the view right, +y up.
+    let shift_x = (0.5 * w - k.cx) / big;
+    let shift_y = (k.cy - 0.5 * h) / big;
+    let r = cam.rotation;
+    let (right, up, back) = (r.x_axis, -r.y_axis, -r.z_axis);
+    let e = cam.eye;
+    let m = [
+        [right.x, up.x, back.x, e.x],
+        [right.y, up.y, back.y, e.y],
+        [right.z, up.z, back.z, e.z],
+        [0.0, 0.0, 0.0, 1.0],
+    ];
+    json!({
+        "matrix_world": m, "lens": lens, "sensor_fit": fit,
+        "sensor_width": 36.0 * w / big, "sensor_height": 36.0 * h / big,
+        "shift_x": shift_x, "shift_y": shift_y,
+        "clip_start": 0.01, "clip_end": 10000.0,
+    })
+}
+
+/// A sun lamp pointing along `-dir` (Blender lamps shine along their local −Z).
+fn sun_matrix(dir: Vec3) -> [[f32; 4]; 4] {
+    let z = dir.normalize();
+    let x = if z.y.abs() < 0.99 {
+        Vec3::Y.cross(z).normalize()
+    } else {
+        Vec3::X
+    };
+    let y = z.cross(x);
+    [
+        [x.x, y.x, z.x, 0.0],
+        [x.y, y.y, z.y, 0.0],
+        [x.z, y.z, z.z, 0.0],
+        [0.0, 0.0, 0.0, 1.0],
+    ]
+}
+
+/// Is Blender there? Returns its version line, or a clear error.
+pub fn check(s: &BlenderSettings) -> Result<String> {
+    let out = Command::new(&s.executable)
+        .args(["-b", "--factory-startup", "--version"])
+        .output()
+        .with_context(|| {
+            format!(
+                "cannot run Blender ({}): install it (Debian: apt-get install blender) or set CAC_BLENDER",
+                s.executable.display()
+            )
+        })?;
+    let text = String::from_utf8_lossy(&out.stdout);
+    match text.lines().find(|l| l.starts_with("Blender")) {
+        Some(l) if out.status.success() => Ok(l.trim().to_string()),
+        _ => bail!(
+            "{} --version failed: {}",
+            s.executable.display(),
+            tail(&String::from_utf8_lossy(&out.stderr), 2000)
+        ),
+    }
+}
+
+fn tail(s: &str, n: usize) -> &str {
+    let start = s.len().saturating_sub(n);
+    let mut i = start;
+    while !s.is_char_boundary(i) {
+        i += 1;
+    }
+    &s[i..]
+}
+
+/// Renders `atlas` on the renderer's object in every condition with Blender: same cameras (with
+/// the conditions' shifts), lighting levels, sun, ground and backdrop; print error is applied
+/// to the atlas and the photometric transforms to the images exactly as in cac's pipeline.
+pub fn render_views(
+    r: &Renderer,
+    env: &Environment,
+    conds: &[Condition],
+    atlas: &Texture,
+    s: &BlenderSettings,
+    device: &Device,
+) -> Result<Vec<BlenderView>> {
+    check(s)?;
+    let tmp;
+    let dir: &Path = match &s.work_dir {
+        Some(d) => {
+            std::fs::create_dir_all(d)
+                .with_context(|| format!("cannot create Blender work folder {}", d.display()))?;
+            d
+        }
+        None => {
+            tmp = tempfile::tempdir()?;
+            tmp.path()
+        }
+    };
+    // The object: paintable parts are white and take the per-view paint texture.
+    let mut scene = r.scene.clone();
+    for (m, &p) in scene.materials.iter_mut().zip(&scene.paintable) {
+        if p {
+            m.texture = None;
+            m.base_color = [1.0; 3];
+        }
+    }
+    obj_write::write_obj(&scene, dir, "object")?;
+    let mut materials = serde_json::Map::new();
+    let decode = |x: f32| match s.shading {
+        Shading::Linear => srgb_to_linear(x),
+        Shading::Display | Shading::CacSurfaces | Shading::Cac => x,
+    };
+    let cac_surfaces = matches!(s.shading, Shading::CacSurfaces | Shading::Cac);
+    for (m, &p) in scene.materials.iter().zip(&scene.paintable) {
+        let rough = (2.0 / (m.shininess.max(0.0) + 2.0)).powf(0.25);
+        materials.insert(
+            m.name.clone(),
+            json!({
+                "color": m.base_color.map(decode),
+                "texture": m.texture.map(|t| format!("object_tex{t}.png")),
+                "paintable": p,
+                "roughness": rough,
+                // cac reflects min(1.5·specular, 1) × Schlick(F0 = 0.04); Principled's F0 is
+                // 0.08 × Specular.
+                "specular": 0.5 * (1.5 * m.specular).min(1.0),
+            }),
+        );
+    }
+    // Per-view paint textures (print error differs per view); identical ones are shared.
+    let a = render::atlas_tensor(atlas, device);
+    let mut paints: Vec<(Vec<u8>, String)> = vec![];
+    let mut grounds: Vec<(*const Texture, String)> = vec![];
+    let mut views = vec![];
+    let mut cams = vec![];
+    for (i, c) in conds.iter().enumerate() {
+        let pa = render::atlas_texture(&environment::print_error(
+            a.clone(),
+            std::slice::from_ref(c),
+        ))
+        .to_rgb8();
+        let paint = match paints.iter().find(|(b, _)| *b == pa.as_raw().as_slice()) {
+            Some((_, n)) => n.clone(),
+            None => {
+                let n = format!("paint{}.png", paints.len());
+                cac_core::io::save_png_atomic(&dir.join(&n), &pa)?;
+                paints.push((pa.into_raw(), n.clone()));
+                n
+            }
+        };
+        let cam = r.camera(&c.viewpoint)?;
+        let light = env.lighting(c);
+        let backdrop = env.backdrop(c);
+        let amb = decode(light.ambient);
+        let sun = (light.sun > 0.0).then(|| {
+            json!({
+                "strength": std::f32::consts::PI * (decode(light.ambient + light.sun) - amb),
+                "matrix_world": sun_matrix(light.sun_dir),
+            })
+        });
+        let ground = match &backdrop.ground {
+            None => serde_json::Value::Null,
+            Some(g) => {
+                let ptr = Arc::as_ptr(&g.texture);
+                let gi = match grounds.iter().position(|(p, _)| *p == ptr) {
+                    Some(k) => k,
+                    None => {
+                        let n = format!("ground{}.png", grounds.len());
+                        cac_core::io::save_png_atomic(&dir.join(&n), &g.texture.to_rgb8())?;
+                        grounds.push((ptr, n));
+                        grounds.len() - 1
+                    }
+                };
+                // cac's ground UV is (x, z + ...) shifted and scaled: linear, so exact at corners.
+                const L: f32 = 1000.0;
+                let uv = [(-L, -L), (L, -L), (L, L), (-L, L)]
+                    .map(|(x, z)| [(x + g.offset.x) / g.tile_m, (z + g.offset.y) / g.tile_m]);
+                json!({ "texture": gi, "uv": uv })
+            }
+        };
+        views.push(json!({
+            "camera": blender_camera(&cam),
+            "world_strength": amb,
+            "reflected_sky": (cac_surfaces || s.sky_reflections)
+                .then(|| reflected_sky(&backdrop.background).map(|c| c.map(decode))),
+            "sun": sun,
+            "ground": ground,
+            "paint_texture": paint,
+            "out": format!("view{i:04}.png"),
+            "mask_prefix": format!("mask{i:04}_"),
+        }));
+        cams.push((cam, backdrop));
+    }
+    let job = json!({
+        "obj": "object.obj",
+        "width": r.settings.width, "height": r.settings.height,
+        "samples": s.samples, "mask_samples": s.mask_samples, "threads": s.threads,
+        "bounces": s.bounces,
+        "display_values": s.shading != Shading::Linear,
+        "cac_surfaces": cac_surfaces,
+        "cac_ambient": s.shading == Shading::Cac,
+        "sky_reflections": s.sky_reflections,
+        "denoise": s.denoise, "seed": 0, "ground_half_size": 1000.0,
+        "materials": materials,
+        "ground_textures": grounds.iter().map(|(_, n)| n.clone()).collect::<Vec<_>>(),
+        "views": views,
+    });
+    let job_path = dir.join("job.json");
+    cac_core::io::write_atomic(&job_path, serde_json::to_string_pretty(&job)?.as_bytes())?;
+    let script = dir.join("render_views.py");
+    cac_core::io::write_atomic(&script, SCRIPT.as_bytes())?;
+    let out = Command::new(&s.executable)
+        .args([
+            "-b",
+            "--factory-startup",
+            "-noaudio",
+            "--python-exit-code",
+            "3",
+            "-P",
+        ])
+        .arg(&script)
+        .arg("--")
+        .arg(&job_path)
+        .output()
+        .with_context(|| format!("cannot run Blender ({})", s.executable.display()))?;
+    if !out.status.success() {
+        bail!(
+            "Blender failed ({}) on {}:\n{}\n{}",
+            out.status,
+            job_path.display(),
+            tail(&String::from_utf8_lossy(&out.stdout), 1500),
+            tail(&String::from_utf8_lossy(&out.stderr), 2500)
+        );
+    }
+    // Read back, composite the backdrop, apply the photometric transforms.
+    let (w, h) = (r.settings.width, r.settings.height);
+    let mut result = Vec::with_capacity(conds.len());
+    for (i, (cam, backdrop)) in cams.iter().enumerate() {
+        let p = dir.join(format!("view{i:04}.png"));
+        let rgba = image::open(&p)
+            .with_context(|| format!("Blender wrote no readable image {}", p.display()))?
+            .to_rgba32f();
+        let mp = find_mask(dir, &format!("mask{i:04}_"))?;
+        let mask = image::open(&mp)
+            .with_context(|| format!("unreadable Blender mask {}", mp.display()))?
+            .to_luma32f();
+        if rgba.dimensions() != (w as u32, h as u32) || mask.dimensions() != rgba.dimensions() {
+            bail!(
+                "Blender image {} is {:?}, expected {w}x{h}",
+                p.display(),
+                rgba.dimensions()
+            );
+        }
+        let mut data = vec![0.0f32; 3 * w * h];
+        for (x, y, px) in rgba.enumerate_pixels() {
+            let (xi, yi) = (x as usize, y as usize);
+            let dirv = cam.ray_dir(x as f32 + 0.5, y as f32 + 0.5);
+            let bg = shade::background_colour(&backdrop.background, dirv, xi, yi, w, h);
+            let al = px[3];
+            for c in 0..3 {
+                data[(c * h + yi) * w + xi] = px[c] * al + bg[c] * (1.0 - al);
+            }
+        }
+        let img = burn::tensor::Tensor::<4>::from_data(
+            burn::tensor::TensorData::new(data, [1, 3, h, w]),
+            device,
+        );
+        let img = environment::photometric(img, std::slice::from_ref(&conds[i]));
+        let coverage: Vec<f32> = mask.pixels().map(|p| p[0]).collect();
+        result.push(BlenderView {
+            image: render::to_images(&img).remove(0),
+            object_box: coverage_box(&coverage, w, 0.5 / 255.0),
+            coverage,
+        });
+    }
+    Ok(result)
+}
+
+fn find_mask(dir: &Path, prefix: &str) -> Result<PathBuf> {
+    for e in std::fs::read_dir(dir)? {
+        let e = e?;
+        let n = e.file_name().to_string_lossy().to_string();
+        if n.starts_with(prefix) && n.ends_with(".png") {
+            return Ok(e.path());
+        }
+    }
+    bail!("Blender wrote no mask {prefix}*.png in {}", dir.display())
+}
+
+/// The tight box of the pixels whose coverage exceeds `eps`.
+pub fn coverage_box(cov: &[f32], w: usize, eps: f32) -> Option<[f32; 4]> {
+    let mut b: Option<[f32; 4]> = None;
+    for (i, &c) in cov.iter().enumerate() {
+        if c > eps {
+            let (x, y) = ((i % w) as f32, (i / w) as f32);
+            b = Some(match b {
+                None => [x, y, x + 1.0, y + 1.0],
+                Some(o) => [
+                    o[0].min(x),
+                    o[1].min(y),
+                    o[2].max(x + 1.0),
+                    o[3].max(y + 1.0),
+                ],
+            });
+        }
+    }
+    b
+}
+
+/// Scores Blender views with each model against the views' own (Blender) boxes.
+pub fn score_views(
+    views: &[BlenderView],
+    dets: &[&dyn Detector],
+    p: &Protocol,
+    device: &Device,
+) -> Result<Vec<Vec<ImageScore>>> {
+    let mut out = vec![vec![]; dets.len()];
+    let scorer = Scorer::new(dets, p)?;
+    for (i, v) in views.iter().enumerate() {
+        let gt = v
+            .object_box
+            .with_context(|| format!("Blender view {i}: the object is not visible"))?;
+        let t = cac_detect::preprocess::image_to_tensor(&v.image, device);
+        for (m, o) in scorer.frame(t, &gt, None)?.into_iter().enumerate() {
+            out[m].push(o.score);
+        }
+    }
+    Ok(out)
+}

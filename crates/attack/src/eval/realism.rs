@@ -1,0 +1,345 @@
+//! The realism benchmark's measurements (`cac bench realism`): is the *original* vehicle
+//! recognised at all? P@0.5, mean best confidence and targeted success of NanoDet and CenterNet
+//! for each mesh × texture × renderer × viewpoint set × brightness. Viewpoint sets: `street`
+//! (12-ish azimuths, elevation 5–15°, distance ratio 1.5, the demo's evaluation views), `free`
+//! (the config's free viewpoint distribution) and `hemisphere` (the same with elevation 0–90°).
+//! Photometric transforms are off unless asked for. With the Blender renderer every view is also
+//! re-rendered by Cycles at the same camera and lighting ([`super::blender`]). Rows come out one
+//! at a time (they are slow) and as two tables: one row per combination, one per view.
+
+use super::{blender, Protocol, Summary};
+use anyhow::{Context, Result};
+use burn::tensor::Device;
+use cac_core::report::timer::Stopwatch;
+use cac_core::report::Table;
+use cac_detect::Detector;
+use cac_render::config::SceneConfig;
+use cac_render::environment::{street_views, Brightness, Condition, Environment, ViewpointSet};
+use cac_render::Renderer;
+use cac_scene::textures::{self, Kind};
+use cac_scene::Texture;
+use clap::ValueEnum;
+use std::path::PathBuf;
+
+/// A viewpoint set of the benchmark.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ViewSet {
+    Street,
+    Free,
+    Hemisphere,
+}
+
+/// A renderer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Which {
+    Cac,
+    Blender,
+}
+
+/// Everything the benchmark needs besides the detectors (NanoDet, then CenterNet); the flags
+/// of `cac bench realism` but the scene config, Blender's settings and the protocol, which the
+/// command builds from its others.
+#[derive(Clone, Debug, clap::Args)]
+pub struct RealismJob {
+    /// Built-in object names or mesh files (OBJ/glTF/GLB).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "pickup,jeep,../shared/meshes/CesiumMilkTruck/CesiumMilkTruck.glb"
+    )]
+    pub meshes: Vec<String>,
+    /// Viewpoint sets.
+    #[arg(long, value_delimiter = ',', default_value = "street,free,hemisphere")]
+    pub sets: Vec<ViewSet>,
+    /// Views per set and brightness level.
+    #[arg(long, default_value_t = 12)]
+    pub views: usize,
+    /// The scene config with the render size and samples already set.
+    #[arg(skip)]
+    pub cfg: SceneConfig,
+    /// Textures: original, natural, naive, random (simple textures on the paintable texels), or
+    /// image files (PNG/JPEG atlases).
+    #[arg(long, value_delimiter = ',', default_value = "original")]
+    pub textures: Vec<String>,
+    /// Renderers.
+    #[arg(long, value_delimiter = ',', default_value = "cac")]
+    pub renderers: Vec<Which>,
+    #[arg(skip)]
+    pub blender: blender::BlenderSettings,
+    /// Apply the sampled photometric transforms (lighten/darken, print error, noise) too.
+    #[arg(long)]
+    pub photometric: bool,
+    /// Seed of the sampled viewpoint sets.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Save every rendered view under this folder.
+    #[arg(long)]
+    pub save: Option<PathBuf>,
+    #[arg(skip)]
+    pub protocol: Protocol,
+}
+
+/// One combination's figures, per detector.
+pub struct Row {
+    /// Mesh stem, renderer, texture stem, set, brightness (lower case).
+    pub key: [String; 5],
+    pub views: usize,
+    pub nanodet: Summary,
+    pub centernet: Summary,
+    pub seconds: f64,
+}
+
+/// The two CSV tables.
+pub struct Tables {
+    pub rows: Table,
+    pub per_view: Table,
+}
+
+/// What every row shares.
+struct Bench<'a> {
+    a: &'a RealismJob,
+    all: &'a [&'a dyn Detector],
+    dev: &'a Device,
+    t: Tables,
+    on_row: &'a mut dyn FnMut(&Row),
+}
+
+/// Runs the benchmark with `dets` (NanoDet, CenterNet), calling `on_row` as each row is done.
+pub fn run(
+    job: &RealismJob,
+    dets: &[&dyn Detector],
+    dev: &Device,
+    on_row: &mut dyn FnMut(&Row),
+) -> Result<Tables> {
+    let mut b = Bench {
+        a: job,
+        all: dets,
+        dev,
+        on_row,
+        t: Tables {
+            rows: Table::new([
+                "mesh",
+                "renderer",
+                "texture",
+                "set",
+                "brightness",
+                "views",
+                "nanodet_p05",
+                "nanodet_mean_conf",
+                "nanodet_targeted",
+                "centernet_p05",
+                "centernet_mean_conf",
+                "centernet_targeted",
+                "seconds",
+            ]),
+            per_view: Table::new([
+                "mesh",
+                "renderer",
+                "texture",
+                "set",
+                "brightness",
+                "view",
+                "azimuth",
+                "elevation",
+                "distance_ratio",
+                "nanodet_hit",
+                "nanodet_conf",
+                "nanodet_targeted",
+                "centernet_hit",
+                "centernet_conf",
+                "centernet_targeted",
+            ]),
+        },
+    };
+    for mesh in &job.meshes {
+        b.mesh(mesh)?;
+    }
+    Ok(b.t)
+}
+
+/// The conditions of a viewpoint set.
+fn views(
+    set: ViewSet,
+    cfg: &SceneConfig,
+    n: usize,
+    b: Brightness,
+    seed: u64,
+    photometric: bool,
+) -> Result<Vec<Condition>> {
+    let mut env_cfg = cfg.environment.clone();
+    let conds = match set {
+        ViewSet::Street => return Ok(street_views(n, 1.5, b)),
+        ViewSet::Free => Environment::new(env_cfg)?.sample_n(n, ViewpointSet::Free, b, seed),
+        ViewSet::Hemisphere => {
+            env_cfg.elevation_deg = [0.0, 90.0];
+            Environment::new(env_cfg)?.sample_n(n, ViewpointSet::Free, b, seed)
+        }
+    };
+    Ok(conds
+        .into_iter()
+        .map(|c| {
+            if photometric {
+                c
+            } else {
+                Condition {
+                    light_add: 0.0,
+                    light_mul: 1.0,
+                    channel_add: [0.0; 3],
+                    channel_mul: [1.0; 3],
+                    noise_std: 0.0,
+                    ..c
+                }
+            }
+        })
+        .collect())
+}
+
+fn texture(name: &str, original: &Texture, mask: &[bool]) -> Result<Texture> {
+    if name == "original" {
+        return Ok(original.clone());
+    }
+    let t = if name.ends_with(".png") || name.ends_with(".jpg") {
+        Texture::from_rgb8(&cac_core::io::load_rgb(std::path::Path::new(name))?)
+            .resized(original.width, original.height)
+    } else {
+        let kind = Kind::from_str(name, true).map_err(|e| {
+            anyhow::anyhow!("unknown texture '{name}': {e} (or 'original', or a PNG/JPEG file)")
+        })?;
+        textures::generate(kind, original.width, 0)?
+    };
+    Ok(cac_scene::paint::paint(original, &t, mask))
+}
+
+/// A file's stem, or `name` itself.
+fn stem(name: &str) -> String {
+    std::path::Path::new(name)
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or(name.to_string())
+}
+
+impl Bench<'_> {
+    /// Every row of one mesh: textures × sets × brightness levels × renderers.
+    fn mesh(&mut self, mesh: &str) -> Result<()> {
+        let (a, cfg) = (self.a, &self.a.cfg);
+        let mut oc = cfg.object.clone();
+        oc.mesh = mesh.to_string();
+        let scene = oc.load().with_context(|| format!("loading mesh {mesh}"))?;
+        let original = scene.initial_atlas(cfg.render.atlas_res);
+        let mask = cac_scene::paint::paintable_texels(&scene, cfg.render.atlas_res);
+        let r = Renderer::new(scene, cfg.render.clone())?;
+        let env = Environment::new(cfg.environment.clone())?;
+        for tname in &a.textures {
+            let atlas = texture(tname, &original, &mask)?;
+            for &set in &a.sets {
+                for b in [Brightness::Bright, Brightness::Dark] {
+                    let conds = views(set, cfg, a.views, b, a.seed, a.photometric)?;
+                    for &which in &a.renderers {
+                        let t0 = Stopwatch::start();
+                        let (scores, images) = self.score(which, &r, &env, &conds, &atlas)?;
+                        let key = [
+                            stem(mesh),
+                            match which {
+                                Which::Cac => "cac".to_string(),
+                                Which::Blender => a.blender.label(),
+                            },
+                            stem(tname),
+                            format!("{set:?}").to_lowercase(),
+                            format!("{b:?}").to_lowercase(),
+                        ];
+                        self.record(key, &conds, &scores, &images, t0.secs())?;
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Renders `atlas` in `conds` with `which` and scores both detectors: per detector, per view
+    /// scores; and the images.
+    fn score(
+        &self,
+        which: Which,
+        r: &Renderer,
+        env: &Environment,
+        conds: &[Condition],
+        atlas: &Texture,
+    ) -> Result<(Vec<Vec<super::ImageScore>>, Vec<image::RgbImage>)> {
+        let (all, proto, dev) = (self.all, &self.a.protocol, self.dev);
+        Ok(match which {
+            Which::Cac => {
+                let o = super::evaluate(r, env, conds, atlas, all, proto, dev)?;
+                (o.scores, o.images)
+            }
+            Which::Blender => {
+                let views = blender::render_views(r, env, conds, atlas, &self.a.blender, dev)?;
+                let s = blender::score_views(&views, all, proto, dev)?;
+                (s, views.into_iter().map(|v| v.image).collect())
+            }
+        })
+    }
+
+    /// Saves the images (with `save`), adds the per-view rows and the summary row, and hands it on.
+    fn record(
+        &mut self,
+        key: [String; 5],
+        conds: &[Condition],
+        scores: &[Vec<super::ImageScore>],
+        images: &[image::RgbImage],
+        secs: f64,
+    ) -> Result<()> {
+        let [short, wname, tname, sname, bname] = key;
+        if let Some(dir) = &self.a.save {
+            let d = dir.join(format!("{short}_{wname}_{tname}_{sname}_{bname}"));
+            std::fs::create_dir_all(&d)?;
+            for (i, img) in images.iter().enumerate() {
+                cac_core::io::save_png_atomic(&d.join(format!("{i:02}.png")), img)?;
+            }
+        }
+        for (i, cd) in conds.iter().enumerate() {
+            let v = &cd.viewpoint;
+            let (n, c) = (&scores[0][i], &scores[1][i]);
+            self.t.per_view.row([
+                short.clone(),
+                wname.clone(),
+                tname.clone(),
+                sname.clone(),
+                bname.clone(),
+                i.to_string(),
+                format!("{:.1}", v.azimuth_deg.rem_euclid(360.0)),
+                format!("{:.1}", v.elevation_deg),
+                format!("{:.2}", v.distance_ratio),
+                (n.hit as u8).to_string(),
+                format!("{:.3}", n.best_true_conf),
+                (n.targeted as u8).to_string(),
+                (c.hit as u8).to_string(),
+                format!("{:.3}", c.best_true_conf),
+                (c.targeted as u8).to_string(),
+            ]);
+        }
+        let (n, c) = (super::summarise(&scores[0]), super::summarise(&scores[1]));
+        self.t.rows.row([
+            short.clone(),
+            wname.clone(),
+            tname.clone(),
+            sname.clone(),
+            bname.clone(),
+            conds.len().to_string(),
+            format!("{:.4}", n.p_at_05),
+            format!("{:.4}", n.mean_best_true_conf),
+            format!("{:.4}", n.targeted_success),
+            format!("{:.4}", c.p_at_05),
+            format!("{:.4}", c.mean_best_true_conf),
+            format!("{:.4}", c.targeted_success),
+            format!("{secs:.1}"),
+        ]);
+        (self.on_row)(&Row {
+            key: [short, wname, tname, sname, bname],
+            views: conds.len(),
+            nanodet: n,
+            centernet: c,
+            seconds: secs,
+        });
+        Ok(())
+    }
+}

@@ -1,0 +1,497 @@
+//! The CAC attack (Algorithm 1 of the paper): learn a camouflage atlas under expectation over
+//! transformations with the dense-proposals loss.
+//!
+//! Each iteration draws a batch of environment conditions (seeded by the run seed and the
+//! iteration number, so a resumed run draws the same batches), renders them differentiably, runs
+//! every source detector, fixes its proposals (by default the candidates on the object, see
+//! [`loss`]), and takes an Adam step on the atlas that lowers the loss over them; the atlas is
+//! clipped to [0, 1].
+//! Only texels that paintable surfaces sample ever receive a gradient, so only they change.
+//!
+//! One [`Trainer`] optimises every method over its parameterisation (the atlas, a multi-scale
+//! atlas or a 2D patch). A run folder ([`run::RunDir`]: run.json, atlas.png, plots, checkpoints)
+//! holds a run; long runs checkpoint every K iterations ([`checkpoint`]), and a resumed run
+//! continues exactly where the last checkpoint left off.
+//!
+//! Crate `cac-attack`: this module (`cac::attack`), with [`eval`] (the evaluation protocol and its
+//! scoring core) and [`study`] (experiments that train with the attack and judge with `eval`) beside
+//! it.
+
+pub mod eval;
+pub mod study;
+
+pub mod adam;
+pub mod baselines;
+pub mod checkpoint;
+pub mod loss;
+pub mod pyramid;
+pub mod report;
+pub mod run;
+mod trainer;
+
+pub use checkpoint::Checkpoint;
+pub use trainer::{Parameterisation, Trainer};
+
+use anyhow::{bail, Context, Result};
+pub use baselines::Method;
+use burn::tensor::Tensor;
+use cac_detect::Detector;
+use cac_render::environment::{Brightness, Condition, Environment, ViewpointSet};
+use loss::{ClassSet, Goal, ProposalRule};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+/// Attack settings: a run's `attack` in run.json, and `cac train`'s flags (each field's doc is its
+/// help text).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, clap::Args)]
+#[serde(deny_unknown_fields, default)]
+pub struct AttackConfig {
+    /// The attack: cac (this paper) or a baseline (advpat, shapeshifter: 2D patch tiled on the
+    /// object; upc, camou: full atlas in 3D). See docs/attack.md.
+    #[arg(long, value_enum, default_value_t = Method::Cac)]
+    pub method: Method,
+    /// Source detectors, comma-separated (an ensemble when several).
+    #[arg(long, default_value = "nanodet", value_delimiter = ',', value_parser = cac_detect::spec::MODEL_SPECS)]
+    pub models: Vec<String>,
+    /// Target class every proposal is pushed towards, by name: one of each source model's
+    /// classes (COCO-80 labels for the built-in detectors); ignored with --hide.
+    #[arg(long, default_value = "person")]
+    pub target: String,
+    /// Non-targeted mode: hide the object (suppress --hide-classes in the proposals).
+    #[arg(long)]
+    pub hide: bool,
+    /// The classes --hide suppresses: comma-separated class names (default the vehicle classes
+    /// P@0.5 counts), or `all` (every class; it does not hide the pickup: docs/attack.md).
+    // Runs written before the setting existed suppressed every class: a run.json without it
+    // reads as `all`.
+    #[serde(default = "all_classes")]
+    #[arg(long, default_value = "car,bus,truck")]
+    pub hide_classes: String,
+    /// Which candidates the loss fixes: `overlap` (those on the object's box, IoU >=
+    /// --overlap-iou) or `topn` (the top n after NMS over the whole image); see docs/attack.md.
+    // Runs written before the rule existed used top-n: a run.json without it reads as `topn`.
+    #[serde(default = "legacy_rule")]
+    #[arg(long, value_enum, default_value_t = ProposalRule::Overlap)]
+    pub proposals: ProposalRule,
+    /// Fixed proposals per image at most (the paper's n).
+    #[arg(long, default_value_t = 300)]
+    pub top_n: usize,
+    /// IoU of the class-agnostic NMS that picks the `topn` proposals.
+    #[arg(skip = 0.7)]
+    pub nms_iou: f64,
+    /// Least IoU with the object's box of an `overlap` proposal.
+    #[arg(long, default_value_t = 0.5)]
+    pub overlap_iou: f64,
+    #[arg(long, default_value_t = 2)]
+    pub batch: usize,
+    #[arg(long, default_value_t = 200)]
+    pub iterations: usize,
+    #[arg(long, default_value_t = 0.02)]
+    pub lr: f32,
+    /// Learning-rate schedule: constant, or cosine (annealed from --lr to 0 over --iterations).
+    // Runs written before the setting existed used a constant one (the default).
+    #[arg(long, value_enum, default_value_t = LrDecay::Constant)]
+    pub lr_decay: LrDecay,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Write a checkpoint every this many iterations (0: only at the end).
+    #[arg(long, default_value_t = 10)]
+    pub checkpoint_every: usize,
+    /// Where the training views are drawn (`cac train --restricted`: side views only).
+    #[arg(skip = ViewpointSet::Free)]
+    pub viewpoints: ViewpointSet,
+    /// Power of the mean over images of their losses (overlap rule): 1 is the mean, p > 1
+    /// weighs the views the texture fails on more ([`loss::proposals_loss_per_image`],
+    /// docs/attack.md).
+    #[serde(default = "one_power")]
+    #[arg(long, default_value_t = 1.0)]
+    pub image_power: f32,
+    /// Share of the training views drawn within 30° of the front or the back (free viewpoints;
+    /// default: azimuth uniform, a share of 1/3; the evaluation's views stay uniform;
+    /// [`cac_render::environment::azimuth_with_front_back_share`]).
+    #[serde(default)]
+    #[arg(long)]
+    pub front_back_share: Option<f32>,
+    /// Levels of the atlas's multi-scale parameterisation: 1 optimises texel by texel; K adds
+    /// K-1 coarser levels (each half the side of the last) whose sum is the atlas ([`pyramid`]).
+    #[serde(default = "one_scale")]
+    #[arg(long, default_value_t = 1)]
+    pub scales: usize,
+    /// 2D methods: side of the trained patch in texels.
+    #[arg(long, default_value_t = 128)]
+    pub patch_res: usize,
+    /// 2D methods: copies of the patch across the atlas side when it is put on the object.
+    #[arg(long, default_value_t = 4)]
+    pub patch_tiles: usize,
+}
+
+impl Default for AttackConfig {
+    fn default() -> Self {
+        AttackConfig {
+            models: vec!["nanodet".into()],
+            target: "person".into(),
+            hide: false,
+            hide_classes: "car,bus,truck".into(),
+            proposals: ProposalRule::Overlap,
+            top_n: 300,
+            nms_iou: 0.7,
+            overlap_iou: 0.5,
+            batch: 2,
+            iterations: 200,
+            lr: 0.02,
+            lr_decay: LrDecay::Constant,
+            seed: 0,
+            checkpoint_every: 10,
+            viewpoints: ViewpointSet::Free,
+            method: Method::Cac,
+            scales: 1,
+            image_power: 1.0,
+            front_back_share: None,
+            patch_res: 128,
+            patch_tiles: 4,
+        }
+    }
+}
+
+/// The learning-rate schedule over a run's iterations.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum LrDecay {
+    /// `lr` at every iteration.
+    #[default]
+    Constant,
+    /// Cosine annealing to zero (Loshchilov & Hutter 2017, without restarts):
+    /// `lr_i = lr · (1 + cos(π i / iterations)) / 2`. A run grown on resume stretches the rest
+    /// of its schedule to the new `iterations`.
+    Cosine,
+}
+
+impl LrDecay {
+    pub fn name(self) -> &'static str {
+        match self {
+            LrDecay::Constant => "constant",
+            LrDecay::Cosine => "cosine",
+        }
+    }
+}
+
+fn one_power() -> f32 {
+    1.0
+}
+
+fn one_scale() -> usize {
+    1
+}
+
+fn all_classes() -> String {
+    "all".into()
+}
+
+fn legacy_rule() -> ProposalRule {
+    ProposalRule::TopN
+}
+
+/// `all`, or comma-separated class names, as a set of a model's classes (`classes`, its class
+/// list; `model` names it in errors).
+fn hide_set(labels: &str, classes: &[&str], model: &str) -> Result<ClassSet> {
+    if labels.trim().eq_ignore_ascii_case("all") {
+        return Ok(ClassSet::ALL);
+    }
+    let mut ids = Vec::new();
+    for l in hide_labels(labels)? {
+        ids.push(
+            cac_detect::labels::resolve(l, classes, model)
+                .with_context(|| format!("--hide-classes {labels:?}"))?,
+        );
+    }
+    if ids.iter().any(|&c| c >= 128) {
+        bail!("--hide-classes: {model} has {} classes; a hidden class must be one of the first 128 (use `all`)", classes.len());
+    }
+    Ok(ClassSet::of(&ids))
+}
+
+/// The names of `--hide-classes` (not `all`), checked to be a non-empty list.
+fn hide_labels(labels: &str) -> Result<Vec<&str>> {
+    let v: Vec<&str> = labels
+        .split(',')
+        .map(str::trim)
+        .filter(|l| !l.is_empty())
+        .collect();
+    if v.is_empty() {
+        bail!("--hide-classes is empty (use `all` or class names such as \"car,bus,truck\")");
+    }
+    Ok(v)
+}
+
+impl AttackConfig {
+    /// The learning rate of iteration `i` (from 0) under [`Self::lr_decay`].
+    pub fn lr_at(&self, i: usize) -> f32 {
+        match self.lr_decay {
+            LrDecay::Constant => self.lr,
+            LrDecay::Cosine => {
+                let t = (i as f64 / self.iterations.max(1) as f64).min(1.0);
+                (self.lr as f64 * 0.5 * (1.0 + (std::f64::consts::PI * t).cos())) as f32
+            }
+        }
+    }
+
+    /// The goal against one detector: the target or hidden classes named by the config,
+    /// resolved by name against the detector's classes ([`Detector::classes`]), so each model
+    /// of an ensemble gets its own class ids; a name the model lacks is an error that lists
+    /// the model's classes.
+    pub fn goal_for(&self, detector: &dyn Detector) -> Result<Goal> {
+        self.goal_in(detector.classes(), detector.name())
+    }
+
+    /// [`Self::goal_for`] with a class list `classes` of model `model`.
+    pub fn goal_in(&self, classes: &[&str], model: &str) -> Result<Goal> {
+        if !self.method.is_targeted() {
+            return Ok(Goal::Hide(ClassSet::ALL));
+        }
+        if self.hide {
+            return Ok(Goal::Hide(hide_set(&self.hide_classes, classes, model)?));
+        }
+        let t = cac_detect::labels::resolve(&self.target, classes, model)
+            .context("the attack's target class (--target)")?;
+        Ok(Goal::Targeted(t))
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        if self.models.is_empty() {
+            bail!("at least one source model is needed");
+        }
+        if self.batch == 0 || self.top_n == 0 {
+            bail!("batch and top_n must be positive");
+        }
+        if !(self.overlap_iou > 0.0 && self.overlap_iou <= 1.0) {
+            bail!("--overlap-iou must be in (0, 1], got {}", self.overlap_iou);
+        }
+        if !(self.image_power >= 1.0 && self.image_power <= 16.0) {
+            bail!("--image-power must be in [1, 16], got {}", self.image_power);
+        }
+        if self.image_power != 1.0
+            && (self.method != Method::Cac || self.proposals != ProposalRule::Overlap)
+        {
+            bail!(
+                "--image-power weighs the per-image losses of the overlap rule: it needs --method cac \
+                 --proposals overlap (got {} with {})",
+                self.method.name(),
+                self.proposals.name()
+            );
+        }
+        if let Some(share) = self.front_back_share {
+            if !(0.0..=1.0).contains(&share) {
+                bail!("--front-back-share must be in [0, 1], got {share}");
+            }
+            if self.viewpoints != ViewpointSet::Free {
+                bail!("--front-back-share weighs the free viewpoints' azimuth: it cannot be used with --restricted");
+            }
+        }
+        if !(self.lr > 0.0 && self.lr.is_finite()) {
+            bail!("learning rate must be positive");
+        }
+        if self.hide && self.method != Method::Cac {
+            bail!(
+                "--hide applies to --method cac only: {} {}",
+                self.method.name(),
+                if self.method.is_targeted() {
+                    "is a targeted attack (it needs --target)"
+                } else {
+                    "already hides the vehicle (it is non-targeted)"
+                }
+            );
+        }
+        if self.scales != 1 && (self.method.is_2d() || !(1..=8).contains(&self.scales)) {
+            bail!(
+                "--scales must be 1..=8, and 1 for the 2D methods (got {} with {})",
+                self.scales,
+                self.method.name()
+            );
+        }
+        if self.method.is_2d() && !(4..=2048).contains(&self.patch_res) {
+            bail!("--patch-res must be 4..=2048, got {}", self.patch_res);
+        }
+        if self.method.is_2d() && !(1..=64).contains(&self.patch_tiles) {
+            bail!("--patch-tiles must be 1..=64, got {}", self.patch_tiles);
+        }
+        // The class names are resolved against each model when the models are loaded
+        // (`goal_for`); here only their form is checked.
+        if self.method.is_targeted() {
+            if self.hide && !self.hide_classes.trim().eq_ignore_ascii_case("all") {
+                hide_labels(&self.hide_classes)?;
+            } else if !self.hide && self.target.trim().is_empty() {
+                bail!("--target is empty (name one of the model's classes, e.g. \"person\")");
+            }
+        }
+        Ok(())
+    }
+}
+
+/// One iteration's record in `run.json`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct IterationLog {
+    pub iteration: usize,
+    pub loss: f64,
+    pub grad_norm: f64,
+    /// Candidates the objective scored, summed over the batch and source models: the fixed
+    /// proposals (CAC, ShapeShifter, UPC), every candidate (CAMOU) or one per image (AdvPat).
+    pub proposals: usize,
+    /// Forming the images: the composite, plus planning the views where they were not planned
+    /// during the previous step, plus any wait for the next step's views ([`Trainer::step`]).
+    /// The four times add up to the iteration's wall time.
+    pub ms_render: f64,
+    pub ms_forward: f64,
+    pub ms_backward: f64,
+    pub ms_optimiser: f64,
+}
+
+/// The batch of conditions of iteration `i`: a pure function of the run seed and `i`, so a
+/// resumed run draws the same batches; brightness alternates bright, dark.
+pub fn draw_conditions(env: &Environment, config: &AttackConfig, i: usize) -> Vec<Condition> {
+    let mut rng = ChaCha8Rng::seed_from_u64(
+        config.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (i as u64).wrapping_add(1),
+    );
+    (0..config.batch)
+        .map(|k| {
+            let b = if k % 2 == 0 {
+                Brightness::Bright
+            } else {
+                Brightness::Dark
+            };
+            let mut c = env.sample(config.viewpoints, b, &mut rng);
+            if let Some(share) = config.front_back_share {
+                c.viewpoint.azimuth_deg =
+                    cac_render::environment::azimuth_with_front_back_share(share, &mut rng);
+            }
+            c
+        })
+        .collect()
+}
+
+/// The loss of one image batch averaged over the source detectors (an ensemble), and the number of
+/// fixed proposals it was taken over; `objects` are the object's boxes in the images. The trainer's
+/// objective for every method; each detector's goal is the config's classes resolved against its
+/// own class list ([`AttackConfig::goal_for`]).
+pub fn ensemble_loss(
+    detectors: &[&dyn Detector],
+    images: &Tensor<4>,
+    objects: &[Option<[f32; 4]>],
+    config: &AttackConfig,
+) -> Result<(Tensor<1>, usize)> {
+    let mut total: Option<Tensor<1>> = None;
+    let mut proposals = 0;
+    let sel = baselines::objectives::Selection {
+        rule: config.proposals,
+        top_n: config.top_n,
+        nms_iou: config.nms_iou,
+        overlap_iou: config.overlap_iou,
+        objects,
+        image_power: config.image_power,
+    };
+    for det in detectors {
+        let goal = config.goal_for(*det)?;
+        let c = det.candidates(images.clone())?;
+        let (l, n) = baselines::objective(config.method, c, &sel, goal)?;
+        proposals += n;
+        total = Some(match total {
+            Some(t) => t + l,
+            None => l,
+        });
+    }
+    Ok((
+        total.context("no detector")? / detectors.len() as f64,
+        proposals,
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cosine_decay_and_image_power_are_checked() {
+        let c = AttackConfig {
+            lr: 0.02,
+            lr_decay: LrDecay::Cosine,
+            iterations: 100,
+            ..Default::default()
+        };
+        assert_eq!(c.lr_at(0), 0.02);
+        assert!((c.lr_at(50) - 0.01).abs() < 1e-7, "{}", c.lr_at(50));
+        assert!(c.lr_at(99) > 0.0 && c.lr_at(99) < 1e-4);
+        assert_eq!(c.lr_at(100), 0.0);
+        assert_eq!(c.lr_at(500), 0.0, "past the end it stays at zero");
+        assert!((1..100).all(|i| c.lr_at(i) < c.lr_at(i - 1)), "decreasing");
+        let k = AttackConfig::default();
+        assert!((0..300).all(|i| k.lr_at(i) == k.lr), "constant by default");
+        // --image-power: in [1, 16], and only where there are per-image losses to weigh.
+        let p = |image_power, proposals| AttackConfig {
+            image_power,
+            proposals,
+            ..Default::default()
+        };
+        assert!(p(3.0, ProposalRule::Overlap).validate().is_ok());
+        for bad in [0.5, f32::NAN, 17.0] {
+            assert!(p(bad, ProposalRule::Overlap).validate().is_err(), "{bad}");
+        }
+        let e = p(2.0, ProposalRule::TopN)
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--proposals overlap"), "{e}");
+        // A run.json written before the setting existed reads as constant.
+        let old: AttackConfig = serde_json::from_str(r#"{"lr": 0.02}"#).unwrap();
+        assert_eq!(old.lr_decay, LrDecay::Constant);
+        assert_eq!(old.front_back_share, None);
+    }
+
+    #[test]
+    fn the_flags_defaults_are_the_configs() {
+        #[derive(clap::Parser)]
+        struct Line {
+            #[command(flatten)]
+            attack: AttackConfig,
+        }
+        use clap::Parser;
+        let parsed = Line::try_parse_from(["cac train"]).unwrap().attack;
+        assert_eq!(parsed, AttackConfig::default());
+        let c = Line::try_parse_from(["t", "--lr", "0.04", "--front-back-share", "0.5"])
+            .unwrap()
+            .attack;
+        assert_eq!((c.lr, c.front_back_share), (0.04, Some(0.5)));
+    }
+
+    #[test]
+    fn front_back_share_sets_the_share_of_end_on_views() {
+        use cac_render::environment::azimuth_with_front_back_share as draw;
+        let near_ends = |a: f32| {
+            let d = (a.rem_euclid(180.0) - 90.0).abs(); // 90 at front/back, 0 at the sides
+            d > 60.0
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        for share in [0.0f32, 1.0 / 3.0, 0.6, 1.0] {
+            let n = 20_000;
+            let az: Vec<f32> = (0..n).map(|_| draw(share, &mut rng)).collect();
+            assert!(az.iter().all(|a| (0.0..360.0).contains(a)), "{share}");
+            let f = az.iter().filter(|&&a| near_ends(a)).count() as f32 / n as f32;
+            assert!((f - share).abs() < 0.015, "share {share}: {f}");
+            // Both ends and both sides are drawn alike.
+            let back = az.iter().filter(|&&a| (90.0..270.0).contains(&a)).count() as f32;
+            assert!(
+                (back / n as f32 - 0.5).abs() < 0.015,
+                "share {share}: back {back}"
+            );
+        }
+        // Off by default (no extra draws: the runs of before are unchanged), checked when set.
+        let c = |share, viewpoints| AttackConfig {
+            front_back_share: share,
+            viewpoints,
+            ..Default::default()
+        };
+        assert!(c(Some(0.5), ViewpointSet::Free).validate().is_ok());
+        assert!(c(Some(1.5), ViewpointSet::Free).validate().is_err());
+        assert!(c(Some(f32::NAN), ViewpointSet::Free).validate().is_err());
+        assert!(c(Some(0.5), ViewpointSet::Restricted).validate().is_err());
+    }
+}

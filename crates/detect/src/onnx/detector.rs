@@ -1,0 +1,686 @@
+//! A user's ONNX detector as a [`Detector`]: pre-processing (letterbox or stretch, channel order,
+//! mean/std), the graph, and a dense head read from the exported output:
+//! - `yolov8`: `[B, 4 + C, N]`, rows `cx, cy, w, h` then C class probabilities (ultralytics
+//!   YOLOv8/11 and YOLOv5u exports: anchor-free, DFL decoded inside the graph);
+//! - `yolov5`: `[B, N, 5 + C]`, columns `cx, cy, w, h, objectness`, then C class probabilities
+//!   (the YOLOv5 repository's and YOLOv3/v7 exports: anchors decoded inside the graph);
+//!   a class's score is objectness × class probability, as those repositories rank it;
+//! - `split`: boxes `[B, N, 4]` and class scores `[B, N, C]` in two outputs (mmdeploy's dense
+//!   export, or any head written that way).
+//!
+//! The class *logits* the attack needs come from the graph itself: the Sigmoid nodes whose
+//! outputs reach the exported scores through layout ops only are tapped
+//! ([`super::graph::OnnxGraph::run_tapped`]), so the logits are exact, not `log(p / (1 - p))`
+//! of a rounded probability. A small TOML beside the model (`model.toml`, or named as
+//! `onnx:MODEL.onnx:CONFIG.toml`) overrides every choice; see [`super::config`].
+
+use super::config::OnnxConfig;
+use super::graph::OnnxGraph;
+use super::model::{Dim, Model};
+use super::value::{Dev, Val};
+use crate::labels::COCO80;
+use crate::nms::non_max_suppression;
+use crate::preprocess::resize_bilinear;
+use crate::raw::{RawDump, RawImage, RawTensor};
+use crate::{check_images, to_vec, Candidates, Detection, Detector};
+use anyhow::{anyhow, bail, ensure, Context, Result};
+use burn::tensor::{activation, Device, Tensor, TensorData};
+use std::collections::BTreeMap;
+use std::path::Path;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Head {
+    /// `[B, 4 + C, N]`.
+    V8,
+    /// `[B, N, 5 + C]`.
+    V5,
+    /// Boxes `[B, N, 4]` and scores `[B, N, C]` in two outputs.
+    Split,
+}
+
+/// Where the network input sits in the image: `net = img * scale + pad`.
+#[derive(Clone, Copy, Debug)]
+pub struct Geometry {
+    /// Network pixels per image pixel, `[x, y]`.
+    pub scale: [f32; 2],
+    /// The letterbox border, `[left, top]`, in network pixels.
+    pub pad: [f32; 2],
+}
+
+/// An ONNX detector.
+pub struct OnnxDetector {
+    graph: OnnxGraph,
+    name: String,
+    config: OnnxConfig,
+    input: String,
+    output: String,
+    /// `(width, height)`.
+    size: (usize, usize),
+    head: Head,
+    classes: Vec<&'static str>,
+    /// The Sigmoid nodes whose inputs are the class logits.
+    taps: Vec<usize>,
+    /// The exported graph takes a batch of exactly one.
+    batch_one: bool,
+}
+
+impl OnnxDetector {
+    /// Loads `path` with the config `config`, or `path` with the extension `.toml` when that
+    /// exists, or the defaults; checks the graph, finds the head with one dry run.
+    pub fn load(path: &Path, config: Option<&Path>, device: &Device) -> Result<Self> {
+        let src = path.display().to_string();
+        let beside = path.with_extension("toml");
+        let config = match config {
+            Some(c) => OnnxConfig::load(c)?,
+            None if beside.is_file() => OnnxConfig::load(&beside)?,
+            None => OnnxConfig::default(),
+        };
+        let model = Model::load(path)?;
+        not_a_detector(&model, &src)?;
+        let graph = OnnxGraph::new(model, device)?;
+        let input_io = match &config.input {
+            Some(n) => graph
+                .graph_inputs()
+                .iter()
+                .find(|i| &i.name == n)
+                .ok_or_else(|| anyhow!("{src}: no graph input named {n:?}"))?,
+            None => graph
+                .graph_inputs()
+                .first()
+                .ok_or_else(|| anyhow!("{src}: the graph has no input"))?,
+        }
+        .clone();
+        ensure!(
+            input_io.dims.len() == 4
+                && matches!(
+                    input_io.dims[1],
+                    Dim::Fixed(3) | Dim::Param(_) | Dim::Unknown
+                ),
+            "{src}: input {:?} has shape {}; an image input [B, 3, H, W] is expected",
+            input_io.name,
+            input_io.shape_text()
+        );
+        let size = match (config.input_size, &input_io.dims[2], &input_io.dims[3]) {
+            (Some([w, h]), ..) => (w, h),
+            (None, Dim::Fixed(h), Dim::Fixed(w)) => (*w, *h),
+            _ => bail!(
+                "{src}: input {:?} has a dynamic size {}; set input_size = [width, height] in the config",
+                input_io.name,
+                input_io.shape_text()
+            ),
+        };
+        let batch_one = input_io.dims[0] == Dim::Fixed(1);
+        let output = match &config.output {
+            Some(o) => o.clone(),
+            None => graph
+                .graph_outputs()
+                .first()
+                .map(|o| o.name.clone())
+                .ok_or_else(|| anyhow!("{src}: the graph has no output"))?,
+        };
+        // One dry run gives the output's shape (exports often leave it symbolic).
+        let zeros = Tensor::<4>::zeros([1, 3, size.1, size.0], device);
+        let probe: Vec<&str> = std::iter::once(output.as_str())
+            .chain(config.boxes.as_deref())
+            .collect();
+        let outs = graph.run_images(&input_io.name, zeros, &probe)?;
+        let shape = outs[0].shape().to_vec();
+        ensure!(
+            shape.len() == 3,
+            "{src}: output {output:?} has shape {shape:?}; a dense [B, A, N] output is expected (set output in the config)"
+        );
+        let head = match config.head.as_str() {
+            "yolov8" => Head::V8,
+            "yolov5" => Head::V5,
+            "split" => Head::Split,
+            _ if config.boxes.is_some() => Head::Split,
+            _ if shape[1] < shape[2] => Head::V8,
+            _ => Head::V5,
+        };
+        let n_classes = match head {
+            Head::Split => {
+                let bs = outs[1].shape();
+                ensure!(
+                    bs.len() == 3 && bs[2] == 4 && bs[..2] == shape[..2],
+                    "{src}: boxes output {:?} has shape {bs:?}, scores {output:?} {shape:?}; [B, N, 4] and [B, N, C] are expected",
+                    config.boxes.as_deref().unwrap_or_default()
+                );
+                shape[2]
+            }
+            _ => {
+                let per = if head == Head::V8 { shape[1] } else { shape[2] };
+                let skip = if head == Head::V8 { 4 } else { 5 };
+                ensure!(
+                    per > skip,
+                    "{src}: output {output:?} of shape {shape:?} has no class scores for a {:?} head",
+                    head
+                );
+                per - skip
+            }
+        };
+        let classes = class_names(&config, graph.model.meta("names"), n_classes)
+            .with_context(|| src.clone())?;
+        let taps = if config.scores == "sigmoid" {
+            let t = sigmoid_taps(&graph, &output);
+            ensure!(
+                !t.is_empty(),
+                "{src}: no Sigmoid node feeds {output:?} through layout ops; set scores = \"probabilities\" or \"logits\" in the config"
+            );
+            t
+        } else {
+            Vec::new()
+        };
+        let name = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "onnx".into());
+        Ok(OnnxDetector {
+            graph,
+            name,
+            config,
+            input: input_io.name,
+            output,
+            size,
+            head,
+            classes,
+            taps,
+            batch_one,
+        })
+    }
+
+    pub fn config(&self) -> &OnnxConfig {
+        &self.config
+    }
+    pub fn graph(&self) -> &OnnxGraph {
+        &self.graph
+    }
+    /// The network input of `images` (`[B, 3, H, W]` in [0, 1]) and where it sits in them.
+    pub fn network_input(&self, images: Tensor<4>) -> Result<(Tensor<4>, Geometry)> {
+        let [_, _, h, w] = check_images(&images)?;
+        let (nw, nh) = self.size;
+        let dev = images.device();
+        let (x, geo) = if self.config.resize == "stretch" {
+            (
+                resize_bilinear(images, 2, 3, nh, nw, false, true),
+                Geometry {
+                    scale: [nw as f32 / w as f32, nh as f32 / h as f32],
+                    pad: [0.0, 0.0],
+                },
+            )
+        } else {
+            let r = (nw as f32 / w as f32).min(nh as f32 / h as f32);
+            let (rw, rh) = (
+                ((w as f32 * r).round() as usize).clamp(1, nw),
+                ((h as f32 * r).round() as usize).clamp(1, nh),
+            );
+            let (left, top) = ((nw - rw) / 2, (nh - rh) / 2);
+            let x = resize_bilinear(images, 2, 3, rh, rw, false, true);
+            let x = x.pad(
+                [(top, nh - rh - top), (left, nw - rw - left)],
+                burn::tensor::ops::PadMode::Constant(self.config.pad_value),
+            );
+            (
+                x,
+                Geometry {
+                    scale: [rw as f32 / w as f32, rh as f32 / h as f32],
+                    pad: [left as f32, top as f32],
+                },
+            )
+        };
+        let x = if self.config.channels == "bgr" {
+            x.flip([1])
+        } else {
+            x
+        };
+        let x = if self.config.mean != [0.0; 3] || self.config.std != [1.0; 3] {
+            let c = |v: [f32; 3]| {
+                Tensor::<4>::from_data(TensorData::new(v.to_vec(), [1, 3, 1, 1]), &dev)
+            };
+            (x - c(self.config.mean)) / c(self.config.std)
+        } else {
+            x
+        };
+        Ok((x, geo))
+    }
+
+    /// The dense output `[B, N, K]` (rows per candidate) and its pre-sigmoid version.
+    fn dense(&self, x: Tensor<4>) -> Result<(Tensor<3>, Tensor<3>)> {
+        let b = x.dims()[0];
+        let chunks: Vec<Tensor<4>> = if self.batch_one && b > 1 {
+            (0..b).map(|i| x.clone().narrow(0, i, 1)).collect()
+        } else {
+            vec![x]
+        };
+        let mut probs = Vec::new();
+        let mut pre = Vec::new();
+        for c in chunks {
+            let feed = [(self.input.as_str(), Val::D(Dev::from(c)?))];
+            let names: Vec<&str> = std::iter::once(self.output.as_str())
+                .chain(self.config.boxes.as_deref())
+                .collect();
+            let (main, alt) = self.graph.run_tapped(&feed, &names, &self.taps)?;
+            let as3 = |v: &Val| -> Result<Tensor<3>> {
+                let d = v.dev(&self.graph.device)?;
+                ensure!(
+                    d.rank() == 3,
+                    "output {:?} has shape {:?}",
+                    self.output,
+                    d.shape
+                );
+                let t: Tensor<3> = d.t.clone().reshape([d.shape[0], d.shape[1], d.shape[2]]);
+                Ok(if self.head == Head::V8 {
+                    t.swap_dims(1, 2)
+                } else {
+                    t
+                })
+            };
+            // Split: the boxes joined in front of the scores, as the yolov8 head has them.
+            let join = |scores: &Val| -> Result<Tensor<3>> {
+                let t = as3(scores)?;
+                Ok(match self.head {
+                    Head::Split => Tensor::cat(vec![as3(&main[1])?, t], 2),
+                    _ => t,
+                })
+            };
+            let p = join(&main[0])?;
+            pre.push(match alt.first() {
+                Some(a) => join(a)?,
+                None => p.clone(),
+            });
+            probs.push(p);
+        }
+        Ok((Tensor::cat(probs, 0), Tensor::cat(pre, 0)))
+    }
+
+    fn candidates_with(&self, images: Tensor<4>) -> Result<Candidates> {
+        let (x, geo) = self.network_input(images)?;
+        let (p, l) = self.dense(x)?;
+        let [b, n, k] = p.dims();
+        let col = |t: &Tensor<3>, i: usize| t.clone().narrow(2, i, 1);
+        let (c0, c1, c2, c3) = (col(&p, 0), col(&p, 1), col(&p, 2), col(&p, 3));
+        let (x1, y1, x2, y2) = if self.config.box_format == "xyxy" {
+            (c0, c1, c2, c3)
+        } else {
+            let (hw, hh) = (c2.div_scalar(2.0), c3.div_scalar(2.0));
+            (
+                c0.clone() - hw.clone(),
+                c1.clone() - hh.clone(),
+                c0 + hw,
+                c1 + hh,
+            )
+        };
+        let ux = |v: Tensor<3>| v.sub_scalar(geo.pad[0]).div_scalar(geo.scale[0]);
+        let uy = |v: Tensor<3>| v.sub_scalar(geo.pad[1]).div_scalar(geo.scale[1]);
+        let boxes = Tensor::cat(vec![ux(x1), uy(y1), ux(x2), uy(y2)], 2);
+        let skip = if self.head == Head::V5 { 5 } else { 4 };
+        let cls_p = p.clone().narrow(2, skip, k - skip);
+        let cls_l = l.clone().narrow(2, skip, k - skip);
+        let mode = self.config.scores.as_str();
+        // Log-probabilities of each class's score, for the logits of a product.
+        let logit_of_prob = |q: Tensor<3>| {
+            let q = q.clamp(1e-30, 1.0 - 1e-7);
+            q.clone().log() - q.neg().log1p()
+        };
+        let (scores, logits) = match (self.head, mode) {
+            (Head::V8 | Head::Split, "logits") => {
+                (crate::activation::sigmoid(cls_p.clone()), cls_p)
+            }
+            (Head::V8 | Head::Split, "probabilities") => (cls_p.clone(), logit_of_prob(cls_p)),
+            (Head::V8 | Head::Split, _) => (cls_p, cls_l),
+            (Head::V5, _) => {
+                let obj_p = col(&p, 4);
+                let obj_l = col(&l, 4);
+                if mode == "probabilities" {
+                    let s = cls_p * obj_p.expand([b, n, k - skip]);
+                    (s.clone(), logit_of_prob(s))
+                } else {
+                    // log p = log σ(o) + log σ(c); logit = log p − log(1 − p).
+                    let (lo, lc) = if mode == "logits" {
+                        (col(&p, 4), cls_p)
+                    } else {
+                        (obj_l, cls_l)
+                    };
+                    let logp = activation::log_sigmoid(lc)
+                        + activation::log_sigmoid(lo).expand([b, n, k - skip]);
+                    let p1 = logp.clone().exp().clamp_max(1.0 - 1e-7);
+                    let logits = logp - p1.clone().neg().log1p();
+                    (p1, logits)
+                }
+            }
+        };
+        Ok(Candidates {
+            boxes,
+            scores,
+            logits,
+        })
+    }
+}
+
+/// Refuses an ultralytics model of another task (its `task` metadata): a segmentation, pose,
+/// oriented-box or classification output read as class scores would be a wrong answer in
+/// silence (a pose model's 51 keypoint values read as 51 "classes").
+fn not_a_detector(model: &Model, src: &str) -> Result<()> {
+    let Some(task) = model.meta("task").map(str::trim) else {
+        return Ok(());
+    };
+    let (what, suffix) = match task {
+        "detect" => return Ok(()),
+        "segment" => ("32 mask coefficients per box", "-seg"),
+        "pose" => ("keypoints", "-pose"),
+        "obb" => ("rotation angles", "-obb"),
+        "classify" => ("no boxes at all", "-cls"),
+        _ => ("outputs of an unknown kind", ""),
+    };
+    bail!(
+        "{src}: an ultralytics {task:?} model (its metadata says task = {task}), not a detection model: \
+         its output holds {what} beside the class scores, which cac would misread. cac attacks \
+         detectors: export the detection variant of the model (task = detect, e.g. yolo11n.pt \
+         rather than yolo11n{suffix}.pt)"
+    )
+}
+
+/// Class names: the config's list, ultralytics' `names` metadata, COCO-80, or numbered.
+fn class_names(config: &OnnxConfig, meta: Option<&str>, n: usize) -> Result<Vec<&'static str>> {
+    let leak = |v: Vec<String>| -> Vec<&'static str> {
+        v.into_iter()
+            .map(|s| &*Box::leak(s.into_boxed_str()))
+            .collect()
+    };
+    if let Some(c) = &config.classes {
+        ensure!(
+            c.len() == n,
+            "the config names {} classes, the output has {n}",
+            c.len()
+        );
+        return Ok(leak(c.clone()));
+    }
+    // A `names` list of another length than the class scores: the output is not what it seems.
+    if let Some(names) = meta.and_then(parse_names) {
+        ensure!(
+            names.len() == n,
+            "the file's `names` metadata lists {} classes but the output has {n} class scores: \
+             the head is not the plain detection head cac reads (name the output and its classes \
+             in a config, `output = \"...\"` and `classes = [...]`, if it is)",
+            names.len()
+        );
+    }
+    // A model built without a dataset carries its indices as names ("0", "1", ...): no names.
+    let numbered = |v: &Vec<String>| v.iter().enumerate().all(|(k, s)| *s == k.to_string());
+    if let Some(names) = meta
+        .and_then(parse_names)
+        .filter(|v| v.len() == n && !numbered(v))
+    {
+        if n == 80 && names.iter().zip(COCO80).all(|(a, b)| a == b) {
+            return Ok(COCO80.to_vec());
+        }
+        return Ok(leak(names));
+    }
+    if n == 80 {
+        return Ok(COCO80.to_vec());
+    }
+    Ok(leak((0..n).map(|k| format!("class{k}")).collect()))
+}
+
+/// ultralytics' `names` metadata: a Python dict literal `{0: 'person', 1: 'bicycle', ...}`.
+fn parse_names(s: &str) -> Option<Vec<String>> {
+    let body = s.trim().strip_prefix('{')?.strip_suffix('}')?;
+    let mut out = Vec::new();
+    let mut rest = body;
+    while let Some(colon) = rest.find(':') {
+        let key: usize = rest[..colon]
+            .trim()
+            .trim_start_matches(',')
+            .trim()
+            .parse()
+            .ok()?;
+        let after = rest[colon + 1..].trim_start();
+        let q = after.chars().next()?;
+        if q != '\'' && q != '"' {
+            return None;
+        }
+        let end = after[1..].find(q)? + 1;
+        if key != out.len() {
+            return None;
+        }
+        out.push(after[1..end].to_string());
+        rest = &after[end + 1..];
+    }
+    Some(out)
+}
+
+/// The Sigmoid nodes whose outputs reach value `output` through layout ops only.
+fn sigmoid_taps(g: &OnnxGraph, output: &str) -> Vec<usize> {
+    const LAYOUT: &[&str] = &[
+        "Concat",
+        "Reshape",
+        "Transpose",
+        "Slice",
+        "Split",
+        "Identity",
+        "Flatten",
+        "Squeeze",
+        "Unsqueeze",
+        // Float casts (an fp16 export's closing Cast to f32): cac computes them in f32 anyway.
+        "Cast",
+        "CastLike",
+    ];
+    let mut taps = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    let mut stack: Vec<usize> = g.producer_of(output).into_iter().collect();
+    while let Some(k) = stack.pop() {
+        if !seen.insert(k) {
+            continue;
+        }
+        let op = g.node(k).op.as_str();
+        if op == "Sigmoid" {
+            taps.push(k);
+        } else if LAYOUT.contains(&op) {
+            // Only the data input (0) of ops whose other inputs are shapes or indices.
+            let producers = g.input_producers(k);
+            let data: Vec<Option<usize>> = if op == "Concat" {
+                producers
+            } else {
+                producers.into_iter().take(1).collect()
+            };
+            stack.extend(data.into_iter().flatten());
+        }
+    }
+    taps.sort_unstable();
+    taps
+}
+
+impl Detector for OnnxDetector {
+    fn name(&self) -> &str {
+        &self.name
+    }
+    fn classes(&self) -> &[&'static str] {
+        &self.classes
+    }
+    /// The class logits are the tapped sigmoids' inputs (rank <= 4, one axis of the class
+    /// count). The default layer: after the neck's last upsampling (where there is one), the
+    /// last concatenation on the finest grid (in YOLO necks it feeds every level's head), else
+    /// the last feature map of at least 8 × 8.
+    fn cam_io(&self, images: Tensor<4>) -> Result<Option<crate::CamIo<'_>>> {
+        use crate::CamGraph;
+        let (x, _) = self.network_input(images)?;
+        let n = self.classes.len();
+        let mut logits = Vec::new();
+        for &k in &self.taps {
+            let Some(name) = self.graph.node(k).inputs.first() else {
+                continue;
+            };
+            let s = self
+                .graph
+                .run_cam(&[(&self.input, x.clone())], None, &[name])?
+                .remove(0)
+                .1;
+            // A YOLOv5-repository head sigmoids box, objectness and classes at once
+            // ([.., 5 + C] last): its classes start at 5.
+            if self.head == Head::V5 && s.last() == Some(&(n + 5)) {
+                logits.push((name.clone(), s.len() - 1, 5));
+            } else if let Some(axis) = s.iter().rposition(|&d| d == n) {
+                logits.push((name.clone(), axis, 0));
+            }
+        }
+        if logits.is_empty() {
+            bail!(
+                "{}: Grad-CAM needs the class logits, and {}",
+                self.graph.source(),
+                if self.taps.is_empty() {
+                    format!(
+                        "this model's scores are {:?} with no Sigmoid node cac taps (a softmax head, \
+                         such as SSDlite's, has none)",
+                        self.config.scores
+                    )
+                } else {
+                    format!(
+                        "none of its {} tapped Sigmoid inputs has an axis of its {n} classes",
+                        self.taps.len()
+                    )
+                }
+            );
+        }
+        let outs: Vec<&str> = logits.iter().map(|(n, ..)| n.as_str()).collect();
+        let layers = self.graph.feature_layers(&outs)?;
+        let names: Vec<&str> = layers.iter().map(|(n, _)| n.as_str()).collect();
+        let shapes = self
+            .graph
+            .run_cam(&[(&self.input, x.clone())], None, &names)?;
+        let last_upsample = (0..self.graph.model.nodes.len())
+            .filter(|&k| matches!(self.graph.node(k).op.as_str(), "Resize" | "Upsample"))
+            .max();
+        let maps: Vec<(&str, &str, usize)> = layers
+            .iter()
+            .zip(&shapes)
+            .filter(|(_, (_, s))| s.len() == 4 && s[2] >= 8 && s[3] >= 8)
+            .filter(|((n, _), _)| self.graph.producer_of(n) > last_upsample)
+            .map(|((n, op), (_, s))| (n.as_str(), op.as_str(), s[2] * s[3]))
+            .collect();
+        let finest = maps.iter().map(|m| m.2).max().unwrap_or(0);
+        let default_layer = maps
+            .iter()
+            .rfind(|m| m.1 == "Concat" && m.2 == finest)
+            .or(maps.last())
+            .map(|m| m.0.to_string())
+            .ok_or_else(|| anyhow!("{}: no feature map for attention maps", self.name))?;
+        Ok(Some(crate::CamIo {
+            graph: &self.graph,
+            feeds: vec![(self.input.clone(), x)],
+            logits,
+            default_layer,
+        }))
+    }
+    fn input_size(&self) -> (usize, usize) {
+        self.size
+    }
+    fn candidates(&self, images: Tensor<4>) -> Result<Candidates> {
+        self.candidates_with(images)
+    }
+    /// Class-aware NMS over the candidates, then the kept boxes clipped to the image (as
+    /// ultralytics clips them after its NMS).
+    fn detect(&self, images: Tensor<4>) -> Result<Vec<Vec<Detection>>> {
+        let [_, _, ih, iw] = check_images(&images)?;
+        let c = self.candidates_with(images.detach())?;
+        let [b, n, k] = c.scores.dims();
+        let boxes = to_vec(&c.boxes)?;
+        let scores = to_vec(&c.scores)?;
+        let cfg = &self.config;
+        let mut out = Vec::with_capacity(b);
+        for i in 0..b {
+            let mut cand: Vec<(usize, f32, [f32; 4])> = Vec::new();
+            for j in 0..n {
+                let row = &scores[(i * n + j) * k..(i * n + j + 1) * k];
+                let bx: [f32; 4] = std::array::from_fn(|q| boxes[(i * n + j) * 4 + q]);
+                for (c, &s) in row.iter().enumerate() {
+                    if s.is_finite() && s as f64 > cfg.score_threshold {
+                        cand.push((c, s, bx));
+                    }
+                }
+            }
+            // Class-aware NMS: boxes of different classes are moved apart (as ultralytics does).
+            let off = 1e5_f32;
+            let shifted: Vec<[f32; 4]> = cand
+                .iter()
+                .map(|(c, _, b)| {
+                    let o = *c as f32 * off;
+                    [b[1] + o, b[0] + o, b[3] + o, b[2] + o]
+                })
+                .collect();
+            let sc: Vec<f32> = cand.iter().map(|c| c.1).collect();
+            let keep = non_max_suppression(
+                &shifted,
+                &sc,
+                cfg.max_detections,
+                cfg.iou_threshold,
+                cfg.score_threshold,
+            );
+            out.push(
+                keep.into_iter()
+                    .map(|q| {
+                        let (c, score, [x1, y1, x2, y2]) = cand[q];
+                        let (w, h) = (iw as f32, ih as f32);
+                        Detection {
+                            class_id: c,
+                            label: self.classes[c],
+                            score,
+                            bbox: [
+                                x1.clamp(0.0, w),
+                                y1.clamp(0.0, h),
+                                x2.clamp(0.0, w),
+                                y2.clamp(0.0, h),
+                            ],
+                        }
+                    })
+                    .collect(),
+            );
+        }
+        Ok(out)
+    }
+    fn raw(&self, image: Tensor<4>) -> Result<RawDump> {
+        let [b, _, h, w] = check_images(&image)?;
+        ensure!(b == 1, "a raw dump is of one image, got a batch of {b}");
+        let (x, _) = self.network_input(image.detach())?;
+        let names: Vec<String> = self
+            .graph
+            .graph_outputs()
+            .iter()
+            .map(|o| o.name.clone())
+            .collect();
+        let refs: Vec<&str> = names.iter().map(|s| s.as_str()).collect();
+        let vals = self.graph.run_images(&self.input, x.clone(), &refs)?;
+        let mut outputs = BTreeMap::new();
+        for (name, v) in names.iter().zip(vals) {
+            let h = v.host()?;
+            outputs.insert(
+                name.clone(),
+                RawTensor::new(Some(name), h.shape().to_vec(), h.floats()),
+            );
+        }
+        let dims = x.dims().to_vec();
+        Ok(RawDump {
+            model: self.name.clone(),
+            backend: "burn".into(),
+            norm: format!("{} {}", self.config.resize, self.config.channels),
+            image: RawImage {
+                path: None,
+                width: w,
+                height: h,
+            },
+            input: RawTensor::new(Some(&self.input), dims, to_vec(&x)?),
+            outputs,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ultralytics_names_metadata_parses_in_order() {
+        let v = parse_names("{0: 'person', 1: \"traffic light\", 2: 'a:b'}").unwrap();
+        assert_eq!(v, ["person", "traffic light", "a:b"]);
+        assert_eq!(parse_names("{1: 'x'}"), None); // keys must count from 0
+        assert_eq!(parse_names("not a dict"), None);
+    }
+}

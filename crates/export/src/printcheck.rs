@@ -1,0 +1,393 @@
+//! Print-readiness: welds positions, then checks that the mesh is closed, manifold, consistently
+//! oriented and free of degenerate triangles, and measures its volume.
+//!
+//! Repairs (reported): triangles that collapse when welding are removed; inconsistently oriented
+//! triangles of an orientable shell are flipped to agree with their neighbours; closed shells with
+//! negative volume are turned outward. Refused (reported, the caller decides): open edges,
+//! non-manifold edges (more than two triangles), zero-area triangles with distinct corners,
+//! non-orientable shells.
+
+use super::{Paint, PrintTri};
+use anyhow::{bail, Result};
+use glam::Vec3;
+use serde::Serialize;
+use std::collections::{HashMap, VecDeque};
+
+/// What the check found and what it repaired.
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct PrintReport {
+    pub input_vertices: usize,
+    pub welded_vertices: usize,
+    pub weld_epsilon_mm: f32,
+    pub triangles: usize,
+    /// Triangles removed because two corners welded together (repair).
+    pub collapsed_removed: usize,
+    /// Zero-area triangles with three distinct corners (refused).
+    pub degenerate: usize,
+    /// Edges used by one triangle only.
+    pub open_edges: usize,
+    /// Edges used by more than two triangles.
+    pub nonmanifold_edges: usize,
+    /// Connected shells (through manifold edges).
+    pub shells: usize,
+    /// Triangles flipped to agree with their shell (repair).
+    pub reoriented_triangles: usize,
+    /// Closed shells turned outward (repair).
+    pub flipped_shells: usize,
+    pub non_orientable_shells: usize,
+    /// Enclosed volume (sum over shells of the signed volume), mm³.
+    pub volume_mm3: f64,
+    pub area_mm2: f64,
+    /// Bounding box size (x, y, z) in mm.
+    pub size_mm: [f32; 3],
+    /// Up to 5 open or non-manifold edges, as their end points in mm (for the error message).
+    pub example_edges: Vec<[[f32; 3]; 2]>,
+}
+
+impl PrintReport {
+    /// Closed, manifold, oriented, no degenerate triangles.
+    pub fn is_closed(&self) -> bool {
+        self.open_edges == 0
+            && self.nonmanifold_edges == 0
+            && self.degenerate == 0
+            && self.non_orientable_shells == 0
+    }
+
+    /// The refusal reasons, in words.
+    pub fn problems(&self) -> String {
+        let mut p = vec![];
+        if self.open_edges > 0 {
+            p.push(format!("{} open edges (holes)", self.open_edges));
+        }
+        if self.nonmanifold_edges > 0 {
+            p.push(format!(
+                "{} non-manifold edges (shared by more than two triangles)",
+                self.nonmanifold_edges
+            ));
+        }
+        if self.degenerate > 0 {
+            p.push(format!("{} zero-area triangles", self.degenerate));
+        }
+        if self.non_orientable_shells > 0 {
+            p.push(format!(
+                "{} non-orientable shells",
+                self.non_orientable_shells
+            ));
+        }
+        let mut s = p.join(", ");
+        if !self.example_edges.is_empty() {
+            let ex: Vec<String> = self
+                .example_edges
+                .iter()
+                .map(|[a, b]| {
+                    format!(
+                        "({:.2}, {:.2}, {:.2})-({:.2}, {:.2}, {:.2}) mm",
+                        a[0], a[1], a[2], b[0], b[1], b[2]
+                    )
+                })
+                .collect();
+            s += &format!("; e.g. edges {}", ex.join(", "));
+        }
+        s
+    }
+
+    /// What was repaired, in words.
+    pub fn repairs(&self) -> Vec<String> {
+        let mut r = vec![];
+        if self.input_vertices != self.welded_vertices {
+            r.push(format!(
+                "welded {} vertices into {} (tolerance {:.1e} mm)",
+                self.input_vertices, self.welded_vertices, self.weld_epsilon_mm
+            ));
+        }
+        if self.collapsed_removed > 0 {
+            r.push(format!(
+                "repaired: removed {} triangles that collapsed when welding",
+                self.collapsed_removed
+            ));
+        }
+        if self.reoriented_triangles > 0 {
+            r.push(format!(
+                "repaired: flipped {} triangles to agree with their neighbours",
+                self.reoriented_triangles
+            ));
+        }
+        if self.flipped_shells > 0 {
+            r.push(format!(
+                "repaired: turned {} inside-out shells outward",
+                self.flipped_shells
+            ));
+        }
+        r
+    }
+}
+
+/// Edge statistics of an indexed triangle list: `(open, non-manifold, misoriented)` edges.
+pub fn edge_stats(tris: impl Iterator<Item = [u32; 3]>) -> (usize, usize, usize) {
+    let mut edges: HashMap<(u32, u32), (u32, i32)> = HashMap::new();
+    for t in tris {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            let e = edges.entry((a.min(b), a.max(b))).or_default();
+            e.0 += 1;
+            e.1 += if a < b { 1 } else { -1 };
+        }
+    }
+    let open = edges.values().filter(|e| e.0 == 1).count();
+    let nm = edges.values().filter(|e| e.0 > 2).count();
+    let mis = edges.values().filter(|e| e.0 == 2 && e.1 != 0).count();
+    (open, nm, mis)
+}
+
+/// Merges positions closer than `eps` (grid hashing, 27 neighbour cells). Returns the new
+/// positions and the old-to-new index map.
+pub fn weld(positions: &[Vec3], eps: f32) -> (Vec<Vec3>, Vec<u32>) {
+    let cell = |p: Vec3| (p / eps).floor().as_ivec3();
+    let mut grid: HashMap<glam::IVec3, Vec<u32>> = HashMap::new();
+    let mut out: Vec<Vec3> = vec![];
+    let mut map = Vec::with_capacity(positions.len());
+    for &p in positions {
+        let c = cell(p);
+        let mut found = None;
+        'search: for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    if let Some(list) = grid.get(&(c + glam::IVec3::new(dx, dy, dz))) {
+                        if let Some(&i) = list.iter().find(|&&i| out[i as usize].distance(p) <= eps)
+                        {
+                            found = Some(i);
+                            break 'search;
+                        }
+                    }
+                }
+            }
+        }
+        let i = found.unwrap_or_else(|| {
+            out.push(p);
+            let i = out.len() as u32 - 1;
+            grid.entry(c).or_default().push(i);
+            i
+        });
+        map.push(i);
+    }
+    (out, map)
+}
+
+fn flip(t: &mut PrintTri) {
+    t.v.swap(1, 2);
+    if let Paint::Texture { uv, .. } = &mut t.paint {
+        uv.swap(1, 2);
+    }
+}
+
+/// Welds, repairs what can safely be repaired, and reports the rest (see the module doc).
+pub fn weld_and_check(raw: &[Vec3], tris: &mut Vec<PrintTri>) -> Result<(Vec<Vec3>, PrintReport)> {
+    if tris.is_empty() {
+        bail!("the mesh has no triangles");
+    }
+    let (lo, hi) = raw.iter().fold(
+        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+        |(l, h), &p| (l.min(p), h.max(p)),
+    );
+    let diag = (hi - lo).length();
+    if diag.is_nan() || diag <= 0.0 {
+        bail!("the mesh has no extent (all vertices coincide)");
+    }
+    let eps = (diag * 1e-6).max(1e-6);
+    let (welded, map) = weld(raw, eps);
+    let mut rep = PrintReport {
+        input_vertices: raw.len(),
+        weld_epsilon_mm: eps,
+        ..Default::default()
+    };
+    for t in tris.iter_mut() {
+        t.v = t.v.map(|i| map[i as usize]);
+    }
+    let before = tris.len();
+    tris.retain(|t| t.v[0] != t.v[1] && t.v[1] != t.v[2] && t.v[2] != t.v[0]);
+    rep.collapsed_removed = before - tris.len();
+    if tris.is_empty() {
+        bail!("every triangle collapsed when welding vertices");
+    }
+    // Keep only used positions.
+    let mut remap = vec![u32::MAX; welded.len()];
+    let mut positions = vec![];
+    for t in tris.iter_mut() {
+        for v in &mut t.v {
+            if remap[*v as usize] == u32::MAX {
+                remap[*v as usize] = positions.len() as u32;
+                positions.push(welded[*v as usize]);
+            }
+            *v = remap[*v as usize];
+        }
+    }
+    rep.welded_vertices = positions.len();
+    rep.triangles = tris.len();
+    let pos = |i: u32| positions[i as usize];
+    for t in tris.iter() {
+        let [a, b, c] = t.v.map(pos);
+        let cr = (b - a).cross(c - a).length();
+        let e = (b - a)
+            .length_squared()
+            .max((c - b).length_squared())
+            .max((a - c).length_squared());
+        rep.area_mm2 += 0.5 * cr as f64;
+        if cr <= 1e-7 * e {
+            rep.degenerate += 1;
+        }
+    }
+    // Edge → triangles.
+    let mut edges: HashMap<(u32, u32), Vec<u32>> = HashMap::new();
+    for (ti, t) in tris.iter().enumerate() {
+        for k in 0..3 {
+            let (a, b) = (t.v[k], t.v[(k + 1) % 3]);
+            edges
+                .entry((a.min(b), a.max(b)))
+                .or_default()
+                .push(ti as u32);
+        }
+    }
+    for (&(a, b), ts) in &edges {
+        if ts.len() != 2 {
+            if ts.len() == 1 {
+                rep.open_edges += 1;
+            } else {
+                rep.nonmanifold_edges += 1;
+            }
+            if rep.example_edges.len() < 5 {
+                rep.example_edges
+                    .push([pos(a).to_array(), pos(b).to_array()]);
+            }
+        }
+    }
+    rep.example_edges
+        .sort_by(|p, q| p.partial_cmp(q).unwrap_or(std::cmp::Ordering::Equal));
+    // Orientation: breadth-first over manifold edges, flipping neighbours to agree.
+    let dir = |t: &PrintTri, a: u32, b: u32| (0..3).any(|k| t.v[k] == a && t.v[(k + 1) % 3] == b);
+    let mut shell = vec![u32::MAX; tris.len()];
+    let mut shell_closed = vec![];
+    for seed in 0..tris.len() {
+        if shell[seed] != u32::MAX {
+            continue;
+        }
+        let sid = shell_closed.len() as u32;
+        let (mut closed, mut orientable) = (true, true);
+        shell[seed] = sid;
+        let mut queue = VecDeque::from([seed as u32]);
+        while let Some(ti) = queue.pop_front() {
+            let t = tris[ti as usize];
+            for k in 0..3 {
+                let (a, b) = (t.v[k], t.v[(k + 1) % 3]);
+                let ts = &edges[&(a.min(b), a.max(b))];
+                if ts.len() != 2 {
+                    closed = false;
+                    continue;
+                }
+                let nb = if ts[0] == ti { ts[1] } else { ts[0] };
+                let agrees = dir(&tris[nb as usize], b, a);
+                if shell[nb as usize] == u32::MAX {
+                    shell[nb as usize] = sid;
+                    if !agrees {
+                        flip(&mut tris[nb as usize]);
+                        rep.reoriented_triangles += 1;
+                    }
+                    queue.push_back(nb);
+                } else if !agrees {
+                    orientable = false;
+                }
+            }
+        }
+        if !orientable {
+            rep.non_orientable_shells += 1;
+        }
+        shell_closed.push(closed && orientable);
+    }
+    rep.shells = shell_closed.len();
+    let mut vol = vec![0.0f64; rep.shells];
+    for (ti, t) in tris.iter().enumerate() {
+        let [a, b, c] = t.v.map(|i| pos(i).as_dvec3());
+        vol[shell[ti] as usize] += a.dot(b.cross(c)) / 6.0;
+    }
+    for (s, v) in vol.iter_mut().enumerate() {
+        if shell_closed[s] && *v < 0.0 {
+            rep.flipped_shells += 1;
+            for (ti, t) in tris.iter_mut().enumerate() {
+                if shell[ti] as usize == s {
+                    flip(t);
+                }
+            }
+            *v = -*v;
+        }
+    }
+    rep.volume_mm3 = vol.iter().sum();
+    let (lo, hi) = positions.iter().fold(
+        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+        |(l, h), &p| (l.min(p), h.max(p)),
+    );
+    rep.size_mm = (hi - lo).to_array();
+    Ok((positions, rep))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tri(v: [u32; 3]) -> PrintTri {
+        PrintTri {
+            v,
+            paint: Paint::Solid([1.0; 3]),
+            part: 0,
+        }
+    }
+
+    /// A unit cube (10 mm) with split vertices per face, one face flipped.
+    fn cube(flip_one: bool, drop_one: bool) -> (Vec<Vec3>, Vec<PrintTri>) {
+        use crate::fixtures::{corner, CUBE_QUADS as quads};
+        let c = |i: u32| corner(i) * 10.0;
+        let (mut p, mut t) = (vec![], vec![]);
+        for q in quads {
+            let b = p.len() as u32;
+            p.extend(q.iter().map(|&i| c(i)));
+            t.push(tri([b, b + 1, b + 2]));
+            t.push(tri([b, b + 2, b + 3]));
+        }
+        if flip_one {
+            t[3].v.swap(1, 2);
+        }
+        if drop_one {
+            t.pop();
+        }
+        (p, t)
+    }
+
+    #[test]
+    fn split_cube_welds_closed_with_volume() {
+        let (p, mut t) = cube(true, false);
+        let (pos, r) = weld_and_check(&p, &mut t).unwrap();
+        assert_eq!(pos.len(), 8);
+        assert!(r.is_closed(), "{r:?}");
+        assert_eq!(r.reoriented_triangles, 1);
+        assert!((r.volume_mm3 - 1000.0).abs() < 1e-3, "{}", r.volume_mm3);
+        assert_eq!(edge_stats(t.iter().map(|t| t.v)), (0, 0, 0));
+    }
+
+    #[test]
+    fn inside_out_cube_is_turned_outward() {
+        let (p, mut t) = cube(false, false);
+        for x in &mut t {
+            x.v.swap(1, 2);
+        }
+        let (_, r) = weld_and_check(&p, &mut t).unwrap();
+        assert_eq!(r.flipped_shells, 1);
+        assert!(r.volume_mm3 > 999.0);
+    }
+
+    #[test]
+    fn open_cube_is_reported() {
+        let (p, mut t) = cube(false, true);
+        let (_, r) = weld_and_check(&p, &mut t).unwrap();
+        assert_eq!(r.open_edges, 3);
+        assert!(!r.is_closed());
+        assert!(r.problems().contains("3 open edges"), "{}", r.problems());
+    }
+}

@@ -1,0 +1,516 @@
+//! Paste-on sheets: the camouflage laid out at true physical size for the object scale, part by
+//! part (UV islands of the painted surface), on A4 or Letter pages at a stated DPI.
+//!
+//! Each part is scaled by its own measured texel size (`sqrt(3D area / UV area)`, mm per texel),
+//! drawn with a bleed margin around a dark cut line, labelled `P<k>` (tiles `P<k> R<r>C<c>` when a
+//! part is larger than the printable area), and every page has a 100 mm scale bar with cm ticks.
+//! Outputs: `page_NN.png`, `sheets.pdf` (the same page images, one per PDF page at exact paper
+//! size) and `sheets.json` (physical sizes and placements).
+
+use super::texture::sample;
+use super::{PrintMesh, Scale};
+use anyhow::{bail, ensure, Context, Result};
+use cac_core::report::font::{draw_text, fill_rect, text_width};
+use glam::Vec2;
+use image::RgbImage;
+use serde::Serialize;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+/// Paper size.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub enum Paper {
+    A4,
+    Letter,
+}
+
+impl Paper {
+    /// Portrait (width, height) in mm.
+    pub fn size_mm(&self) -> (f32, f32) {
+        match self {
+            Paper::A4 => (210.0, 297.0),
+            Paper::Letter => (215.9, 279.4),
+        }
+    }
+}
+
+impl FromStr for Paper {
+    type Err = anyhow::Error;
+    fn from_str(s: &str) -> Result<Paper> {
+        match s.to_lowercase().as_str() {
+            "a4" => Ok(Paper::A4),
+            "letter" => Ok(Paper::Letter),
+            o => bail!("unknown paper '{o}' (expected a4 or letter)"),
+        }
+    }
+}
+
+/// Page settings.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SheetOptions {
+    pub paper: Paper,
+    pub dpi: u32,
+    pub margin_mm: f32,
+    /// Texture printed beyond each part's cut line.
+    pub bleed_mm: f32,
+}
+
+impl Default for SheetOptions {
+    fn default() -> Self {
+        SheetOptions {
+            paper: Paper::A4,
+            dpi: 300,
+            margin_mm: 10.0,
+            bleed_mm: 2.0,
+        }
+    }
+}
+
+/// One piece placed on a page (all lengths in mm from the page's top-left corner).
+#[derive(Clone, Debug, Serialize)]
+pub struct Placement {
+    pub label: String,
+    pub page: usize,
+    pub x_mm: f32,
+    pub y_mm: f32,
+    pub width_mm: f32,
+    pub height_mm: f32,
+    /// The texel rectangle drawn, `[x0, y0, x1, y1]` (texel units, y down from the top row).
+    pub texels: [f32; 4],
+}
+
+/// One part (UV island) of the painted surface.
+#[derive(Clone, Debug, Serialize)]
+pub struct PartSheet {
+    pub id: usize,
+    pub material: String,
+    pub triangles: usize,
+    pub area_mm2: f64,
+    pub mm_per_texel: f64,
+    /// Size of the part's bounding box on paper (without bleed).
+    pub width_mm: f32,
+    pub height_mm: f32,
+    pub pieces: Vec<Placement>,
+}
+
+/// The JSON sidecar.
+#[derive(Clone, Debug, Serialize)]
+pub struct SheetLayout {
+    pub object: String,
+    pub scale: String,
+    pub paper: Paper,
+    pub dpi: u32,
+    pub page_size_mm: [f32; 2],
+    pub pages: usize,
+    pub texture_size: [usize; 2],
+    pub parts: Vec<PartSheet>,
+}
+
+/// Groups painted triangles into UV islands (connected through edges whose two corners have the
+/// same UVs on both sides).
+fn islands(mesh: &PrintMesh) -> Vec<Vec<usize>> {
+    let painted: Vec<usize> = (0..mesh.tris.len())
+        .filter(|&i| mesh.camo_uv(&mesh.tris[i]).is_some())
+        .collect();
+    let mut parent: Vec<usize> = (0..mesh.tris.len()).collect();
+    fn find(p: &mut [usize], mut i: usize) -> usize {
+        while p[i] != i {
+            p[i] = p[p[i]];
+            i = p[i];
+        }
+        i
+    }
+    let mut edges: HashMap<(u32, u32, [u32; 4]), usize> = HashMap::new();
+    for &ti in &painted {
+        let t = &mesh.tris[ti];
+        let uv = mesh.camo_uv(t).unwrap();
+        for k in 0..3 {
+            let (a, b, ua, ub) = (t.v[k], t.v[(k + 1) % 3], uv[k], uv[(k + 1) % 3]);
+            let (a, b, ua, ub) = if a < b {
+                (a, b, ua, ub)
+            } else {
+                (b, a, ub, ua)
+            };
+            let key = (a, b, [ua.x, ua.y, ub.x, ub.y].map(f32::to_bits));
+            if let Some(&o) = edges.get(&key) {
+                let (x, y) = (find(&mut parent, ti), find(&mut parent, o));
+                parent[x] = y;
+            } else {
+                edges.insert(key, ti);
+            }
+        }
+    }
+    let mut groups: HashMap<usize, Vec<usize>> = HashMap::new();
+    for &ti in &painted {
+        let r = find(&mut parent, ti);
+        groups.entry(r).or_default().push(ti);
+    }
+    let mut out: Vec<Vec<usize>> = groups.into_values().collect();
+    out.sort_by_key(|g| g[0]);
+    out
+}
+
+/// Lays out and writes the sheets into `dir`; returns the files written.
+pub fn write_sheets(
+    mesh: &PrintMesh,
+    scale: Scale,
+    opts: &SheetOptions,
+    dir: &Path,
+) -> Result<Vec<PathBuf>> {
+    ensure!(
+        (72..=1200).contains(&opts.dpi),
+        "sheet resolution {} dpi is outside 72..1200",
+        opts.dpi
+    );
+    let tex = &mesh.textures[0];
+    let (tw, th) = (tex.width as f32, tex.height as f32);
+    let (pw, ph) = opts.paper.size_mm();
+    let header_mm = 24.0;
+    let label_mm = 5.0;
+    let gap_mm = 4.0;
+    let avail = (
+        pw - 2.0 * opts.margin_mm,
+        ph - 2.0 * opts.margin_mm - header_mm,
+    );
+    let max_piece = (
+        avail.0 - 2.0 * opts.bleed_mm,
+        avail.1 - label_mm - 2.0 * opts.bleed_mm,
+    );
+    ensure!(
+        max_piece.0 > 10.0 && max_piece.1 > 10.0,
+        "margins leave no room on the page"
+    );
+    // Parts, their texel size and pieces.
+    struct Piece {
+        part: usize,
+        label: String,
+        texels: [f32; 4],
+        w: f32,
+        h: f32,
+    }
+    let mut parts = vec![];
+    let mut pieces = vec![];
+    let groups = islands(mesh);
+    for (id, g) in groups.iter().enumerate() {
+        let (mut a3, mut auv) = (0.0f64, 0.0f64);
+        let (mut lo, mut hi) = (Vec2::splat(f32::MAX), Vec2::splat(f32::MIN));
+        for &ti in g {
+            let t = &mesh.tris[ti];
+            let [p, q, r] = t.v.map(|i| mesh.positions[i as usize]);
+            a3 += 0.5 * (q - p).cross(r - p).length() as f64;
+            let uv = mesh
+                .camo_uv(t)
+                .unwrap()
+                .map(|u| Vec2::new(u.x * tw, (1.0 - u.y) * th));
+            auv += 0.5 * ((uv[1] - uv[0]).perp_dot(uv[2] - uv[0])).abs() as f64;
+            for u in uv {
+                lo = lo.min(u);
+                hi = hi.max(u);
+            }
+        }
+        if auv <= 1e-9 {
+            continue; // a part with collapsed UVs shows no texture
+        }
+        let s = (a3 / auv).sqrt() as f32;
+        let (w, h) = ((hi.x - lo.x) * s, (hi.y - lo.y) * s);
+        let (nx, ny) = (
+            (w / max_piece.0).ceil().max(1.0),
+            (h / max_piece.1).ceil().max(1.0),
+        );
+        let (sx, sy) = ((hi.x - lo.x) / nx, (hi.y - lo.y) / ny);
+        for r in 0..ny as usize {
+            for c in 0..nx as usize {
+                let t = [
+                    lo.x + c as f32 * sx,
+                    lo.y + r as f32 * sy,
+                    lo.x + (c + 1) as f32 * sx,
+                    lo.y + (r + 1) as f32 * sy,
+                ];
+                let label = if nx * ny > 1.0 {
+                    format!("P{} R{}C{}", id + 1, r + 1, c + 1)
+                } else {
+                    format!("P{}", id + 1)
+                };
+                pieces.push(Piece {
+                    part: parts.len(),
+                    label,
+                    texels: t,
+                    w: sx * s,
+                    h: sy * s,
+                });
+            }
+        }
+        let mat = mesh.parts[mesh.tris[g[0]].part as usize].clone();
+        parts.push((
+            PartSheet {
+                id: id + 1,
+                material: mat,
+                triangles: g.len(),
+                area_mm2: a3,
+                mm_per_texel: s as f64,
+                width_mm: w,
+                height_mm: h,
+                pieces: vec![],
+            },
+            g.clone(),
+        ));
+    }
+    ensure!(
+        !pieces.is_empty(),
+        "no painted part has texture coordinates to lay out"
+    );
+    // Shelf packing, tallest first.
+    let mut order: Vec<usize> = (0..pieces.len()).collect();
+    order.sort_by(|&a, &b| pieces[b].h.total_cmp(&pieces[a].h));
+    let (mut page, mut x, mut y, mut shelf_h) = (0usize, 0.0f32, 0.0f32, 0.0f32);
+    let mut placed: Vec<(usize, Placement)> = vec![];
+    for i in order {
+        let p = &pieces[i];
+        // The label ("P12 R1C2 180X75 MM", 2.6 mm capitals) must fit above the piece.
+        let label_w = (p.label.len() + 12) as f32 * 6.0 * 2.6 / 7.0;
+        let bw = (p.w + 2.0 * opts.bleed_mm).max(label_w);
+        let bh = p.h + 2.0 * opts.bleed_mm + label_mm;
+        if x > 0.0 && x + bw > avail.0 {
+            x = 0.0;
+            y += shelf_h + gap_mm;
+            shelf_h = 0.0;
+        }
+        if y > 0.0 && y + bh > avail.1 {
+            page += 1;
+            x = 0.0;
+            y = 0.0;
+            shelf_h = 0.0;
+        }
+        placed.push((
+            i,
+            Placement {
+                label: p.label.clone(),
+                page,
+                x_mm: opts.margin_mm + x + opts.bleed_mm,
+                y_mm: opts.margin_mm + header_mm + y + label_mm + opts.bleed_mm,
+                width_mm: p.w,
+                height_mm: p.h,
+                texels: p.texels,
+            },
+        ));
+        x += bw + gap_mm;
+        shelf_h = shelf_h.max(bh);
+    }
+    let n_pages = page + 1;
+    // Render.
+    let px_per_mm = opts.dpi as f32 / 25.4;
+    let (wpx, hpx) = (
+        (pw * px_per_mm).round() as u32,
+        (ph * px_per_mm).round() as u32,
+    );
+    let mut images: Vec<RgbImage> = (0..n_pages)
+        .map(|_| RgbImage::from_pixel(wpx, hpx, image::Rgb([255, 255, 255])))
+        .collect();
+    let font_px = ((2.6 * px_per_mm) / 7.0).round().max(1.0) as u32; // 2.6 mm capitals
+    for (i, pl) in &placed {
+        let pc = &pieces[*i];
+        let (ps, tris) = &parts[pc.part];
+        render_piece(
+            &mut images[pl.page],
+            mesh,
+            tris,
+            ps.mm_per_texel as f32,
+            pl,
+            opts,
+            px_per_mm,
+        );
+        let label = format!("{} {:.0}X{:.0} MM", pl.label, pl.width_mm, pl.height_mm);
+        let lx = ((pl.x_mm - opts.bleed_mm) * px_per_mm) as i64;
+        let ly = ((pl.y_mm - opts.bleed_mm - label_mm + 1.0) * px_per_mm) as i64;
+        draw_text(&mut images[pl.page], lx, ly, &label, font_px, [0, 0, 0]);
+    }
+    let scale_txt = format!("1:{}", scale.denominator);
+    for (k, img) in images.iter_mut().enumerate() {
+        let x0 = (opts.margin_mm * px_per_mm) as i64;
+        let y0 = (opts.margin_mm * px_per_mm) as i64;
+        let line = (7 * font_px + font_px * 4) as i64;
+        draw_text(
+            img,
+            x0,
+            y0,
+            &format!(
+                "CAC PASTE-ON SHEET  {}  SCALE {}  PAGE {}/{}",
+                mesh.name,
+                scale_txt,
+                k + 1,
+                n_pages
+            ),
+            font_px,
+            [0, 0, 0],
+        );
+        draw_text(
+            img,
+            x0,
+            y0 + line,
+            &format!(
+                "PRINT AT 100% (ACTUAL SIZE, NO FIT TO PAGE)  {} DPI  {:?}",
+                opts.dpi, opts.paper
+            ),
+            font_px,
+            [0, 0, 0],
+        );
+        scale_bar(img, x0, y0 + 2 * line + font_px as i64, px_per_mm, font_px);
+    }
+    // Files.
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("cannot create sheet folder {}", dir.display()))?;
+    let mut files = vec![];
+    for (k, img) in images.iter().enumerate() {
+        let p = dir.join(format!("page_{:02}.png", k + 1));
+        cac_core::io::save_png_atomic(&p, img)?;
+        files.push(p);
+    }
+    let pdf = dir.join("sheets.pdf");
+    cac_core::io::write_atomic(
+        &pdf,
+        &super::pdf::pages_to_pdf(&images, (pw, ph), &mesh.name)?,
+    )?;
+    files.push(pdf);
+    let mut parts_out: Vec<PartSheet> = parts.into_iter().map(|(p, _)| p).collect();
+    for (i, pl) in placed {
+        parts_out[pieces[i].part].pieces.push(pl);
+    }
+    let layout = SheetLayout {
+        object: mesh.name.clone(),
+        scale: scale_txt,
+        paper: opts.paper,
+        dpi: opts.dpi,
+        page_size_mm: [pw, ph],
+        pages: n_pages,
+        texture_size: [tex.width, tex.height],
+        parts: parts_out,
+    };
+    let json = dir.join("sheets.json");
+    cac_core::io::write_atomic(&json, serde_json::to_string_pretty(&layout)?.as_bytes())?;
+    files.push(json);
+    Ok(files)
+}
+
+/// A 100 mm bar with 10 mm ticks and labels at 0, 50 and 100 mm.
+fn scale_bar(img: &mut RgbImage, x0: i64, y0: i64, px_per_mm: f32, font_px: u32) {
+    let t = (0.3 * px_per_mm).max(1.0) as i64;
+    let len = (100.0 * px_per_mm) as i64;
+    let tick = (2.5 * px_per_mm) as i64;
+    fill_rect(img, x0, y0 + tick, len + t, t, [0, 0, 0]);
+    for k in 0..=10 {
+        let x = x0 + (k as f32 * 10.0 * px_per_mm) as i64;
+        let h = if k % 5 == 0 { tick * 2 } else { tick };
+        fill_rect(img, x, y0 + tick - h / 2, t, h, [0, 0, 0]);
+    }
+    let ty = y0 + tick * 2;
+    for (mm, s) in [(0.0, "0"), (50.0, "50"), (100.0, "100 MM")] {
+        let x = x0 + (mm * px_per_mm) as i64 - text_width(&s[..1], font_px) as i64 / 2;
+        draw_text(img, x, ty, s, font_px, [0, 0, 0]);
+    }
+}
+
+/// Draws one piece: texture inside the part (plus bleed), and the cut line.
+fn render_piece(
+    img: &mut RgbImage,
+    mesh: &PrintMesh,
+    tris: &[usize],
+    mm_per_texel: f32,
+    pl: &Placement,
+    opts: &SheetOptions,
+    px_per_mm: f32,
+) {
+    let tex = &mesh.textures[0];
+    let (tw, th) = (tex.width as f32, tex.height as f32);
+    let bleed_px = (opts.bleed_mm * px_per_mm).ceil() as i64;
+    let x0 = (pl.x_mm * px_per_mm).round() as i64 - bleed_px;
+    let y0 = (pl.y_mm * px_per_mm).round() as i64 - bleed_px;
+    let w = (pl.width_mm * px_per_mm).ceil() as i64 + 2 * bleed_px + 1;
+    let h = (pl.height_mm * px_per_mm).ceil() as i64 + 2 * bleed_px + 1;
+    // Piece pixel (local) <-> texel.
+    let texel_per_px = 1.0 / (mm_per_texel * px_per_mm);
+    let to_px = |t: Vec2| {
+        Vec2::new(
+            (t.x - pl.texels[0]) / texel_per_px + bleed_px as f32,
+            (t.y - pl.texels[1]) / texel_per_px + bleed_px as f32,
+        )
+    };
+    let mut mask = vec![false; (w * h) as usize];
+    for &ti in tris {
+        let uv = mesh.camo_uv(&mesh.tris[ti]).unwrap();
+        let p = uv.map(|u| to_px(Vec2::new(u.x * tw, (1.0 - u.y) * th)));
+        let area = (p[1] - p[0]).perp_dot(p[2] - p[0]);
+        if area.abs() < 1e-9 {
+            continue;
+        }
+        let lo = p[0].min(p[1]).min(p[2]).floor().max(Vec2::ZERO);
+        let hi = p[0]
+            .max(p[1])
+            .max(p[2])
+            .ceil()
+            .min(Vec2::new((w - 1) as f32, (h - 1) as f32));
+        for yy in lo.y as i64..=hi.y as i64 {
+            for xx in lo.x as i64..=hi.x as i64 {
+                let q = Vec2::new(xx as f32 + 0.5, yy as f32 + 0.5);
+                let e = |a: Vec2, b: Vec2| (b - a).perp_dot(q - a) / area;
+                if e(p[0], p[1]) >= 0.0 && e(p[1], p[2]) >= 0.0 && e(p[2], p[0]) >= 0.0 {
+                    mask[(yy * w + xx) as usize] = true;
+                }
+            }
+        }
+    }
+    // Bleed: square dilation by bleed_px (two separable passes, sliding-window counts).
+    let dilate = |m: &[bool], horizontal: bool| -> Vec<bool> {
+        let mut out = vec![false; m.len()];
+        let (lines, len) = if horizontal { (h, w) } else { (w, h) };
+        let idx = |line: i64, k: i64| {
+            if horizontal {
+                (line * w + k) as usize
+            } else {
+                (k * w + line) as usize
+            }
+        };
+        let mut prefix = vec![0u32; len as usize + 1];
+        for line in 0..lines {
+            for k in 0..len {
+                prefix[k as usize + 1] = prefix[k as usize] + m[idx(line, k)] as u32;
+            }
+            for k in 0..len {
+                let (a, b) = ((k - bleed_px).max(0), (k + bleed_px + 1).min(len));
+                out[idx(line, k)] = prefix[b as usize] > prefix[a as usize];
+            }
+        }
+        out
+    };
+    let bled = dilate(&dilate(&mask, true), false);
+    let line = (px_per_mm * 0.25).max(1.0) as i64;
+    for yy in 0..h {
+        for xx in 0..w {
+            let (gx, gy) = (x0 + xx, y0 + yy);
+            if gx < 0 || gy < 0 || gx >= img.width() as i64 || gy >= img.height() as i64 {
+                continue;
+            }
+            let i = (yy * w + xx) as usize;
+            if !bled[i] {
+                continue;
+            }
+            let inside = mask[i];
+            let near_edge = (-line..=line).any(|d| {
+                let (ax, ay) = (xx + d, yy);
+                let (bx, by) = (xx, yy + d);
+                let m = |x: i64, y: i64| {
+                    x >= 0 && y >= 0 && x < w && y < h && mask[(y * w + x) as usize]
+                };
+                m(ax, ay) != inside || m(bx, by) != inside
+            });
+            let c = if inside && near_edge {
+                [40, 40, 40]
+            } else {
+                let tx = pl.texels[0] + (xx - bleed_px) as f32 * texel_per_px + 0.5 * texel_per_px;
+                let ty = pl.texels[1] + (yy - bleed_px) as f32 * texel_per_px + 0.5 * texel_per_px;
+                super::texture::to_rgb8(sample(tex, Vec2::new(tx / tw, 1.0 - ty / th)))
+            };
+            img.put_pixel(gx as u32, gy as u32, image::Rgb(c));
+        }
+    }
+}

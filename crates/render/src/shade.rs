@@ -1,0 +1,402 @@
+//! Shading and composition of one view from its G-buffer into a [`RenderPlan`]: the image as
+//! `base + Σ weight · atlas[texel]`, where `base` holds everything that does not depend on the
+//! camouflage (sky or background, ground, fixed parts, highlights) and the taps hold the
+//! paintable surface: bilinear texel weights times diffuse shading, averaged over samples.
+//!
+//! Lighting is ambient plus one directional sun with shadow rays (none are cast when the sun is
+//! off). Shading is applied to display-encoded values, as in the neural renderers used by
+//! published camouflage attacks; paint replaces the paintable parts' colour entirely.
+
+use super::accel::Accel;
+use super::gbuffer::{GBuffer, Surface};
+use cac_scene::{Scene, Texture};
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+use std::sync::Arc;
+
+/// Ambient plus a directional sun.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Lighting {
+    pub ambient: f32,
+    pub sun: f32,
+    /// Unit vector towards the sun.
+    pub sun_dir: Vec3,
+    /// `None`: the object's ambient light comes from every direction alike. `Some(albedo)`: it
+    /// comes from an open sky over a ground of that albedo (display value): a surface whose
+    /// normal has height `n_y` sees the sky with weight `(1 + n_y) / 2` and the lit ground, whose
+    /// light is `albedo × (ambient + sun × sun_y)`, with weight `(1 − n_y) / 2`, as a physical
+    /// renderer finds it (the body's occlusion of itself is not modelled).
+    pub sky_occlusion: Option<f32>,
+}
+
+impl Lighting {
+    /// A sun at the given azimuth/elevation (degrees).
+    pub fn sun_at(ambient: f32, sun: f32, azimuth_deg: f32, elevation_deg: f32) -> Self {
+        let (a, e) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
+        Lighting {
+            ambient,
+            sun,
+            sun_dir: Vec3::new(e.cos() * a.cos(), e.sin(), e.cos() * a.sin()),
+            sky_occlusion: None,
+        }
+    }
+}
+
+/// What is behind the object.
+#[derive(Clone, Debug)]
+pub enum Background {
+    /// A vertical gradient from horizon to zenith colour, with an optional distant skyline.
+    Sky {
+        horizon: [f32; 3],
+        zenith: [f32; 3],
+        skyline: Option<super::skyline::Skyline>,
+    },
+    /// A flat colour.
+    Color([f32; 3]),
+    /// An image stretched over the whole frame (screen space).
+    Image(Arc<Texture>),
+}
+
+/// A textured ground plane at `y = 0`.
+#[derive(Clone, Debug)]
+pub struct Ground {
+    pub texture: Arc<Texture>,
+    /// Metres covered by one repetition of the texture.
+    pub tile_m: f32,
+    /// Shift of the texture (metres), so each view sits at another place of the scene.
+    pub offset: Vec2,
+}
+
+/// Background and optional ground.
+#[derive(Clone, Debug)]
+pub struct Backdrop {
+    pub background: Background,
+    pub ground: Option<Ground>,
+}
+
+/// One view, ready to be composited with any camouflage atlas (see [`super::composite`]).
+#[derive(Clone, Debug)]
+pub struct RenderPlan {
+    pub width: usize,
+    pub height: usize,
+    /// Side of the square atlas the texel indices refer to.
+    pub atlas_res: usize,
+    /// Per pixel, row-major: the part of the colour that does not depend on the atlas.
+    pub base: Vec<[f32; 3]>,
+    pub tap_pixel: Vec<u32>,
+    pub tap_texel: Vec<u32>,
+    pub tap_weight: Vec<f32>,
+    /// Fraction of each pixel covered by the object.
+    pub coverage: Vec<f32>,
+    /// Ground-truth box of the visible object, pixels `[x1, y1, x2, y2]`.
+    pub object_box: Option<[f32; 4]>,
+}
+
+/// The four bilinear taps of `uv` in a `w x h` texture with repeat addressing (row 0 = `v = 1`).
+#[inline]
+pub fn bilinear_taps(uv: Vec2, w: usize, h: usize) -> [(u32, f32); 4] {
+    let x = uv.x * w as f32 - 0.5;
+    let y = (1.0 - uv.y) * h as f32 - 0.5;
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let wrap = |i: f32, n: usize| (i as i64).rem_euclid(n as i64) as u32;
+    let (xa, xb, ya, yb) = (
+        wrap(x0, w),
+        wrap(x0 + 1.0, w),
+        wrap(y0, h),
+        wrap(y0 + 1.0, h),
+    );
+    let w_ = w as u32;
+    [
+        (ya * w_ + xa, (1.0 - fx) * (1.0 - fy)),
+        (ya * w_ + xb, fx * (1.0 - fy)),
+        (yb * w_ + xa, (1.0 - fx) * fy),
+        (yb * w_ + xb, fx * fy),
+    ]
+}
+
+/// Bilinear sample with repeat addressing.
+pub fn sample(tex: &Texture, uv: Vec2) -> [f32; 3] {
+    let mut out = [0.0; 3];
+    for (i, w) in bilinear_taps(uv, tex.width, tex.height) {
+        let t = tex.texels[i as usize];
+        for c in 0..3 {
+            out[c] += w * t[c];
+        }
+    }
+    out
+}
+
+/// The mean texel of a texture (what reflections show of an image background).
+pub fn mean_colour(t: &Texture) -> [f32; 3] {
+    let n = t.texels.len().max(1) as f32;
+    t.texels.iter().fold([0.0f32; 3], |a, t| {
+        [a[0] + t[0] / n, a[1] + t[1] / n, a[2] + t[2] / n]
+    })
+}
+
+/// The colour the environment shows in direction `r` (sky above the horizon, lit ground below),
+/// for reflections.
+fn environment_colour(
+    backdrop: &Backdrop,
+    light: &Lighting,
+    image_mean: [f32; 3],
+    r: Vec3,
+) -> [f32; 3] {
+    if r.y < 0.0 && backdrop.ground.is_some() {
+        let k = (light.ambient + light.sun * light.sun_dir.y.max(0.0)) * 0.35;
+        return [k; 3];
+    }
+    match &backdrop.background {
+        Background::Sky {
+            horizon, zenith, ..
+        } => {
+            let t = r.y.max(0.0).sqrt();
+            [0, 1, 2].map(|i| horizon[i] * (1.0 - t) + zenith[i] * t)
+        }
+        Background::Color(c) => *c,
+        Background::Image(_) => image_mean,
+    }
+}
+
+/// The backdrop's colour seen along the view ray `dir` through pixel `(x, y)` of a `w x h`
+/// image: the sky gradient by ray height, a flat colour, or the image stretched over the frame.
+pub fn background_colour(
+    bg: &Background,
+    dir: Vec3,
+    x: usize,
+    y: usize,
+    w: usize,
+    h: usize,
+) -> [f32; 3] {
+    match bg {
+        Background::Sky {
+            horizon,
+            zenith,
+            skyline,
+        } => {
+            if let Some(c) = skyline.and_then(|s| s.colour(dir, *horizon)) {
+                return c;
+            }
+            let t = dir.y.max(0.0).sqrt();
+            [0, 1, 2].map(|i| horizon[i] * (1.0 - t) + zenith[i] * t)
+        }
+        Background::Color(c) => *c,
+        Background::Image(img) => {
+            let (x, y) = (x as f32 + 0.5, y as f32 + 0.5);
+            let uv = Vec2::new(x / w as f32, 1.0 - y / h as f32);
+            sample(img, uv.clamp(Vec2::splat(0.001), Vec2::splat(0.999)))
+        }
+    }
+}
+
+/// Shades a G-buffer into a render plan for an atlas of `atlas_res x atlas_res`: of the whole
+/// view, or of the band of rows the G-buffer holds (join bands with [`RenderPlan::stack`]).
+pub fn plan(
+    scene: &Scene,
+    accel: &Accel,
+    g: &GBuffer,
+    light: &Lighting,
+    backdrop: &Backdrop,
+    atlas_res: usize,
+) -> RenderPlan {
+    let s = g.samples;
+    let inv_s = 1.0 / s as f32;
+    let shadows = light.sun > 0.0;
+    let eps = 1e-3 * (g.camera.eye.length() + 1.0);
+    let image_mean = match &backdrop.background {
+        Background::Image(img) => mean_colour(img),
+        _ => [0.0; 3],
+    };
+    struct Px {
+        base: [f32; 3],
+        taps: Vec<(u32, f32)>,
+    }
+    let pixels: Vec<Px> = g
+        .data
+        .par_chunks_exact(s)
+        .enumerate()
+        .map(|(pi, samples)| {
+            let mut base = [0.0f32; 3];
+            let mut taps = Vec::new();
+            let add = |base: &mut [f32; 3], c: [f32; 3], k: f32| {
+                for i in 0..3 {
+                    base[i] += c[i] * k;
+                }
+            };
+            for sm in samples {
+                match sm.surface {
+                    Surface::Sky => {
+                        let c = background_colour(
+                            &backdrop.background,
+                            sm.dir,
+                            pi % g.width,
+                            g.rows.start + pi / g.width,
+                            g.width,
+                            g.height,
+                        );
+                        add(&mut base, c, inv_s);
+                    }
+                    Surface::Ground => {
+                        let gr = backdrop
+                            .ground
+                            .as_ref()
+                            .expect("ground hit without a ground");
+                        let p = sm.position;
+                        let vis = if shadows
+                            && accel.occluded(p + Vec3::Y * eps, light.sun_dir, 0.0, f32::INFINITY)
+                        {
+                            0.0
+                        } else {
+                            1.0
+                        };
+                        let k = light.ambient + light.sun * light.sun_dir.y.max(0.0) * vis;
+                        let uv = (Vec2::new(p.x, p.z) + gr.offset) / gr.tile_m;
+                        let c = sample(&gr.texture, uv);
+                        // Aerial perspective: far ground fades to the horizon colour.
+                        let fog = 1.0 - (-sm.depth / 150.0).exp();
+                        let hz = match &backdrop.background {
+                            Background::Sky { horizon, .. } => *horizon,
+                            Background::Color(c) => *c,
+                            Background::Image(_) => c,
+                        };
+                        let col = [0, 1, 2].map(|i| (c[i] * k) * (1.0 - fog) + hz[i] * fog);
+                        add(&mut base, col, inv_s);
+                    }
+                    Surface::Object => {
+                        let tri = &scene.triangles[sm.tri as usize];
+                        let mat = &scene.materials[tri.material as usize];
+                        let n = sm.normal;
+                        let ndl = n.dot(light.sun_dir);
+                        let vis = if shadows
+                            && ndl > 0.0
+                            && accel.occluded(
+                                sm.position + n * eps,
+                                light.sun_dir,
+                                0.0,
+                                f32::INFINITY,
+                            ) {
+                            0.0
+                        } else {
+                            1.0
+                        };
+                        let ambient = match light.sky_occlusion {
+                            None => light.ambient,
+                            Some(albedo) => {
+                                let sky = 0.5 + 0.5 * n.y.clamp(-1.0, 1.0);
+                                let ground =
+                                    albedo * (light.ambient + light.sun * light.sun_dir.y.max(0.0));
+                                light.ambient * sky + ground * (1.0 - sky)
+                            }
+                        };
+                        let diffuse = ambient + light.sun * ndl.max(0.0) * vis;
+                        let h = (light.sun_dir - sm.dir).normalize_or_zero();
+                        let spec = if ndl > 0.0 {
+                            mat.specular * light.sun * vis * n.dot(h).max(0.0).powf(mat.shininess)
+                        } else {
+                            0.0
+                        };
+                        add(&mut base, [spec; 3], inv_s);
+                        // Mirror reflection of the environment on glossy parts (clear coat,
+                        // glass, chrome), weighted by Schlick's Fresnel term.
+                        let gloss = (mat.specular * 1.5).min(1.0);
+                        if gloss > 0.05 {
+                            let cos = (-sm.dir).dot(n).clamp(0.0, 1.0);
+                            let fresnel = 0.04 + 0.96 * (1.0 - cos).powi(5);
+                            let r = sm.dir - n * 2.0 * sm.dir.dot(n);
+                            let env = environment_colour(backdrop, light, image_mean, r);
+                            add(&mut base, env, gloss * fresnel * inv_s);
+                        }
+                        if scene.is_paintable(tri) {
+                            for (texel, w) in bilinear_taps(sm.uv, atlas_res, atlas_res) {
+                                if w > 0.0 {
+                                    taps.push((texel, w * diffuse * inv_s));
+                                }
+                            }
+                        } else {
+                            let albedo = match (mat.texture, tri.uv) {
+                                (Some(t), Some(_)) => {
+                                    let c = sample(&scene.textures[t], sm.uv);
+                                    [0, 1, 2].map(|i| c[i] * mat.base_color[i])
+                                }
+                                _ => mat.base_color,
+                            };
+                            add(&mut base, albedo, diffuse * inv_s);
+                        }
+                    }
+                }
+            }
+            Px { base, taps }
+        })
+        .collect();
+    let mut out = RenderPlan {
+        width: g.width,
+        height: g.rows.len(),
+        atlas_res,
+        base: Vec::with_capacity(pixels.len()),
+        tap_pixel: vec![],
+        tap_texel: vec![],
+        tap_weight: vec![],
+        coverage: g.coverage(),
+        object_box: g.object_box(),
+    };
+    for (i, p) in pixels.into_iter().enumerate() {
+        out.base.push(p.base);
+        for (t, w) in p.taps {
+            out.tap_pixel.push(i as u32);
+            out.tap_texel.push(t);
+            out.tap_weight.push(w);
+        }
+    }
+    out
+}
+
+impl RenderPlan {
+    /// The plan of a whole view from the plans of its bands of rows, top to bottom (all of one
+    /// width and atlas): the same plan, bit for bit, as shading the view at once.
+    pub fn stack(bands: Vec<RenderPlan>) -> RenderPlan {
+        let mut bands = bands.into_iter();
+        let mut out = bands.next().expect("stack needs at least one band");
+        for b in bands {
+            assert!(
+                b.width == out.width && b.atlas_res == out.atlas_res,
+                "bands differ in width or atlas"
+            );
+            let offset = (out.width * out.height) as u32;
+            out.height += b.height;
+            out.base.extend(b.base);
+            out.tap_pixel
+                .extend(b.tap_pixel.iter().map(|&p| p + offset));
+            out.tap_texel.extend(b.tap_texel);
+            out.tap_weight.extend(b.tap_weight);
+            out.coverage.extend(b.coverage);
+            out.object_box = match (out.object_box, b.object_box) {
+                (Some(a), Some(c)) => Some([
+                    a[0].min(c[0]),
+                    a[1].min(c[1]),
+                    a[2].max(c[2]),
+                    a[3].max(c[3]),
+                ]),
+                (a, c) => a.or(c),
+            };
+        }
+        out
+    }
+
+    /// Composites on the CPU (no gradients): the reference for the tensor path.
+    pub fn render_cpu(&self, atlas: &Texture) -> Vec<[f32; 3]> {
+        assert_eq!(
+            atlas.width, self.atlas_res,
+            "atlas size differs from the plan's"
+        );
+        let mut img = self.base.clone();
+        for k in 0..self.tap_pixel.len() {
+            let t = atlas.texels[self.tap_texel[k] as usize];
+            let p = &mut img[self.tap_pixel[k] as usize];
+            for c in 0..3 {
+                p[c] += self.tap_weight[k] * t[c];
+            }
+        }
+        img
+    }
+}
