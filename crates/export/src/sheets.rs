@@ -158,37 +158,110 @@ pub fn write_sheets(
     opts: &SheetOptions,
     dir: &Path,
 ) -> Result<Vec<PathBuf>> {
-    ensure!(
-        (72..=1200).contains(&opts.dpi),
-        "sheet resolution {} dpi is outside 72..1200",
-        opts.dpi
+    let page = Page::new(opts)?;
+    let (parts, pieces) = cut_pieces(mesh, page.max_piece)?;
+    let (placed, n_pages) = pack(&pieces, &page, opts);
+    let scale_txt = format!("1:{}", scale.denominator);
+    let images = draw_pages(
+        mesh, &scale_txt, &parts, &pieces, &placed, n_pages, &page, opts,
     );
+    // Files.
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("cannot create sheet folder {}", dir.display()))?;
+    let mut files = vec![];
+    for (k, img) in images.iter().enumerate() {
+        let p = dir.join(format!("page_{:02}.png", k + 1));
+        cac_core::io::save_png_atomic(&p, img)?;
+        files.push(p);
+    }
+    let pdf = dir.join("sheets.pdf");
+    cac_core::io::write_atomic(
+        &pdf,
+        &super::pdf::pages_to_pdf(&images, (page.w, page.h), &mesh.name)?,
+    )?;
+    files.push(pdf);
+    let mut parts_out: Vec<PartSheet> = parts.into_iter().map(|(p, _)| p).collect();
+    for (i, pl) in placed {
+        parts_out[pieces[i].part].pieces.push(pl);
+    }
+    let tex = &mesh.textures[0];
+    let layout = SheetLayout {
+        object: mesh.name.clone(),
+        scale: scale_txt,
+        paper: opts.paper,
+        dpi: opts.dpi,
+        page_size_mm: [page.w, page.h],
+        pages: n_pages,
+        texture_size: [tex.width, tex.height],
+        parts: parts_out,
+    };
+    let json = dir.join("sheets.json");
+    cac_core::io::write_atomic(&json, serde_json::to_string_pretty(&layout)?.as_bytes())?;
+    files.push(json);
+    Ok(files)
+}
+
+/// Room for a page's header text, a piece's label, and the gap between pieces (mm).
+const HEADER_MM: f32 = 24.0;
+const LABEL_MM: f32 = 5.0;
+const GAP_MM: f32 = 4.0;
+
+/// The page: its size, the area inside the margins and below the header, and the largest piece
+/// that fits there with its bleed and label (mm).
+struct Page {
+    w: f32,
+    h: f32,
+    avail: (f32, f32),
+    max_piece: (f32, f32),
+}
+
+impl Page {
+    fn new(opts: &SheetOptions) -> Result<Page> {
+        ensure!(
+            (72..=1200).contains(&opts.dpi),
+            "sheet resolution {} dpi is outside 72..1200",
+            opts.dpi
+        );
+        let (w, h) = opts.paper.size_mm();
+        let avail = (
+            w - 2.0 * opts.margin_mm,
+            h - 2.0 * opts.margin_mm - HEADER_MM,
+        );
+        let max_piece = (
+            avail.0 - 2.0 * opts.bleed_mm,
+            avail.1 - LABEL_MM - 2.0 * opts.bleed_mm,
+        );
+        ensure!(
+            max_piece.0 > 10.0 && max_piece.1 > 10.0,
+            "margins leave no room on the page"
+        );
+        Ok(Page {
+            w,
+            h,
+            avail,
+            max_piece,
+        })
+    }
+}
+
+/// One rectangle of a part's texture to print: its part, label, texel rectangle and size (mm).
+struct Piece {
+    part: usize,
+    label: String,
+    texels: [f32; 4],
+    w: f32,
+    h: f32,
+}
+
+/// The painted parts (UV islands) at print scale, each cut into pieces no larger than
+/// `max_piece`; a part with collapsed UVs shows no texture and is left out.
+#[allow(clippy::type_complexity)]
+fn cut_pieces(
+    mesh: &PrintMesh,
+    max_piece: (f32, f32),
+) -> Result<(Vec<(PartSheet, Vec<usize>)>, Vec<Piece>)> {
     let tex = &mesh.textures[0];
     let (tw, th) = (tex.width as f32, tex.height as f32);
-    let (pw, ph) = opts.paper.size_mm();
-    let header_mm = 24.0;
-    let label_mm = 5.0;
-    let gap_mm = 4.0;
-    let avail = (
-        pw - 2.0 * opts.margin_mm,
-        ph - 2.0 * opts.margin_mm - header_mm,
-    );
-    let max_piece = (
-        avail.0 - 2.0 * opts.bleed_mm,
-        avail.1 - label_mm - 2.0 * opts.bleed_mm,
-    );
-    ensure!(
-        max_piece.0 > 10.0 && max_piece.1 > 10.0,
-        "margins leave no room on the page"
-    );
-    // Parts, their texel size and pieces.
-    struct Piece {
-        part: usize,
-        label: String,
-        texels: [f32; 4],
-        w: f32,
-        h: f32,
-    }
     let mut parts = vec![];
     let mut pieces = vec![];
     let groups = islands(mesh);
@@ -260,24 +333,29 @@ pub fn write_sheets(
         !pieces.is_empty(),
         "no painted part has texture coordinates to lay out"
     );
-    // Shelf packing, tallest first.
+    Ok((parts, pieces))
+}
+
+/// Shelf packing, tallest first: each piece's placement (by index into `pieces`) and the
+/// number of pages.
+fn pack(pieces: &[Piece], page: &Page, opts: &SheetOptions) -> (Vec<(usize, Placement)>, usize) {
     let mut order: Vec<usize> = (0..pieces.len()).collect();
     order.sort_by(|&a, &b| pieces[b].h.total_cmp(&pieces[a].h));
-    let (mut page, mut x, mut y, mut shelf_h) = (0usize, 0.0f32, 0.0f32, 0.0f32);
+    let (mut n, mut x, mut y, mut shelf_h) = (0usize, 0.0f32, 0.0f32, 0.0f32);
     let mut placed: Vec<(usize, Placement)> = vec![];
     for i in order {
         let p = &pieces[i];
         // The label ("P12 R1C2 180X75 MM", 2.6 mm capitals) must fit above the piece.
         let label_w = (p.label.len() + 12) as f32 * 6.0 * 2.6 / 7.0;
         let bw = (p.w + 2.0 * opts.bleed_mm).max(label_w);
-        let bh = p.h + 2.0 * opts.bleed_mm + label_mm;
-        if x > 0.0 && x + bw > avail.0 {
+        let bh = p.h + 2.0 * opts.bleed_mm + LABEL_MM;
+        if x > 0.0 && x + bw > page.avail.0 {
             x = 0.0;
-            y += shelf_h + gap_mm;
+            y += shelf_h + GAP_MM;
             shelf_h = 0.0;
         }
-        if y > 0.0 && y + bh > avail.1 {
-            page += 1;
+        if y > 0.0 && y + bh > page.avail.1 {
+            n += 1;
             x = 0.0;
             y = 0.0;
             shelf_h = 0.0;
@@ -286,29 +364,42 @@ pub fn write_sheets(
             i,
             Placement {
                 label: p.label.clone(),
-                page,
+                page: n,
                 x_mm: opts.margin_mm + x + opts.bleed_mm,
-                y_mm: opts.margin_mm + header_mm + y + label_mm + opts.bleed_mm,
+                y_mm: opts.margin_mm + HEADER_MM + y + LABEL_MM + opts.bleed_mm,
                 width_mm: p.w,
                 height_mm: p.h,
                 texels: p.texels,
             },
         ));
-        x += bw + gap_mm;
+        x += bw + GAP_MM;
         shelf_h = shelf_h.max(bh);
     }
-    let n_pages = page + 1;
-    // Render.
+    (placed, n + 1)
+}
+
+/// The pages as images: each piece rendered with its label, each page's header and scale bar.
+#[allow(clippy::too_many_arguments)]
+fn draw_pages(
+    mesh: &PrintMesh,
+    scale_txt: &str,
+    parts: &[(PartSheet, Vec<usize>)],
+    pieces: &[Piece],
+    placed: &[(usize, Placement)],
+    n_pages: usize,
+    page: &Page,
+    opts: &SheetOptions,
+) -> Vec<RgbImage> {
     let px_per_mm = opts.dpi as f32 / 25.4;
     let (wpx, hpx) = (
-        (pw * px_per_mm).round() as u32,
-        (ph * px_per_mm).round() as u32,
+        (page.w * px_per_mm).round() as u32,
+        (page.h * px_per_mm).round() as u32,
     );
     let mut images: Vec<RgbImage> = (0..n_pages)
         .map(|_| RgbImage::from_pixel(wpx, hpx, image::Rgb([255, 255, 255])))
         .collect();
     let font_px = ((2.6 * px_per_mm) / 7.0).round().max(1.0) as u32; // 2.6 mm capitals
-    for (i, pl) in &placed {
+    for (i, pl) in placed {
         let pc = &pieces[*i];
         let (ps, tris) = &parts[pc.part];
         render_piece(
@@ -322,10 +413,9 @@ pub fn write_sheets(
         );
         let label = format!("{} {:.0}X{:.0} MM", pl.label, pl.width_mm, pl.height_mm);
         let lx = ((pl.x_mm - opts.bleed_mm) * px_per_mm) as i64;
-        let ly = ((pl.y_mm - opts.bleed_mm - label_mm + 1.0) * px_per_mm) as i64;
+        let ly = ((pl.y_mm - opts.bleed_mm - LABEL_MM + 1.0) * px_per_mm) as i64;
         draw_text(&mut images[pl.page], lx, ly, &label, font_px, [0, 0, 0]);
     }
-    let scale_txt = format!("1:{}", scale.denominator);
     for (k, img) in images.iter_mut().enumerate() {
         let x0 = (opts.margin_mm * px_per_mm) as i64;
         let y0 = (opts.margin_mm * px_per_mm) as i64;
@@ -357,39 +447,7 @@ pub fn write_sheets(
         );
         scale_bar(img, x0, y0 + 2 * line + font_px as i64, px_per_mm, font_px);
     }
-    // Files.
-    std::fs::create_dir_all(dir)
-        .with_context(|| format!("cannot create sheet folder {}", dir.display()))?;
-    let mut files = vec![];
-    for (k, img) in images.iter().enumerate() {
-        let p = dir.join(format!("page_{:02}.png", k + 1));
-        cac_core::io::save_png_atomic(&p, img)?;
-        files.push(p);
-    }
-    let pdf = dir.join("sheets.pdf");
-    cac_core::io::write_atomic(
-        &pdf,
-        &super::pdf::pages_to_pdf(&images, (pw, ph), &mesh.name)?,
-    )?;
-    files.push(pdf);
-    let mut parts_out: Vec<PartSheet> = parts.into_iter().map(|(p, _)| p).collect();
-    for (i, pl) in placed {
-        parts_out[pieces[i].part].pieces.push(pl);
-    }
-    let layout = SheetLayout {
-        object: mesh.name.clone(),
-        scale: scale_txt,
-        paper: opts.paper,
-        dpi: opts.dpi,
-        page_size_mm: [pw, ph],
-        pages: n_pages,
-        texture_size: [tex.width, tex.height],
-        parts: parts_out,
-    };
-    let json = dir.join("sheets.json");
-    cac_core::io::write_atomic(&json, serde_json::to_string_pretty(&layout)?.as_bytes())?;
-    files.push(json);
-    Ok(files)
+    images
 }
 
 /// A 100 mm bar with 10 mm ticks and labels at 0, 50 and 100 mm.
