@@ -337,19 +337,49 @@ pub fn pickup() -> Scene {
 
 fn vehicle(pickup: bool) -> Scene {
     let mut b = Builder::new(if pickup { "pickup" } else { "jeep" });
-    let body = b.material("body_paint", [1.0; 3], 0.25, 40.0, true);
-    let glass = b.material("window_glass", [0.08, 0.10, 0.12], 0.9, 120.0, false);
-    let tyre = b.material("wheel_tyre", [0.05, 0.05, 0.05], 0.03, 8.0, false);
-    let rim = b.material("wheel_rim", [0.55, 0.56, 0.58], 0.6, 60.0, false);
-    let head = b.material("headlight", [0.95, 0.95, 0.88], 0.9, 100.0, false);
-    let tail = b.material("taillight", [0.75, 0.05, 0.04], 0.6, 80.0, false);
-    let trim = b.material("trim_black", [0.07, 0.07, 0.075], 0.1, 16.0, false);
+    // Created in this order (the order of the materials in the file).
+    let look = VehicleLook {
+        body: b.material("body_paint", [1.0; 3], 0.25, 40.0, true),
+        glass: b.material("window_glass", [0.08, 0.10, 0.12], 0.9, 120.0, false),
+        tyre: b.material("wheel_tyre", [0.05, 0.05, 0.05], 0.03, 8.0, false),
+        rim: b.material("wheel_rim", [0.55, 0.56, 0.58], 0.6, 60.0, false),
+        head: b.material("headlight", [0.95, 0.95, 0.88], 0.9, 100.0, false),
+        tail: b.material("taillight", [0.75, 0.05, 0.04], 0.6, 80.0, false),
+        trim: b.material("trim_black", [0.07, 0.07, 0.075], 0.1, 16.0, false),
+    };
+    body_shell(&mut b, pickup, &look);
+    windows(&mut b, pickup, &look);
+    lights_and_bumpers(&mut b, &look);
+    wheels(&mut b, &look);
+    doors(&mut b, pickup, &look);
+    plates_and_mirrors(&mut b, &look);
+    if !pickup {
+        spare_wheel(&mut b, &look);
+    }
+    b.finish(512, body_paint)
+}
+
+/// The vehicles' materials (indices into the builder's list).
+struct VehicleLook {
+    body: u32,
+    glass: u32,
+    tyre: u32,
+    rim: u32,
+    head: u32,
+    tail: u32,
+    trim: u32,
+}
+
+/// Half the body's width and a panel's thickness (m).
+const HW: f32 = 0.9;
+const ZW: f32 = 0.006;
+
+/// The body: the side profile (x forward, y up), counter-clockwise — underbody, nose, hood,
+/// windshield, then the roof and back, which differ between the two styles — extruded across
+/// the width. The sill runs 0.30 m above the ground and arches over each wheel (radius 0.47
+/// around the axle), so the upper part of the wheels sits in wheel wells as on a real vehicle.
+fn body_shell(b: &mut Builder, pickup: bool, look: &VehicleLook) {
     let id = Mat4::IDENTITY;
-    let (hw, zw) = (0.9f32, 0.006f32); // half width, panel thickness
-                                       // Side profile (x forward, y up), counter-clockwise: underbody, nose, hood, windshield, then
-                                       // the roof and back, which differ between the two styles.
-                                       // The sill runs 0.30 m above the ground and arches over each wheel (radius 0.47 around the
-                                       // axle), so the upper part of the wheels sits in wheel wells as on a real vehicle.
     let mut profile = vec![v2(-2.15, 0.30)];
     for axle in [-1.35f32, 1.35] {
         let (r, y0) = (0.47f32, 0.40f32);
@@ -377,8 +407,13 @@ fn vehicle(pickup: bool) -> Scene {
     // Body sides curve like real panels (shading normals): the upper part faces the sky, the
     // lower part the ground, so reflections and light grade down the side.
     b.cap_bulge = 0.45;
-    b.prism(&profile, -hw, hw, id, body, body, false);
+    b.prism(&profile, -HW, HW, id, look.body, look.body, false);
     b.cap_bulge = 0.0;
+}
+
+/// Side windows, windshield and rear window.
+fn windows(b: &mut Builder, pickup: bool, look: &VehicleLook) {
+    let id = Mat4::IDENTITY;
     // Side windows (thin closed panels on both sides).
     let front_win = [
         v2(0.80, 1.17),
@@ -398,8 +433,8 @@ fn vehicle(pickup: bool) -> Scene {
         vec![&front_win[..], &rear_win[..]]
     };
     for w in side_windows {
-        b.prism(w, hw, hw + zw, id, glass, glass, false);
-        b.prism(w, -hw - zw, -hw, id, glass, glass, false);
+        b.prism(w, HW, HW + ZW, id, look.glass, look.glass, false);
+        b.prism(w, -HW - ZW, -HW, id, look.glass, look.glass, false);
     }
     // Windshield and rear window: panels lying on the slanted / back faces.
     let panel_on = |b: &mut Builder, p: Vec2, q: Vec2, t0: f32, t1: f32, z: f32, mat: u32| {
@@ -407,7 +442,7 @@ fn vehicle(pickup: bool) -> Scene {
         let n = Vec2::new(d.y, -d.x);
         let a = p + (q - p) * t0;
         let c = p + (q - p) * t1;
-        let prof = [a, c, c + n * zw * 1.5, a + n * zw * 1.5];
+        let prof = [a, c, c + n * ZW * 1.5, a + n * ZW * 1.5];
         // Keep the profile counter-clockwise.
         let area: f32 = (0..4).map(|i| prof[i].perp_dot(prof[(i + 1) % 4])).sum();
         let prof: Vec<Vec2> = if area < 0.0 {
@@ -418,35 +453,39 @@ fn vehicle(pickup: bool) -> Scene {
         b.prism(&prof, -z, z, Mat4::IDENTITY, mat, mat, false);
     };
     panel_on(
-        &mut b,
+        b,
         v2(0.95, 1.10),
         v2(0.38, 1.80),
         0.06,
         0.94,
         0.80,
-        glass,
+        look.glass,
     );
     if pickup {
         panel_on(
-            &mut b,
+            b,
             v2(-0.72, 1.84),
             v2(-0.80, 1.16),
             0.08,
             0.55,
             0.72,
-            glass,
+            look.glass,
         );
     } else {
         panel_on(
-            &mut b,
+            b,
             v2(-2.12, 1.77),
             v2(-2.15, 1.02),
             0.06,
             0.50,
             0.72,
-            glass,
+            look.glass,
         );
     }
+}
+
+fn lights_and_bumpers(b: &mut Builder, look: &VehicleLook) {
+    let id = Mat4::IDENTITY;
     // Lights, grille, bumpers.
     for s in [1.0f32, -1.0] {
         let (za, zb) = if s > 0.0 {
@@ -464,8 +503,8 @@ fn vehicle(pickup: bool) -> Scene {
             za,
             zb,
             id,
-            head,
-            head,
+            look.head,
+            look.head,
             false,
         );
         b.prism(
@@ -478,8 +517,8 @@ fn vehicle(pickup: bool) -> Scene {
             za + s * 0.05,
             zb + s * 0.05,
             id,
-            tail,
-            tail,
+            look.tail,
+            look.tail,
             false,
         );
     }
@@ -493,22 +532,26 @@ fn vehicle(pickup: bool) -> Scene {
         -0.38,
         0.38,
         id,
-        trim,
-        trim,
+        look.trim,
+        look.trim,
         false,
     );
     b.cuboid(
         Vec3::new(2.10, 0.32, -0.92),
         Vec3::new(2.30, 0.52, 0.92),
         id,
-        trim,
+        look.trim,
     );
     b.cuboid(
         Vec3::new(-2.28, 0.32, -0.92),
         Vec3::new(-2.10, 0.52, 0.92),
         id,
-        trim,
+        look.trim,
     );
+}
+
+fn wheels(b: &mut Builder, look: &VehicleLook) {
+    let id = Mat4::IDENTITY;
     // Wheels: tyres and rims, axis along Z.
     for x in [1.35f32, -1.35] {
         for s in [1.0f32, -1.0] {
@@ -518,15 +561,15 @@ fn vehicle(pickup: bool) -> Scene {
             } else {
                 (-0.90, -0.62)
             };
-            b.cylinder(0.40, z0, z1, 32, m, tyre, tyre);
+            b.cylinder(0.40, z0, z1, 32, m, look.tyre, look.tyre);
             let (r0, r1) = if s > 0.0 {
                 (0.90, 0.915)
             } else {
                 (-0.915, -0.90)
             };
-            b.cylinder(0.22, r0, r1, 24, m, rim, rim);
+            b.cylinder(0.22, r0, r1, 24, m, look.rim, look.rim);
         }
-        // The dark wheel wells: a half ring behind each tyre fills the arch above it.
+        // The dark wheel wells: a half ring behind each look.tyre fills the arch above it.
         let (a0, a1) = ((-15.0f32).to_radians(), 195.0f32.to_radians());
         let arc = |r: f32, k: usize| {
             let a = a0 + (a1 - a0) * k as f32 / 16.0;
@@ -536,9 +579,13 @@ fn vehicle(pickup: bool) -> Scene {
             .map(|k| arc(0.465, k))
             .chain((0..=16).rev().map(|k| arc(0.38, k)))
             .collect();
-        b.prism(&well, 0.585, 0.61, id, trim, trim, false);
-        b.prism(&well, -0.61, -0.585, id, trim, trim, false);
+        b.prism(&well, 0.585, 0.61, id, look.trim, look.trim, false);
+        b.prism(&well, -0.61, -0.585, id, look.trim, look.trim, false);
     }
+}
+
+fn doors(b: &mut Builder, pickup: bool, look: &VehicleLook) {
+    let id = Mat4::IDENTITY;
     // Door gaps (dark lines a few millimetres proud of the panel) and door handles.
     let doors: &[(f32, f32)] = if pickup {
         &[(0.92, -0.62)]
@@ -548,31 +595,35 @@ fn vehicle(pickup: bool) -> Scene {
     for &(front, back) in doors {
         for s in [1.0f32, -1.0] {
             let (z0, z1) = if s > 0.0 {
-                (hw, hw + 0.004)
+                (HW, HW + 0.004)
             } else {
-                (-hw - 0.004, -hw)
+                (-HW - 0.004, -HW)
             };
             for x in [front, back] {
                 b.cuboid(
                     Vec3::new(x - 0.006, 0.34, z0),
                     Vec3::new(x + 0.006, 1.12, z1),
                     id,
-                    trim,
+                    look.trim,
                 );
             }
             let (h0, h1) = if s > 0.0 {
-                (hw - 0.002, hw + 0.012)
+                (HW - 0.002, HW + 0.012)
             } else {
-                (-hw - 0.012, -hw + 0.002)
+                (-HW - 0.012, -HW + 0.002)
             };
             b.cuboid(
                 Vec3::new(back + 0.10, 0.96, h0),
                 Vec3::new(back + 0.28, 1.01, h1),
                 id,
-                trim,
+                look.trim,
             );
         }
     }
+}
+
+fn plates_and_mirrors(b: &mut Builder, look: &VehicleLook) {
+    let id = Mat4::IDENTITY;
     // Licence plates, front and back, and the door mirrors.
     let plate = b.material("licence_plate", [0.88, 0.88, 0.84], 0.3, 30.0, false);
     b.cuboid(
@@ -597,18 +648,17 @@ fn vehicle(pickup: bool) -> Scene {
             Vec3::new(0.80, 1.14, z0),
             Vec3::new(0.92, 1.26, z1),
             id,
-            trim,
+            look.trim,
         );
     }
-    // Spare wheel on the back (the jeep only).
-    if pickup {
-        return b.finish(512, body_paint);
-    }
+}
+
+/// The spare wheel on the back (the jeep only).
+fn spare_wheel(b: &mut Builder, look: &VehicleLook) {
     let m = Mat4::from_translation(Vec3::new(-2.15, 1.25, 0.0))
         * Mat4::from_rotation_y(std::f32::consts::FRAC_PI_2);
-    b.cylinder(0.36, 0.0, 0.26, 28, m, tyre, tyre);
-    b.cylinder(0.20, 0.26, 0.28, 20, m, rim, rim);
-    b.finish(512, body_paint)
+    b.cylinder(0.36, 0.0, 0.26, 28, m, look.tyre, look.tyre);
+    b.cylinder(0.20, 0.26, 0.28, 20, m, look.rim, look.rim);
 }
 
 /// Body colour: a painted red with faint mottling, like weathered paint.
