@@ -8,7 +8,7 @@
 //! published camouflage attacks; paint replaces the paintable parts' colour entirely.
 
 use super::accel::Accel;
-use super::gbuffer::{GBuffer, Surface};
+use super::gbuffer::{GBuffer, Sample, Surface};
 use cac_scene::{Scene, Texture};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -201,29 +201,28 @@ pub fn plan(
     atlas_res: usize,
 ) -> RenderPlan {
     let s = g.samples;
-    let inv_s = 1.0 / s as f32;
-    let shadows = light.sun > 0.0;
-    let eps = 1e-3 * (g.camera.eye.length() + 1.0);
-    let image_mean = match &backdrop.background {
-        Background::Image(img) => mean_colour(img),
-        _ => [0.0; 3],
+    let sh = Shader {
+        scene,
+        accel,
+        light,
+        backdrop,
+        atlas_res,
+        inv_s: 1.0 / s as f32,
+        shadows: light.sun > 0.0,
+        eps: 1e-3 * (g.camera.eye.length() + 1.0),
+        image_mean: match &backdrop.background {
+            Background::Image(img) => mean_colour(img),
+            _ => [0.0; 3],
+        },
     };
-    struct Px {
-        base: [f32; 3],
-        taps: Vec<(u32, f32)>,
-    }
-    let pixels: Vec<Px> = g
+    // Per pixel: the constant colour and the atlas taps of its samples.
+    let pixels: Vec<([f32; 3], Vec<(u32, f32)>)> = g
         .data
         .par_chunks_exact(s)
         .enumerate()
         .map(|(pi, samples)| {
             let mut base = [0.0f32; 3];
             let mut taps = Vec::new();
-            let add = |base: &mut [f32; 3], c: [f32; 3], k: f32| {
-                for i in 0..3 {
-                    base[i] += c[i] * k;
-                }
-            };
             for sm in samples {
                 match sm.surface {
                     Surface::Sky => {
@@ -235,98 +234,13 @@ pub fn plan(
                             g.width,
                             g.height,
                         );
-                        add(&mut base, c, inv_s);
+                        add(&mut base, c, sh.inv_s);
                     }
-                    Surface::Ground => {
-                        let gr = backdrop
-                            .ground
-                            .as_ref()
-                            .expect("ground hit without a ground");
-                        let p = sm.position;
-                        let vis = if shadows
-                            && accel.occluded(p + Vec3::Y * eps, light.sun_dir, 0.0, f32::INFINITY)
-                        {
-                            0.0
-                        } else {
-                            1.0
-                        };
-                        let k = light.ambient + light.sun * light.sun_dir.y.max(0.0) * vis;
-                        let uv = (Vec2::new(p.x, p.z) + gr.offset) / gr.tile_m;
-                        let c = sample(&gr.texture, uv);
-                        // Aerial perspective: far ground fades to the horizon colour.
-                        let fog = 1.0 - (-sm.depth / 150.0).exp();
-                        let hz = match &backdrop.background {
-                            Background::Sky { horizon, .. } => *horizon,
-                            Background::Color(c) => *c,
-                            Background::Image(_) => c,
-                        };
-                        let col = [0, 1, 2].map(|i| (c[i] * k) * (1.0 - fog) + hz[i] * fog);
-                        add(&mut base, col, inv_s);
-                    }
-                    Surface::Object => {
-                        let tri = &scene.triangles[sm.tri as usize];
-                        let mat = &scene.materials[tri.material as usize];
-                        let n = sm.normal;
-                        let ndl = n.dot(light.sun_dir);
-                        let vis = if shadows
-                            && ndl > 0.0
-                            && accel.occluded(
-                                sm.position + n * eps,
-                                light.sun_dir,
-                                0.0,
-                                f32::INFINITY,
-                            ) {
-                            0.0
-                        } else {
-                            1.0
-                        };
-                        let ambient = match light.sky_occlusion {
-                            None => light.ambient,
-                            Some(albedo) => {
-                                let sky = 0.5 + 0.5 * n.y.clamp(-1.0, 1.0);
-                                let ground =
-                                    albedo * (light.ambient + light.sun * light.sun_dir.y.max(0.0));
-                                light.ambient * sky + ground * (1.0 - sky)
-                            }
-                        };
-                        let diffuse = ambient + light.sun * ndl.max(0.0) * vis;
-                        let h = (light.sun_dir - sm.dir).normalize_or_zero();
-                        let spec = if ndl > 0.0 {
-                            mat.specular * light.sun * vis * n.dot(h).max(0.0).powf(mat.shininess)
-                        } else {
-                            0.0
-                        };
-                        add(&mut base, [spec; 3], inv_s);
-                        // Mirror reflection of the environment on glossy parts (clear coat,
-                        // glass, chrome), weighted by Schlick's Fresnel term.
-                        let gloss = (mat.specular * 1.5).min(1.0);
-                        if gloss > 0.05 {
-                            let cos = (-sm.dir).dot(n).clamp(0.0, 1.0);
-                            let fresnel = 0.04 + 0.96 * (1.0 - cos).powi(5);
-                            let r = sm.dir - n * 2.0 * sm.dir.dot(n);
-                            let env = environment_colour(backdrop, light, image_mean, r);
-                            add(&mut base, env, gloss * fresnel * inv_s);
-                        }
-                        if scene.is_paintable(tri) {
-                            for (texel, w) in bilinear_taps(sm.uv, atlas_res, atlas_res) {
-                                if w > 0.0 {
-                                    taps.push((texel, w * diffuse * inv_s));
-                                }
-                            }
-                        } else {
-                            let albedo = match (mat.texture, tri.uv) {
-                                (Some(t), Some(_)) => {
-                                    let c = sample(&scene.textures[t], sm.uv);
-                                    [0, 1, 2].map(|i| c[i] * mat.base_color[i])
-                                }
-                                _ => mat.base_color,
-                            };
-                            add(&mut base, albedo, diffuse * inv_s);
-                        }
-                    }
+                    Surface::Ground => add(&mut base, sh.ground(sm), sh.inv_s),
+                    Surface::Object => sh.object(sm, &mut base, &mut taps),
                 }
             }
-            Px { base, taps }
+            (base, taps)
         })
         .collect();
     let mut out = RenderPlan {
@@ -340,15 +254,136 @@ pub fn plan(
         coverage: g.coverage(),
         object_box: g.object_box(),
     };
-    for (i, p) in pixels.into_iter().enumerate() {
-        out.base.push(p.base);
-        for (t, w) in p.taps {
+    for (i, (base, taps)) in pixels.into_iter().enumerate() {
+        out.base.push(base);
+        for (t, w) in taps {
             out.tap_pixel.push(i as u32);
             out.tap_texel.push(t);
             out.tap_weight.push(w);
         }
     }
     out
+}
+
+/// `base += c · k`, per channel.
+fn add(base: &mut [f32; 3], c: [f32; 3], k: f32) {
+    for i in 0..3 {
+        base[i] += c[i] * k;
+    }
+}
+
+/// What shading one G-buffer sample needs: the scene and its BVH (shadow rays), the light, the
+/// backdrop, the atlas size, the sample weight, the shadow-ray offset and the backdrop image's
+/// mean colour (what glossy parts reflect of an image backdrop).
+struct Shader<'a> {
+    scene: &'a Scene,
+    accel: &'a Accel,
+    light: &'a Lighting,
+    backdrop: &'a Backdrop,
+    atlas_res: usize,
+    inv_s: f32,
+    shadows: bool,
+    eps: f32,
+    image_mean: [f32; 3],
+}
+
+impl Shader<'_> {
+    /// A ground sample's colour: its texture lit by the ambient and the (shadowed) sun, fading
+    /// into the horizon with distance.
+    fn ground(&self, sm: &Sample) -> [f32; 3] {
+        let gr = self
+            .backdrop
+            .ground
+            .as_ref()
+            .expect("ground hit without a ground");
+        let p = sm.position;
+        let vis = if self.shadows
+            && self.accel.occluded(
+                p + Vec3::Y * self.eps,
+                self.light.sun_dir,
+                0.0,
+                f32::INFINITY,
+            ) {
+            0.0
+        } else {
+            1.0
+        };
+        let k = self.light.ambient + self.light.sun * self.light.sun_dir.y.max(0.0) * vis;
+        let uv = (Vec2::new(p.x, p.z) + gr.offset) / gr.tile_m;
+        let c = sample(&gr.texture, uv);
+        // Aerial perspective: far ground fades to the horizon colour.
+        let fog = 1.0 - (-sm.depth / 150.0).exp();
+        let hz = match &self.backdrop.background {
+            Background::Sky { horizon, .. } => *horizon,
+            Background::Color(c) => *c,
+            Background::Image(_) => c,
+        };
+        [0, 1, 2].map(|i| (c[i] * k) * (1.0 - fog) + hz[i] * fog)
+    }
+
+    /// An object sample: the sun's highlight and the reflected environment into `base`; the
+    /// lit albedo into `base`, or, on paintable parts, the lit atlas texels into `taps`.
+    fn object(&self, sm: &Sample, base: &mut [f32; 3], taps: &mut Vec<(u32, f32)>) {
+        let tri = &self.scene.triangles[sm.tri as usize];
+        let mat = &self.scene.materials[tri.material as usize];
+        let n = sm.normal;
+        let ndl = n.dot(self.light.sun_dir);
+        let vis = if self.shadows
+            && ndl > 0.0
+            && self.accel.occluded(
+                sm.position + n * self.eps,
+                self.light.sun_dir,
+                0.0,
+                f32::INFINITY,
+            ) {
+            0.0
+        } else {
+            1.0
+        };
+        let ambient = match self.light.sky_occlusion {
+            None => self.light.ambient,
+            Some(albedo) => {
+                let sky = 0.5 + 0.5 * n.y.clamp(-1.0, 1.0);
+                let ground =
+                    albedo * (self.light.ambient + self.light.sun * self.light.sun_dir.y.max(0.0));
+                self.light.ambient * sky + ground * (1.0 - sky)
+            }
+        };
+        let diffuse = ambient + self.light.sun * ndl.max(0.0) * vis;
+        let h = (self.light.sun_dir - sm.dir).normalize_or_zero();
+        let spec = if ndl > 0.0 {
+            mat.specular * self.light.sun * vis * n.dot(h).max(0.0).powf(mat.shininess)
+        } else {
+            0.0
+        };
+        add(base, [spec; 3], self.inv_s);
+        // Mirror reflection of the environment on glossy parts (clear coat,
+        // glass, chrome), weighted by Schlick's Fresnel term.
+        let gloss = (mat.specular * 1.5).min(1.0);
+        if gloss > 0.05 {
+            let cos = (-sm.dir).dot(n).clamp(0.0, 1.0);
+            let fresnel = 0.04 + 0.96 * (1.0 - cos).powi(5);
+            let r = sm.dir - n * 2.0 * sm.dir.dot(n);
+            let env = environment_colour(self.backdrop, self.light, self.image_mean, r);
+            add(base, env, gloss * fresnel * self.inv_s);
+        }
+        if self.scene.is_paintable(tri) {
+            for (texel, w) in bilinear_taps(sm.uv, self.atlas_res, self.atlas_res) {
+                if w > 0.0 {
+                    taps.push((texel, w * diffuse * self.inv_s));
+                }
+            }
+        } else {
+            let albedo = match (mat.texture, tri.uv) {
+                (Some(t), Some(_)) => {
+                    let c = sample(&self.scene.textures[t], sm.uv);
+                    [0, 1, 2].map(|i| c[i] * mat.base_color[i])
+                }
+                _ => mat.base_color,
+            };
+            add(base, albedo, diffuse * self.inv_s);
+        }
+    }
 }
 
 impl RenderPlan {
