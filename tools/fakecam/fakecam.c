@@ -1604,53 +1604,26 @@ static int mode_arg(int flags, va_list ap)
 	return (flags & O_CREAT) || (flags & O_TMPFILE) == O_TMPFILE ? va_arg(ap, int) : 0;
 }
 
-int open(const char *path, int flags, ...)
-{
-	va_list ap;
-	int mode;
-	va_start(ap, flags);
-	mode = mode_arg(flags, ap);
-	va_end(ap);
-	if (is_fake_path(path))
-		return fake_open(flags);
-	return dev.real.open(path, flags, mode);
-}
+/* The open family: the emulated node is answered here, every other path goes to libc with its
+ * mode (read from the variadic argument only when the flags say there is one). Each symbol
+ * has to exist on its own for the interposition, so one macro writes the four. */
+#define INTERPOSE_OPEN(name, params, args)                  \
+	int name params                                         \
+	{                                                       \
+		va_list ap;                                         \
+		int mode;                                           \
+		va_start(ap, flags);                                \
+		mode = mode_arg(flags, ap);                         \
+		va_end(ap);                                         \
+		if (is_fake_path(path))                             \
+			return fake_open(flags);                        \
+		return dev.real.name args;                          \
+	}
 
-int open64(const char *path, int flags, ...)
-{
-	va_list ap;
-	int mode;
-	va_start(ap, flags);
-	mode = mode_arg(flags, ap);
-	va_end(ap);
-	if (is_fake_path(path))
-		return fake_open(flags);
-	return dev.real.open64(path, flags, mode);
-}
-
-int openat(int dirfd, const char *path, int flags, ...)
-{
-	va_list ap;
-	int mode;
-	va_start(ap, flags);
-	mode = mode_arg(flags, ap);
-	va_end(ap);
-	if (is_fake_path(path))
-		return fake_open(flags);
-	return dev.real.openat(dirfd, path, flags, mode);
-}
-
-int openat64(int dirfd, const char *path, int flags, ...)
-{
-	va_list ap;
-	int mode;
-	va_start(ap, flags);
-	mode = mode_arg(flags, ap);
-	va_end(ap);
-	if (is_fake_path(path))
-		return fake_open(flags);
-	return dev.real.openat64(dirfd, path, flags, mode);
-}
+INTERPOSE_OPEN(open, (const char *path, int flags, ...), (path, flags, mode))
+INTERPOSE_OPEN(open64, (const char *path, int flags, ...), (path, flags, mode))
+INTERPOSE_OPEN(openat, (int dirfd, const char *path, int flags, ...), (dirfd, path, flags, mode))
+INTERPOSE_OPEN(openat64, (int dirfd, const char *path, int flags, ...), (dirfd, path, flags, mode))
 
 /* _FORTIFY_SOURCE entry points. */
 int __open_2(const char *path, int flags) { return open(path, flags); }
