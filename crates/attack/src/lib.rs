@@ -104,7 +104,6 @@ pub struct AttackConfig {
     /// Power of the mean over images of their losses (overlap rule): 1 is the mean, p > 1
     /// weighs the views the texture fails on more ([`loss::proposals_loss_per_image`],
     /// docs/attack.md).
-    #[serde(default = "one_power")]
     #[arg(long, default_value_t = 1.0)]
     pub image_power: f32,
     /// Share of the training views drawn within 30° of the front or the back (free viewpoints;
@@ -115,7 +114,6 @@ pub struct AttackConfig {
     pub front_back_share: Option<f32>,
     /// Levels of the atlas's multi-scale parameterisation: 1 optimises texel by texel; K adds
     /// K-1 coarser levels (each half the side of the last) whose sum is the atlas ([`pyramid`]).
-    #[serde(default = "one_scale")]
     #[arg(long, default_value_t = 1)]
     pub scales: usize,
     /// 2D methods: side of the trained patch in texels.
@@ -127,30 +125,16 @@ pub struct AttackConfig {
 }
 
 impl Default for AttackConfig {
+    /// `cac train`'s defaults: each is declared once, on its field's `#[arg]`.
     fn default() -> Self {
-        AttackConfig {
-            models: vec!["nanodet".into()],
-            target: "person".into(),
-            hide: false,
-            hide_classes: "car,bus,truck".into(),
-            proposals: ProposalRule::Overlap,
-            top_n: 300,
-            nms_iou: 0.7,
-            overlap_iou: 0.5,
-            batch: 2,
-            iterations: 200,
-            lr: 0.02,
-            lr_decay: LrDecay::Constant,
-            seed: 0,
-            checkpoint_every: 10,
-            viewpoints: ViewpointSet::Free,
-            method: Method::Cac,
-            scales: 1,
-            image_power: 1.0,
-            front_back_share: None,
-            patch_res: 128,
-            patch_tiles: 4,
+        #[derive(clap::Parser)]
+        struct Flags {
+            #[command(flatten)]
+            attack: AttackConfig,
         }
+        <Flags as clap::Parser>::try_parse_from(["cac"])
+            .expect("the attack flags' defaults parse")
+            .attack
     }
 }
 
@@ -174,14 +158,6 @@ impl LrDecay {
             LrDecay::Cosine => "cosine",
         }
     }
-}
-
-fn one_power() -> f32 {
-    1.0
-}
-
-fn one_scale() -> usize {
-    1
 }
 
 fn all_classes() -> String {
@@ -447,19 +423,51 @@ mod tests {
     }
 
     #[test]
-    fn the_flags_defaults_are_the_configs() {
+    fn the_defaults_are_the_flags_and_a_run_json_without_a_setting_reads_as_before_it() {
         #[derive(clap::Parser)]
         struct Line {
             #[command(flatten)]
             attack: AttackConfig,
         }
         use clap::Parser;
-        let parsed = Line::try_parse_from(["cac train"]).unwrap().attack;
-        assert_eq!(parsed, AttackConfig::default());
         let c = Line::try_parse_from(["t", "--lr", "0.04", "--front-back-share", "0.5"])
             .unwrap()
             .attack;
         assert_eq!((c.lr, c.front_back_share), (0.04, Some(0.5)));
+        let d = AttackConfig::default();
+        assert_eq!(
+            (
+                d.method,
+                d.models.clone(),
+                d.target.as_str(),
+                d.lr,
+                d.iterations,
+                d.batch
+            ),
+            (
+                Method::Cac,
+                vec!["nanodet".to_string()],
+                "person",
+                0.02,
+                200,
+                2
+            )
+        );
+        assert_eq!(
+            (d.nms_iou, d.viewpoints, d.scales, d.image_power),
+            (0.7, ViewpointSet::Free, 1, 1.0)
+        );
+        assert_eq!(
+            (d.hide_classes.as_str(), d.proposals),
+            ("car,bus,truck", ProposalRule::Overlap)
+        );
+        // A run.json written before these settings existed keeps what those runs did.
+        let old: AttackConfig = serde_json::from_str("{}").unwrap();
+        assert_eq!(
+            (old.hide_classes.as_str(), old.proposals),
+            ("all", ProposalRule::TopN)
+        );
+        assert_eq!((old.scales, old.image_power, old.lr), (1, 1.0, 0.02));
     }
 
     #[test]
