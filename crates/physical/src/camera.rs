@@ -14,12 +14,14 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 pub enum CameraError {
     /// A file or device could not be read.
-    #[error("{path}: {source}")]
+    // `reason`, not `source`: the message already says why, so an error chain does not
+    // repeat it.
+    #[error("{path}: {reason}")]
     Io {
         /// What was being read.
         path: PathBuf,
         /// Why it failed.
-        source: std::io::Error,
+        reason: std::io::Error,
     },
     /// Frame bytes that do not decode.
     #[error("cannot decode {what}: {detail}")]
@@ -113,9 +115,9 @@ impl FolderSource {
     /// List the images of `dir`; fails when there are none. With `looping`, it starts over after
     /// the last one instead of reporting [`CameraError::Exhausted`].
     pub fn open(dir: &Path, looping: bool) -> Result<Self, CameraError> {
-        let io = |source| CameraError::Io {
+        let io = |reason| CameraError::Io {
             path: dir.to_path_buf(),
-            source,
+            reason,
         };
         let mut files = Vec::new();
         for entry in std::fs::read_dir(dir).map_err(io)? {
@@ -132,7 +134,7 @@ impl FolderSource {
         if files.is_empty() {
             return Err(CameraError::Io {
                 path: dir.to_path_buf(),
-                source: std::io::Error::new(std::io::ErrorKind::NotFound, "no .png/.jpg images"),
+                reason: std::io::Error::new(std::io::ErrorKind::NotFound, "no .png/.jpg images"),
             });
         }
         Ok(Self {
@@ -161,9 +163,9 @@ impl FrameSource for FolderSource {
             Some(p) if self.looping || i < self.files.len() => p.clone(),
             _ => return Err(CameraError::Exhausted(self.dir.clone())),
         };
-        let bytes = std::fs::read(&path).map_err(|source| CameraError::Io {
+        let bytes = std::fs::read(&path).map_err(|reason| CameraError::Io {
             path: path.clone(),
-            source,
+            reason,
         })?;
         let image = image::load_from_memory(&bytes)
             .map_err(|e| CameraError::Decode {

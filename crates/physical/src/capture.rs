@@ -187,7 +187,7 @@ pub fn open_camera(
         ..V4l2Config::default()
     };
     Ok(Box::new(
-        V4l2Source::open(&cfg).with_context(|| format!("--camera {}", dev.display()))?,
+        V4l2Source::open(&cfg).context("opening the camera")?,
     ))
 }
 

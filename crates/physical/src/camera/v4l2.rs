@@ -133,9 +133,9 @@ impl V4l2Source {
     pub fn open(cfg: &V4l2Config) -> Result<Self, CameraError> {
         let path = &cfg.path;
         let open = |p: &Path| {
-            Device::open(p).map_err(|source| CameraError::Io {
+            Device::open(p).map_err(|reason| CameraError::Io {
                 path: p.to_path_buf(),
-                source,
+                reason,
             })
         };
         let dev = open(path)?;
