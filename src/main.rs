@@ -47,6 +47,8 @@ fn quiet_when_stdout_closes() {
 fn main() {
     tune_allocator();
     quiet_when_stdout_closes();
+    // Per-op timings of every detector graph run, on stderr (docs/detectors.md).
+    cac::detect::exec::set_profiling(std::env::var_os("CAC_PROFILE_GRAPH").is_some());
     let args = cli::Cli::parse();
     if let Err(e) = cli::run(args) {
         eprintln!("error: {e:#}");

@@ -20,6 +20,7 @@ pub mod bench;
 pub mod centernet;
 pub mod conv;
 pub mod draw;
+pub mod exec;
 pub mod fetch;
 pub mod frcnn;
 pub mod kernels;

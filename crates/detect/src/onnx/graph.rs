@@ -1,6 +1,7 @@
-//! Runs an ONNX [`Model`] as burn tensor ops: values are resolved to slots once, large float
-//! initializers are uploaded to the device once, and a run evaluates only the nodes the requested
-//! outputs depend on, in the file's (topological) order, freeing each value after its last use.
+//! Runs an ONNX [`Model`] on the executor core ([`crate::exec`]): values are resolved to slots
+//! once, large float initializers are uploaded to the device once, and `Mul(x, Sigmoid(x))` pairs
+//! are fused into one SiLU. A run evaluates only the nodes the requested outputs depend on, in the
+//! file's (topological) order, freeing each value after its last use.
 //!
 //! [`OnnxGraph::run_tapped`] also gives the *pre-sigmoid* version of the outputs: the nodes
 //! downstream of chosen Sigmoid nodes are evaluated a second time with each of those sigmoids
@@ -11,25 +12,20 @@
 use super::model::{Io, Model, NodeDef};
 use super::ops;
 use super::value::{Dev, Val};
+use crate::exec::{self, Dataflow};
 use anyhow::{anyhow, bail, Context, Result};
 use burn::tensor::{Device, Tensor};
-use std::collections::{HashMap, HashSet};
+use std::collections::HashMap;
 
 /// A model ready to run on one device.
 pub struct OnnxGraph {
     pub model: Model,
     pub opset: i64,
-    /// Value slot of every node input (`None`: omitted optional input).
-    inputs: Vec<Vec<Option<usize>>>,
-    outputs: Vec<Vec<usize>>,
+    flow: Dataflow,
     slots: HashMap<String, usize>,
-    /// The node writing each slot (`None` for graph inputs and initializers).
-    producer: Vec<Option<usize>>,
+    /// The value name of each slot.
+    names: Vec<String>,
     consts: HashMap<usize, Val>,
-    /// `Mul(x, Sigmoid(x))` pairs run as one SiLU: Mul node → (Sigmoid node, slot of `x`). Only
-    /// where the sigmoid's output feeds that Mul alone and is not a graph output.
-    silu: HashMap<usize, (usize, usize)>,
-    silu_sigmoids: HashSet<usize>,
     pub device: Device,
 }
 
@@ -161,18 +157,23 @@ impl OnnxGraph {
                 );
             }
         }
-        let silu = silu_pairs(&model, &inputs, &outputs, &producer, &slots);
-        let silu_sigmoids = silu.values().map(|&(j, _)| j).collect();
+        let pairs = silu_pairs(&model, &inputs, &outputs, &producer, &slots);
+        let mut names = vec![String::new(); slots.len()];
+        for (name, &s) in &slots {
+            names[s] = name.clone();
+        }
+        let mut flow = Dataflow::new(inputs, outputs, slots.len())
+            .with_context(|| format!("{src}: resolving the nodes"))?;
+        for (mul, (sigmoid, x)) in pairs {
+            flow.fuse(mul, sigmoid, x);
+        }
         Ok(OnnxGraph {
             model,
             opset,
-            inputs,
-            outputs,
+            flow,
             slots,
-            producer,
+            names,
             consts,
-            silu,
-            silu_sigmoids,
             device: device.clone(),
         })
     }
@@ -192,15 +193,16 @@ impl OnnxGraph {
 
     /// The node producing value `name`.
     pub fn producer_of(&self, name: &str) -> Option<usize> {
-        self.producer[*self.slots.get(name)?]
+        self.flow.producer(*self.slots.get(name)?)
     }
 
     /// The nodes producing the inputs of node `k` (omitted inputs, graph inputs and
     /// initializers have none).
     pub fn input_producers(&self, k: usize) -> Vec<Option<usize>> {
-        self.inputs[k]
+        self.flow
+            .inputs(k)
             .iter()
-            .map(|s| s.and_then(|s| self.producer[s]))
+            .map(|s| s.and_then(|s| self.flow.producer(s)))
             .collect()
     }
 
@@ -236,191 +238,73 @@ impl OnnxGraph {
         taps: &[usize],
     ) -> Result<(Vec<Val>, Vec<Val>)> {
         let src = self.source();
-        let mut injected: HashMap<usize, Val> = HashMap::new();
-        for (name, v) in inject {
-            let s = *self
-                .slots
-                .get(*name)
-                .ok_or_else(|| anyhow!("{src}: no value named {name:?}"))?;
-            injected.insert(s, v.clone());
-        }
+        let slot = |name: &str, what: &str| {
+            self.slots
+                .get(name)
+                .copied()
+                .ok_or_else(|| anyhow!("{src}: {what} {name:?}"))
+        };
         let want: Vec<usize> = outputs
             .iter()
-            .map(|o| {
-                self.slots
-                    .get(*o)
-                    .copied()
-                    .ok_or_else(|| anyhow!("{src}: no value named {o:?}"))
-            })
+            .map(|o| slot(o, "no value named"))
             .collect::<Result<_>>()?;
-        // The nodes the outputs depend on.
-        let n = self.model.nodes.len();
-        let mut needed = vec![false; n];
-        let mut stack: Vec<usize> = want
-            .iter()
-            .filter(|s| !injected.contains_key(s))
-            .filter_map(|&s| self.producer[s])
-            .collect();
-        while let Some(k) = stack.pop() {
-            if std::mem::replace(&mut needed[k], true) {
-                continue;
-            }
-            stack.extend(
-                self.inputs[k]
-                    .iter()
-                    .flatten()
-                    .filter(|s| !injected.contains_key(s))
-                    .filter_map(|&s| self.producer[s]),
-            );
-        }
-        let mut last_use: HashMap<usize, usize> = HashMap::new();
-        for k in (0..n).filter(|&k| needed[k]) {
-            for &s in self.inputs[k].iter().flatten() {
-                last_use.insert(s, k);
-            }
-        }
-        let keep: HashSet<usize> = want.iter().copied().collect();
-        let mut vals: HashMap<usize, Val> = injected.clone();
-        for (name, v) in feeds {
-            let s = *self
-                .slots
-                .get(*name)
-                .ok_or_else(|| anyhow!("{src}: the graph has no input {name:?}"))?;
-            vals.insert(s, v.clone());
-        }
-        for i in &self.model.inputs {
-            let s = self.slots[&i.name];
-            if !vals.contains_key(&s) && !self.consts.contains_key(&s) && last_use.contains_key(&s)
-            {
-                bail!("{src}: no value fed for graph input {:?}", i.name);
-            }
-        }
-        let tapped: HashSet<usize> = taps.iter().copied().collect();
-        let mut alt: HashMap<usize, Val> = HashMap::new();
-        let get = |vals: &HashMap<usize, Val>, s: usize| -> Option<Val> {
-            vals.get(&s).or_else(|| self.consts.get(&s)).cloned()
+        let run = exec::Run {
+            feeds: (feeds.iter())
+                .map(|(n, v)| Ok((slot(n, "the graph has no input")?, v.clone())))
+                .collect::<Result<_>>()?,
+            inject: (inject.iter())
+                .map(|(n, v)| Ok((slot(n, "no value named")?, v.clone())))
+                .collect::<Result<_>>()?,
+            want: &want,
+            taps,
         };
-        let profile = std::env::var_os("CAC_PROFILE_GRAPH").is_some();
-        let mut op_ms: HashMap<&str, f64> = HashMap::new();
-        // Sigmoids of SiLU pairs left to their Mul in this run (not tapped, not injected into,
-        // their input not on the pre-sigmoid pass, their output not asked for).
-        let mut deferred: HashSet<usize> = HashSet::new();
-        for k in (0..n).filter(|&k| needed[k]) {
-            let started = std::time::Instant::now();
-            let node = &self.model.nodes[k];
-            if self.silu_sigmoids.contains(&k) {
-                let (s, x) = (self.outputs[k][0], self.inputs[k][0]);
-                if !tapped.contains(&k)
-                    && !injected.contains_key(&s)
-                    && !keep.contains(&s)
-                    && x.is_some_and(|x| !alt.contains_key(&x))
-                {
-                    deferred.insert(k);
-                    continue;
-                }
-            }
-            let silu_x = (self.silu.get(&k))
-                .filter(|(j, _)| deferred.contains(j))
-                .map(|&(_, x)| x);
-            let (args, out) = if let Some(x) = silu_x {
-                let xv = get(&vals, x).ok_or_else(|| anyhow!("{src}: value {x} missing"))?;
-                let out = ops::silu(node, self.opset, &self.device, &[Some(&xv)])
-                    .with_context(|| format!("{src}: node {:?} (SiLU)", node.name))?;
-                (Vec::new(), out)
-            } else {
-                let args: Vec<Option<Val>> = self.inputs[k]
-                    .iter()
-                    .map(|s| {
-                        s.map(|s| get(&vals, s).ok_or_else(|| anyhow!("{src}: value {s} missing")))
-                            .transpose()
-                    })
-                    .collect::<Result<_>>()?;
-                let refs: Vec<Option<&Val>> = args.iter().map(|v| v.as_ref()).collect();
-                let out = ops::eval(node, self.opset, &self.device, &refs)
-                    .with_context(|| format!("{src}: node {:?} (op {})", node.name, node.op))?;
-                (args, out)
-            };
-            if out.len() < self.outputs[k].len() {
-                bail!(
-                    "{src}: node {:?} ({}) gave {} outputs, the file names {}",
-                    node.name,
-                    node.op,
-                    out.len(),
-                    self.outputs[k].len()
-                );
-            }
-            // The pre-sigmoid pass: tapped sigmoids pass their input; their dependants re-run.
-            if tapped.contains(&k) {
-                alt.insert(self.outputs[k][0], args[0].clone().expect("sigmoid input"));
-            } else if self.inputs[k].iter().flatten().any(|s| alt.contains_key(s)) {
-                let alt_args: Vec<Option<Val>> = self.inputs[k]
-                    .iter()
-                    .zip(&args)
-                    .map(|(s, v)| s.and_then(|s| alt.get(&s).cloned()).or_else(|| v.clone()))
-                    .collect();
-                let refs: Vec<Option<&Val>> = alt_args.iter().map(|v| v.as_ref()).collect();
-                let out = ops::eval(node, self.opset, &self.device, &refs).with_context(|| {
-                    format!(
-                        "{src}: node {:?} (op {}), pre-sigmoid pass",
-                        node.name, node.op
-                    )
-                })?;
-                for (s, v) in self.outputs[k].iter().zip(out) {
-                    alt.insert(*s, v);
-                }
-            }
-            if profile {
-                if let Some(Val::D(d)) = out.first() {
-                    let _ = d.t.clone().sum().into_scalar::<f32>(); // wait for the op
-                }
-                let op = if silu_x.is_some() {
-                    "SiLU (Sigmoid+Mul)"
-                } else {
-                    node.op.as_str()
-                };
-                *op_ms.entry(op).or_default() += started.elapsed().as_secs_f64() * 1e3;
-            }
-            for (s, v) in self.outputs[k].iter().zip(out) {
-                let v = injected.get(s).cloned().unwrap_or(v);
-                vals.insert(*s, v);
-            }
-            for &s in self.inputs[k].iter().flatten() {
-                if last_use.get(&s) == Some(&k) && !keep.contains(&s) {
-                    vals.remove(&s);
-                    alt.remove(&s);
-                }
-            }
+        self.flow.run(self, run)
+    }
+}
+
+/// How the executor core evaluates an ONNX node.
+impl exec::Ops for OnnxGraph {
+    type Value = Val;
+
+    fn eval(&self, k: usize, args: &[Option<&Val>]) -> Result<Vec<Val>> {
+        ops::eval(&self.model.nodes[k], self.opset, &self.device, args)
+    }
+
+    /// A `Mul` fused with its `Sigmoid`: SiLU.
+    fn eval_fused(&self, k: usize, x: &Val) -> Result<Vec<Val>> {
+        ops::silu(&self.model.nodes[k], self.opset, &self.device, &[Some(x)])
+    }
+
+    fn constant(&self, slot: usize) -> Option<&Val> {
+        self.consts.get(&slot)
+    }
+
+    fn describe(&self, k: usize) -> String {
+        let n = &self.model.nodes[k];
+        format!("node {:?} (op {})", n.name, n.op)
+    }
+
+    fn op(&self, k: usize) -> &str {
+        &self.model.nodes[k].op
+    }
+
+    fn fused_op(&self, _k: usize) -> String {
+        "SiLU (Sigmoid+Mul)".into()
+    }
+
+    fn slot_name(&self, slot: usize) -> String {
+        format!("{:?}", self.names[slot])
+    }
+
+    fn source(&self) -> String {
+        self.model.source()
+    }
+
+    fn settle(&self, v: &Val) -> Option<Vec<usize>> {
+        if let Val::D(d) = v {
+            let _ = d.t.clone().sum().into_scalar::<f32>();
         }
-        if profile {
-            let mut v: Vec<_> = op_ms.into_iter().collect();
-            v.sort_by(|a, b| b.1.total_cmp(&a.1));
-            eprintln!("onnx graph profile (ms per op type): {v:.1?}");
-        }
-        let pick = |m: &HashMap<usize, Val>, s: usize, name: &str| {
-            m.get(&s)
-                .or_else(|| self.consts.get(&s))
-                .cloned()
-                .ok_or_else(|| anyhow!("{src}: output {name:?} was not computed"))
-        };
-        let main = want
-            .iter()
-            .zip(outputs)
-            .map(|(&s, o)| pick(&vals, s, o))
-            .collect::<Result<Vec<_>>>()?;
-        let pre = if taps.is_empty() {
-            Vec::new()
-        } else {
-            want.iter()
-                .zip(outputs)
-                .map(|(&s, o)| {
-                    alt.get(&s)
-                        .cloned()
-                        .map(Ok)
-                        .unwrap_or_else(|| pick(&vals, s, o))
-                })
-                .collect::<Result<Vec<_>>>()?
-        };
-        Ok((main, pre))
+        Some(v.shape().to_vec())
     }
 }
 
@@ -476,13 +360,11 @@ impl crate::CamGraph for OnnxGraph {
     }
 
     fn feature_layers(&self, outputs: &[&str]) -> Result<Vec<(String, String)>> {
-        let mut needed = vec![false; self.model.nodes.len()];
-        let mut stack: Vec<usize> = outputs.iter().filter_map(|o| self.producer_of(o)).collect();
-        while let Some(k) = stack.pop() {
-            if !std::mem::replace(&mut needed[k], true) {
-                stack.extend(self.input_producers(k).into_iter().flatten());
-            }
-        }
+        let want: Vec<usize> = outputs
+            .iter()
+            .filter_map(|o| self.slots.get(*o).copied())
+            .collect();
+        let needed = self.flow.needed(&want, &Default::default());
         Ok(self
             .model
             .nodes

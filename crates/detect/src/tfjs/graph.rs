@@ -1,5 +1,6 @@
-//! Executor for an imported TFJS graph: resolves node inputs, plans the ancestors of the
-//! requested outputs, and evaluates them as burn tensor ops (see `ops.rs`).
+//! An imported TFJS graph on the executor core ([`crate::exec`]): resolves node inputs to value
+//! slots (one per node output that something reads), fuses elementwise chains, and evaluates
+//! nodes as burn tensor ops (see `ops.rs`).
 //!
 //! Float activations are burn tensors (differentiable, on the caller's device); shape, axis and
 //! size arguments and other small integer tensors stay on the host. Only the nodes needed for
@@ -10,6 +11,7 @@
 use super::model::{GraphModel, HostData, HostTensor, NodeDef};
 use super::ops;
 use super::value::{pad4, FloatValue, Node, Value};
+use crate::exec::{self, Dataflow};
 use anyhow::{anyhow, bail, Context, Result};
 use burn::tensor::{Device, Tensor, TensorData};
 use std::collections::HashMap;
@@ -22,6 +24,10 @@ pub struct Graph {
     consts: HashMap<usize, Value>,
     /// Convolution weights pre-arranged to burn's OIHW layout, keyed by the conv node.
     conv_weights: HashMap<usize, Tensor<4>>,
+    flow: Dataflow,
+    /// The slot of output `k` of node `i`, and back.
+    slot_of: HashMap<(usize, usize), usize>,
+    slot_ref: Vec<(usize, usize)>,
     pub device: Device,
 }
 
@@ -29,14 +35,16 @@ impl Graph {
     /// Builds the executable graph: resolves every input reference, uploads float constants,
     /// and fuses elementwise chains (see [`super::fuse`]).
     pub fn new(model: GraphModel, device: &Device) -> Result<Self> {
-        let mut g = Self::unfused(model, device)?;
-        super::fuse::hard_swish(&mut g.nodes, &g.consts);
-        Ok(g)
+        Self::build(model, device, true)
     }
 
     /// [`Graph::new`] without the fusions: every node runs as written in the file (for parity
     /// checks of the fusions).
     pub fn unfused(model: GraphModel, device: &Device) -> Result<Self> {
+        Self::build(model, device, false)
+    }
+
+    fn build(model: GraphModel, device: &Device, fuse: bool) -> Result<Self> {
         let source = model.path.display().to_string();
         let mut index = HashMap::new();
         for (i, n) in model.nodes.iter().enumerate() {
@@ -82,12 +90,19 @@ impl Graph {
             consts.insert(i, v);
         }
         let conv_weights = ops::prepare_conv_weights(&source, &nodes, &consts, device)?;
+        if fuse {
+            super::fuse::hard_swish(&mut nodes, &consts);
+        }
+        let (flow, slot_of, slot_ref) = dataflow(&source, &nodes)?;
         Ok(Graph {
             source,
             nodes,
             index,
             consts,
             conv_weights,
+            flow,
+            slot_of,
+            slot_ref,
             device: device.clone(),
         })
     }
@@ -155,163 +170,145 @@ impl Graph {
         inject: &[(&str, FloatValue)],
         outputs: &[&str],
     ) -> Result<Vec<Value>> {
-        let mut injected: HashMap<usize, FloatValue> = HashMap::new();
-        for (name, v) in inject {
-            let (n, k) = parse_ref(name);
-            if k != 0 {
-                bail!(
-                    "{}: only output 0 of a node can be replaced ({name:?})",
-                    self.source
-                );
-            }
-            let i = self
-                .node_index(n)
-                .ok_or_else(|| anyhow!("{}: no node named {n:?}", self.source))?;
-            injected.insert(i, v.clone());
-        }
-        let mut wanted = Vec::new();
-        for o in outputs {
-            let (name, k) = parse_ref(o);
+        let src = &self.source;
+        let slot = |r: &str| -> Result<usize> {
+            let (name, k) = parse_ref(r);
             let i = self
                 .node_index(name)
-                .ok_or_else(|| anyhow!("{}: no node named {name:?}", self.source))?;
-            wanted.push((i, k));
+                .ok_or_else(|| anyhow!("{src}: no node named {name:?}"))?;
+            (self.slot_of.get(&(i, k)).copied())
+                .ok_or_else(|| anyhow!("{src}: node {name:?} has no output {k}"))
+        };
+        let mut inj = Vec::new();
+        for (name, v) in inject {
+            if parse_ref(name).1 != 0 {
+                bail!("{src}: only output 0 of a node can be replaced ({name:?})");
+            }
+            inj.push((slot(name)?, Value::Float(v.clone())));
         }
-        // Plan: ancestors of the wanted nodes, in a valid evaluation order (iterative DFS).
-        let mut order = Vec::new();
-        let mut state = vec![0u8; self.nodes.len()]; // 0 new, 1 on stack, 2 done
-        for &(root, _) in &wanted {
-            let mut stack = vec![(root, false)];
-            while let Some((i, expanded)) = stack.pop() {
-                if expanded {
-                    state[i] = 2;
-                    order.push(i);
-                    continue;
-                }
-                match state[i] {
-                    2 => continue,
-                    1 => bail!(
-                        "{}: the graph has a cycle at {:?}",
-                        self.source,
-                        self.nodes[i].name()
-                    ),
-                    _ => {}
-                }
-                state[i] = 1;
-                stack.push((i, true));
-                if injected.contains_key(&i) {
-                    continue;
-                }
-                for &(j, _) in &self.nodes[i].inputs {
-                    if state[j] == 0 {
-                        stack.push((j, false));
-                    } else if state[j] == 1 {
-                        bail!(
-                            "{}: the graph has a cycle at {:?}",
-                            self.source,
-                            self.nodes[j].name()
-                        );
-                    }
-                }
-            }
+        let mut fed = Vec::new();
+        for (name, t) in feeds {
+            let i = (self.node_index(name))
+                .filter(|&i| self.nodes[i].op() == "Placeholder")
+                .ok_or_else(|| anyhow!("{src}: the graph has no input {name:?}"))?;
+            fed.push((
+                self.slot_of[&(i, 0)],
+                Value::Float(FloatValue::from4(t.clone())),
+            ));
         }
-        // Last use of each node, to free activations early.
-        let mut last_use = vec![0usize; self.nodes.len()];
-        for (step, &i) in order.iter().enumerate() {
-            if injected.contains_key(&i) {
-                continue;
-            }
-            for &(j, _) in &self.nodes[i].inputs {
-                last_use[j] = step;
-            }
-        }
-        for &(i, _) in &wanted {
-            last_use[i] = usize::MAX;
-        }
-        let mut values: HashMap<usize, Vec<Value>> = HashMap::new();
-        let profile = std::env::var_os("CAC_PROFILE_GRAPH").is_some();
-        let mut op_ms: HashMap<String, f64> = HashMap::new();
-        let mut node_ms: Vec<(f64, usize, Vec<usize>)> = Vec::new();
-        for (step, &i) in order.iter().enumerate() {
-            let started = std::time::Instant::now();
-            let node = &self.nodes[i];
-            let out = if let Some(v) = injected.get(&i) {
-                vec![Value::Float(v.clone())]
-            } else if node.op() == "Placeholder" {
-                let t = feeds
-                    .iter()
-                    .find(|(n, _)| *n == node.name())
-                    .map(|(_, t)| t.clone())
-                    .ok_or_else(|| {
-                        anyhow!("{}: no value fed for input {:?}", self.source, node.name())
-                    })?;
-                vec![Value::Float(FloatValue::from4(t))]
-            } else if let Some(c) = self.consts.get(&i) {
-                vec![c.clone()]
-            } else {
-                let args: Vec<&Value> = node
-                    .inputs
-                    .iter()
-                    .map(|&(j, k)| {
-                        values.get(&j).and_then(|v| v.get(k)).ok_or_else(|| {
-                            anyhow!(
-                                "{}: node {:?} reads output {k} of {:?}, which does not exist",
-                                self.source,
-                                node.name(),
-                                self.nodes[j].name()
-                            )
-                        })
-                    })
-                    .collect::<Result<_>>()?;
-                ops::eval(node, self.conv_weights.get(&i), &self.device, &args).with_context(
-                    || format!("{}: node {:?} (op {})", self.source, node.name(), node.op()),
-                )?
-            };
-            if profile {
-                if let Some(Value::Float(f)) = out.first() {
-                    let _ = f.t.clone().slice([0..1, 0..1, 0..1, 0..1]).into_data();
-                }
-                let ms = started.elapsed().as_secs_f64() * 1e3;
-                *op_ms.entry(node.op().to_string()).or_default() += ms;
-                if let Some(Value::Float(f)) = out.first() {
-                    node_ms.push((ms, i, f.shape.clone()));
-                }
-            }
-            values.insert(i, out);
-            if injected.contains_key(&i) {
-                continue;
-            }
-            for &(j, _) in &node.inputs {
-                if last_use[j] == step {
-                    values.remove(&j);
-                }
-            }
-        }
-        if profile {
-            let mut v: Vec<_> = op_ms.into_iter().collect();
-            v.sort_by(|a, b| b.1.total_cmp(&a.1));
-            eprintln!("graph profile (ms per op type): {v:.1?}");
-            node_ms.sort_by(|a, b| b.0.total_cmp(&a.0));
-            for (ms, i, shape) in node_ms.iter().take(30) {
-                let n = &self.nodes[*i];
-                eprintln!("  {ms:7.2} ms  {:28} {shape:?}  {}", n.op(), n.name());
-            }
-        }
-        wanted
-            .iter()
-            .zip(outputs)
-            .map(|(&(i, k), name)| {
-                values
-                    .get(&i)
-                    .and_then(|v| v.get(k))
-                    .cloned()
-                    .map(|v| match v {
-                        Value::Float(f) => Value::Float(f.logical()),
-                        h => h,
-                    })
-                    .ok_or_else(|| anyhow!("{}: node {name:?} has no output {k}", self.source))
+        let want: Vec<usize> = outputs.iter().map(|o| slot(o)).collect::<Result<_>>()?;
+        let run = exec::Run {
+            feeds: fed,
+            inject: inj,
+            want: &want,
+            taps: &[],
+        };
+        let (vals, _) = self.flow.run(self, run)?;
+        Ok(vals
+            .into_iter()
+            .map(|v| match v {
+                Value::Float(f) => Value::Float(f.logical()),
+                h => h,
             })
-            .collect()
+            .collect())
+    }
+}
+
+/// The slots of a resolved graph: one for output 0 of every node and for each further output
+/// some node reads. Placeholders and constants write no slot as nodes: theirs are fed or
+/// constant.
+type Slots = (
+    Dataflow,
+    HashMap<(usize, usize), usize>,
+    Vec<(usize, usize)>,
+);
+fn dataflow(source: &str, nodes: &[Node]) -> Result<Slots> {
+    let mut width = vec![1usize; nodes.len()];
+    for n in nodes {
+        for &(j, k) in &n.inputs {
+            width[j] = width[j].max(k + 1);
+        }
+    }
+    let mut slot_of = HashMap::new();
+    let mut slot_ref = Vec::new();
+    let mut outputs = Vec::with_capacity(nodes.len());
+    for (i, n) in nodes.iter().enumerate() {
+        let source_node = matches!(n.op(), "Placeholder" | "Const");
+        if source_node && width[i] > 1 {
+            bail!(
+                "{source}: {} node {:?} has one output, a node reads output {}",
+                n.op(),
+                n.name(),
+                width[i] - 1
+            );
+        }
+        let mut outs = Vec::new();
+        for k in 0..width[i] {
+            slot_of.insert((i, k), slot_ref.len());
+            outs.push(slot_ref.len());
+            slot_ref.push((i, k));
+        }
+        outputs.push(if source_node { vec![] } else { outs });
+    }
+    let inputs = nodes
+        .iter()
+        .map(|n| n.inputs.iter().map(|r| Some(slot_of[r])).collect())
+        .collect();
+    let flow = Dataflow::new(inputs, outputs, slot_ref.len())
+        .with_context(|| format!("{source}: resolving the nodes"))?;
+    Ok((flow, slot_of, slot_ref))
+}
+
+/// How the executor core evaluates a TFJS node.
+impl exec::Ops for Graph {
+    type Value = Value;
+
+    fn eval(&self, k: usize, args: &[Option<&Value>]) -> Result<Vec<Value>> {
+        let args: Vec<&Value> = args.iter().flatten().copied().collect();
+        ops::eval(
+            &self.nodes[k],
+            self.conv_weights.get(&k),
+            &self.device,
+            &args,
+        )
+    }
+
+    fn constant(&self, slot: usize) -> Option<&Value> {
+        self.consts.get(&self.slot_ref.get(slot)?.0)
+    }
+
+    fn describe(&self, k: usize) -> String {
+        format!(
+            "node {:?} (op {})",
+            self.nodes[k].name(),
+            self.nodes[k].op()
+        )
+    }
+
+    fn op(&self, k: usize) -> &str {
+        self.nodes[k].op()
+    }
+
+    fn slot_name(&self, slot: usize) -> String {
+        let (i, k) = self.slot_ref[slot];
+        match k {
+            0 => format!("{:?}", self.nodes[i].name()),
+            k => format!("{:?}", format!("{}:{k}", self.nodes[i].name())),
+        }
+    }
+
+    fn source(&self) -> String {
+        self.source.clone()
+    }
+
+    fn settle(&self, v: &Value) -> Option<Vec<usize>> {
+        match v {
+            Value::Float(f) => {
+                let _ = f.t.clone().slice([0..1, 0..1, 0..1, 0..1]).into_data();
+                Some(f.shape.clone())
+            }
+            Value::Host(h) => Some(h.shape.clone()),
+        }
     }
 }
 
@@ -388,13 +385,13 @@ impl crate::CamGraph for Graph {
     }
 
     fn feature_layers(&self, outputs: &[&str]) -> Result<Vec<(String, String)>> {
-        let mut anc = vec![false; self.nodes.len()];
-        let mut stack: Vec<usize> = outputs.iter().filter_map(|n| self.node_index(n)).collect();
-        while let Some(i) = stack.pop() {
-            if !std::mem::replace(&mut anc[i], true) {
-                stack.extend(self.nodes[i].inputs.iter().map(|x| x.0));
-            }
-        }
+        let want: Vec<usize> = (outputs.iter())
+            .filter_map(|o| {
+                let (name, k) = parse_ref(o);
+                self.slot_of.get(&(self.node_index(name)?, k)).copied()
+            })
+            .collect();
+        let anc = self.flow.needed(&want, &Default::default());
         Ok(self
             .nodes
             .iter()
