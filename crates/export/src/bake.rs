@@ -220,11 +220,14 @@ pub fn bake(mesh: &PrintMesh, limits: &BakeLimits, budget: &MemoryBudget) -> Res
         if count > cap {
             return Err(too_many(count, limits, budget));
         }
-        // Create midpoints once per edge.
+        // Create midpoints once per edge, in edge order (so the vertices written do not depend
+        // on the hash map's iteration order: the same input bakes to the same file).
         positions.reserve(marked.len());
-        for (&(a, b), m) in marked.iter_mut() {
+        let mut edges: Vec<(u32, u32)> = marked.keys().copied().collect();
+        edges.sort_unstable();
+        for (a, b) in edges {
             positions.push((positions[a as usize] + positions[b as usize]) * 0.5);
-            *m = positions.len() as u32 - 1;
+            marked.insert((a, b), positions.len() as u32 - 1);
         }
         let mut next = Vec::with_capacity(count as usize);
         for t in &tris {

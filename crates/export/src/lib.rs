@@ -599,126 +599,167 @@ fn make_printable(
     // Repair and solidify change the size by less than a voxel: an object that cannot fit is
     // refused before either runs (a 1 km object would be solidified first otherwise).
     check_size(&at, mesh.report.size_mm, opts)?;
-    let mut cur = mesh.clone();
-    let mut rebuild = opts.repair == RepairMode::Solid;
-    if !cur.report.is_closed() {
-        let (m, log) = repair::light_repair(&cur, opts.max_hole_mm)?;
-        notes.extend(log.notes());
-        if !m.report.is_closed() {
-            if opts.repair == RepairMode::Light {
-                bail!(
-                    "{at} is not printable after light repair: {}; refusing to write geometry (--repair auto rebuilds it as a solid)",
-                    m.report.problems()
-                );
-            }
-            notes.push(format!(
-                "light repair left {}: rebuilding as a solid",
-                m.report.problems()
-            ));
-            rebuild = true;
-        } else {
-            notes.push("light repair closed the mesh".into());
-        }
-        cur = m;
-    }
+    let (mut cur, mut rebuild) = close(mesh, opts, &at, notes)?;
     let a = printability::analyse(&cur, limits.min_wall_mm);
-    let before = printability::check(&cur, &a, limits);
-    if !before.thin_regions.is_empty() {
-        let list: Vec<String> = before
-            .thin_regions
-            .iter()
-            .take(10)
-            .map(|r| r.describe())
-            .collect();
-        let head = format!(
-            "{at}: {} regions are thinner than the {:.2} mm minimum wall: {}{}",
-            before.thin_regions.len(),
-            limits.min_wall_mm,
-            list.join("; "),
-            if before.thin_regions.len() > 10 {
-                "; ..."
-            } else {
-                ""
-            }
-        );
-        // Walls made thin by the scale (single-sided surfaces have no thickness at any scale).
-        let thin_area: f64 = before
-            .thin_regions
-            .iter()
-            .filter(|r| r.min_thickness_mm > 0.0)
-            .map(|r| r.area_mm2)
-            .sum();
-        let share = thin_area / cur.report.area_mm2.max(1e-12);
-        match limits.thin {
-            ThinPolicy::Refuse => bail!(
-                "{head}; refusing to write geometry (--thin thicken thickens them, --thin drop leaves them out, or print at a larger scale)"
-            ),
-            _ if share > MAX_THIN_SHARE => bail!(
-                "{head}; that is {:.0} % of the surface: the object is too small to print at this scale (choose a larger scale)",
-                share * 100.0
-            ),
-            ThinPolicy::Thicken => notes.push(format!("{head}; thickened to the minimum wall")),
-            ThinPolicy::Drop => notes.push(format!("warning: {head}; left out (--thin drop)")),
-        }
-        rebuild = true;
-    }
+    rebuild |= thin_walls(&cur, &a, limits, &at, notes)?;
     let kinds = a.kinds.clone();
     let mut solid = None;
     if rebuild {
-        let voxel = opts
-            .voxel_mm
-            .unwrap_or_else(|| auto_voxel(cur.report.size_mm, limits));
-        let so = solidify::SolidifyOptions {
-            voxel_mm: voxel,
-            min_wall_mm: limits.min_wall_mm,
-            thin: limits.thin,
-            memory: opts.memory,
-        };
-        (opts.progress)(&format!("rebuilding as a solid on a {voxel:.3} mm grid"));
-        let (m, rep) = solidify::solidify(&cur, &a, &so).with_context(|| at.clone())?;
-        notes.push(rep.note());
-        if !m.report.is_closed() {
-            bail!(
-                "{at}: the rebuilt solid is still not printable ({}); try another --voxel-mm",
-                m.report.problems()
-            );
-        }
+        let (m, rep) = rebuild_solid(&cur, &a, opts, &at, notes)?;
         cur = m;
         solid = Some(rep);
     }
     // The check of what is written (the solid's thin regions were thickened or dropped above).
-    let a_out = if solid.is_some() {
-        printability::Analysis {
-            kinds: vec![printability::TriKind::Boundary; cur.tris.len()],
-            thickness: vec![f32::INFINITY; cur.tris.len()],
-            thin: vec![false; cur.tris.len()],
-            relief: 0,
-        }
-    } else {
-        a
-    };
-    let mut p = printability::check(&cur, &a_out, limits);
-    if !p.tiny.is_empty() {
-        let list: Vec<String> = p.tiny.iter().take(5).map(|q| q.describe()).collect();
-        let msg = format!(
-            "{at}: {} parts are smaller than the {:.2} mm minimum feature: {}",
-            p.tiny.len(),
-            limits.min_feature_mm,
-            list.join("; ")
-        );
-        match limits.thin {
-            ThinPolicy::Refuse => bail!("{msg}; refusing to write geometry"),
-            ThinPolicy::Drop => {
-                cur = drop_parts(&cur, limits.min_feature_mm)?;
-                notes.push(format!("warning: {msg}; left out (--thin drop)"));
-                p = printability::check(&cur, &a_out_for(&cur), limits);
-            }
-            ThinPolicy::Thicken => notes.push(format!("warning: {msg}")),
-        }
-    }
+    let a_out = if solid.is_some() { a_out_for(&cur) } else { a };
+    let (cur, p) = tiny_parts(cur, &a_out, limits, &at, notes)?;
     check_size(&at, p.size_mm, opts)?;
     notes.extend(p.lines());
     Ok((cur, solid, p, kinds))
+}
+
+/// Light repair of an open mesh: the mesh, and whether it must still be rebuilt as a solid
+/// (always under `--repair solid`; where light repair left it open under `auto`).
+fn close(
+    mesh: &PrintMesh,
+    opts: &ExportOptions,
+    at: &str,
+    notes: &mut Vec<String>,
+) -> Result<(PrintMesh, bool)> {
+    let rebuild = opts.repair == RepairMode::Solid;
+    if mesh.report.is_closed() {
+        return Ok((mesh.clone(), rebuild));
+    }
+    let (m, log) = repair::light_repair(mesh, opts.max_hole_mm)?;
+    notes.extend(log.notes());
+    if m.report.is_closed() {
+        notes.push("light repair closed the mesh".into());
+        return Ok((m, rebuild));
+    }
+    if opts.repair == RepairMode::Light {
+        bail!(
+            "{at} is not printable after light repair: {}; refusing to write geometry (--repair auto rebuilds it as a solid)",
+            m.report.problems()
+        );
+    }
+    notes.push(format!(
+        "light repair left {}: rebuilding as a solid",
+        m.report.problems()
+    ));
+    Ok((m, true))
+}
+
+/// Walls thinner than the minimum at this scale: refused, or noted to be thickened or left out
+/// by the rebuild (true: a rebuild is needed).
+fn thin_walls(
+    cur: &PrintMesh,
+    a: &printability::Analysis,
+    limits: &PrintLimits,
+    at: &str,
+    notes: &mut Vec<String>,
+) -> Result<bool> {
+    let before = printability::check(cur, a, limits);
+    if before.thin_regions.is_empty() {
+        return Ok(false);
+    }
+    let list: Vec<String> = before
+        .thin_regions
+        .iter()
+        .take(10)
+        .map(|r| r.describe())
+        .collect();
+    let head = format!(
+        "{at}: {} regions are thinner than the {:.2} mm minimum wall: {}{}",
+        before.thin_regions.len(),
+        limits.min_wall_mm,
+        list.join("; "),
+        if before.thin_regions.len() > 10 {
+            "; ..."
+        } else {
+            ""
+        }
+    );
+    // Walls made thin by the scale (single-sided surfaces have no thickness at any scale).
+    let thin_area: f64 = before
+        .thin_regions
+        .iter()
+        .filter(|r| r.min_thickness_mm > 0.0)
+        .map(|r| r.area_mm2)
+        .sum();
+    let share = thin_area / cur.report.area_mm2.max(1e-12);
+    match limits.thin {
+        ThinPolicy::Refuse => bail!(
+            "{head}; refusing to write geometry (--thin thicken thickens them, --thin drop leaves them out, or print at a larger scale)"
+        ),
+        _ if share > MAX_THIN_SHARE => bail!(
+            "{head}; that is {:.0} % of the surface: the object is too small to print at this scale (choose a larger scale)",
+            share * 100.0
+        ),
+        ThinPolicy::Thicken => notes.push(format!("{head}; thickened to the minimum wall")),
+        ThinPolicy::Drop => notes.push(format!("warning: {head}; left out (--thin drop)")),
+    }
+    Ok(true)
+}
+
+/// The mesh rebuilt as a closed solid on a voxel grid (`--voxel-mm`, or one fitted to the size).
+fn rebuild_solid(
+    cur: &PrintMesh,
+    a: &printability::Analysis,
+    opts: &ExportOptions,
+    at: &str,
+    notes: &mut Vec<String>,
+) -> Result<(PrintMesh, SolidifyReport)> {
+    let limits = &opts.limits;
+    let voxel = opts
+        .voxel_mm
+        .unwrap_or_else(|| auto_voxel(cur.report.size_mm, limits));
+    let so = solidify::SolidifyOptions {
+        voxel_mm: voxel,
+        min_wall_mm: limits.min_wall_mm,
+        thin: limits.thin,
+        memory: opts.memory,
+    };
+    (opts.progress)(&format!("rebuilding as a solid on a {voxel:.3} mm grid"));
+    let (m, rep) = solidify::solidify(cur, a, &so).with_context(|| at.to_string())?;
+    notes.push(rep.note());
+    if !m.report.is_closed() {
+        bail!(
+            "{at}: the rebuilt solid is still not printable ({}); try another --voxel-mm",
+            m.report.problems()
+        );
+    }
+    Ok((m, rep))
+}
+
+/// Parts smaller than the minimum feature: refused, left out (`--thin drop`) or warned about;
+/// the mesh to write and its printability report.
+fn tiny_parts(
+    mut cur: PrintMesh,
+    a_out: &printability::Analysis,
+    limits: &PrintLimits,
+    at: &str,
+    notes: &mut Vec<String>,
+) -> Result<(PrintMesh, Printability)> {
+    let mut p = printability::check(&cur, a_out, limits);
+    if p.tiny.is_empty() {
+        return Ok((cur, p));
+    }
+    let list: Vec<String> = p.tiny.iter().take(5).map(|q| q.describe()).collect();
+    let msg = format!(
+        "{at}: {} parts are smaller than the {:.2} mm minimum feature: {}",
+        p.tiny.len(),
+        limits.min_feature_mm,
+        list.join("; ")
+    );
+    match limits.thin {
+        ThinPolicy::Refuse => bail!("{msg}; refusing to write geometry"),
+        ThinPolicy::Drop => {
+            cur = drop_parts(&cur, limits.min_feature_mm)?;
+            notes.push(format!("warning: {msg}; left out (--thin drop)"));
+            p = printability::check(&cur, &a_out_for(&cur), limits);
+        }
+        ThinPolicy::Thicken => notes.push(format!("warning: {msg}")),
+    }
+    Ok((cur, p))
 }
 
 /// Refuses an object of `size` mm that does not fit the build volume, naming the largest scale

@@ -246,51 +246,17 @@ pub fn solidify(
     } else {
         opts.min_wall_mm * 0.5
     };
-    let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
-    for t in vt.iter().chain(&tt) {
-        for p in t {
-            lo = lo.min(*p);
-            hi = hi.max(*p);
-        }
-    }
-    let pad = r + 2.0 * h;
-    let origin = grid_origin(lo, pad, h);
-    let cells = ((hi + Vec3::splat(pad) - origin) / h).ceil().as_ivec3();
-    let blocks = (cells + IVec3::splat(B - 1)) / B;
-    let cells = blocks * B;
-    let coarse = blocks + IVec3::ONE;
-    let ncoarse = coarse.x as u64 * coarse.y as u64 * coarse.z as u64;
-    if ncoarse > 40_000_000 || cells.max_element() > 1 << 20 {
-        bail!(
-            "the solid's grid would be {}x{}x{} cells of {h} mm: too fine for an object of {:.0} x {:.0} x {:.0} mm; use a larger --voxel-mm",
-            cells.x, cells.y, cells.z, hi.x - lo.x, hi.y - lo.y, hi.z - lo.z
-        );
-    }
+    let g = Grid::around(&vt, &tt, r, h)?;
     opts.memory
         .check(
             &format!("the solid at a {h} mm grid"),
-            estimate_bytes(&vt, &tt, h, ncoarse),
+            estimate_bytes(&vt, &tt, h, g.ncoarse),
             "use a larger --voxel-mm",
         )
         .map_err(anyhow::Error::from)?;
-    rep.grid = (cells + IVec3::ONE).to_array().map(|x| x as usize);
-    rep.blocks = (blocks.x * blocks.y * blocks.z) as usize;
-    // Closed as a chain: every edge is used as often in one direction as in the other, so the
-    // winding number is an integer away from the surface (an even use count alone is not
-    // enough: two triangles on the same side of an edge leave it a boundary of the winding
-    // number, which then varies off the surface and cannot be carried between points).
-    let closed = {
-        let mut e: HashMap<(u32, u32), i32> = HashMap::new();
-        for (i, t) in mesh.tris.iter().enumerate() {
-            if keep_vol(i) {
-                for k in 0..3 {
-                    let (a, b) = (t.v[k], t.v[(k + 1) % 3]);
-                    *e.entry((a.min(b), a.max(b))).or_insert(0) += if a < b { 1 } else { -1 };
-                }
-            }
-        }
-        e.values().all(|&c| c == 0)
-    };
+    rep.grid = (g.cells + IVec3::ONE).to_array().map(|x| x as usize);
+    rep.blocks = (g.blocks.x * g.blocks.y * g.blocks.z) as usize;
+    let closed = closed_as_chain(mesh, keep_vol);
     let vol = SurfaceIndex::new(vt);
     let thin = SurfaceIndex::new(tt);
     let field = Field {
@@ -299,91 +265,194 @@ pub fn solidify(
         thin: &thin,
         r,
         h,
-        origin,
+        origin: g.origin,
     };
-    // The inside test at every block corner.
-    let cidx = |p: IVec3| ((p.x * coarse.y + p.y) * coarse.z + p.z) as usize;
-    let corner_in: Vec<bool> = (0..ncoarse as usize)
-        .into_par_iter()
-        .map(|i| {
-            let i = i as i32;
-            let p = IVec3::new(
-                i / (coarse.y * coarse.z),
-                (i / coarse.z) % coarse.y,
-                i % coarse.z,
-            );
-            field.sample(field.pos(p * B)).inside()
-        })
-        .collect();
-    let block_ids: Vec<IVec3> = (0..blocks.x)
-        .flat_map(|x| {
-            (0..blocks.y).flat_map(move |y| (0..blocks.z).map(move |z| IVec3::new(x, y, z)))
-        })
-        .collect();
-    let rho = (B as f32) * h * 3f32.sqrt() * 0.5 + h;
-    // Seeds: the blocks a surface may pass through.
-    let mut wave: Vec<IVec3> = block_ids
-        .par_iter()
-        .filter(|&&bi| {
-            let ins: Vec<bool> = CORNER
-                .iter()
-                .map(|c| corner_in[cidx(bi + IVec3::from(*c))])
-                .collect();
-            let mixed = ins.iter().any(|&x| x != ins[0]);
-            let c = field.pos(bi * B) + Vec3::splat(B as f32 * h * 0.5);
-            mixed
-                || vol.closest_within(c, rho).is_some()
-                || thin.closest_within(c, rho + r).is_some()
-        })
-        .copied()
-        .collect();
-    // The seeds miss a surface that enters a block through a face without separating its
-    // corners or coming near an input triangle: the winding number's film across a large hole,
-    // far from every triangle, lying within the winding number's approximation error of a grid
-    // plane that is a block face (its points then fall on both sides of ½ while the corners
-    // agree). Every triangle edge on a block face must be matched by the block on the other
-    // side, so whenever an evaluated block's face has points on both sides, the block across
-    // it is evaluated too, until no face with crossings borders an unevaluated block.
-    let bidx = |b: IVec3| ((b.x * blocks.y + b.y) * blocks.z + b.z) as usize;
-    let mut queued = vec![false; rep.blocks];
-    for &bi in &wave {
-        queued[bidx(bi)] = true;
-    }
-    let mut per_block: Vec<(usize, BlockMesh)> = vec![];
-    while !wave.is_empty() {
-        let done: Vec<BlockMesh> = wave
-            .par_iter()
-            .map(|&bi| march_block(&field, bi, cells))
-            .collect();
-        let mut next = vec![];
-        for (&bi, m) in wave.iter().zip(done) {
-            for f in 0..6 {
-                if m.crossed_faces & (1 << f) == 0 {
-                    continue;
-                }
-                let mut nb = bi;
-                nb[f / 2] += if f % 2 == 0 { -1 } else { 1 };
-                if nb.min_element() >= 0 && nb.cmplt(blocks).all() && !queued[bidx(nb)] {
-                    queued[bidx(nb)] = true;
-                    rep.blocks_added += 1;
-                    next.push(nb);
-                }
-            }
-            per_block.push((bidx(bi), m));
-        }
-        wave = next;
-    }
-    // In grid order, so that the first block to place a shared vertex does not depend on the
-    // order of evaluation.
-    per_block.sort_unstable_by_key(|b| b.0);
+    let seeds = g.seeds(&field);
+    let per_block = g.march(&field, seeds, &mut rep);
     rep.blocks_evaluated = per_block.len();
     rep.closed_input = closed;
     rep.points_evaluated = per_block.iter().map(|b| b.1.evaluated).sum();
-    // Merge: one vertex per grid edge.
+    let (positions, tris_k) = merge(&per_block);
+    if tris_k.is_empty() {
+        bail!("the solid is empty at a voxel size of {h} mm (the object is smaller than the grid)");
+    }
+    let mut tris = paint_from(mesh, &positions, &tris_k);
+    let (positions, report) = weld_and_check(&positions, &mut tris)?;
+    rep.triangles = tris.len();
+    rep.seconds = start.elapsed().as_secs_f64();
+    Ok((
+        PrintMesh {
+            positions,
+            tris,
+            report,
+            ..mesh.clone()
+        },
+        rep,
+    ))
+}
+
+/// The solid's grid: cells of `h` mm around the triangles (padded by the thickening radius and
+/// two cells), in blocks of `B`³ cells whose corners are the coarse points.
+struct Grid {
+    origin: Vec3,
+    cells: IVec3,
+    blocks: IVec3,
+    coarse: IVec3,
+    ncoarse: u64,
+}
+
+impl Grid {
+    fn around(vt: &[[Vec3; 3]], tt: &[[Vec3; 3]], r: f32, h: f32) -> Result<Grid> {
+        let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+        for t in vt.iter().chain(tt) {
+            for p in t {
+                lo = lo.min(*p);
+                hi = hi.max(*p);
+            }
+        }
+        let pad = r + 2.0 * h;
+        let origin = grid_origin(lo, pad, h);
+        let cells = ((hi + Vec3::splat(pad) - origin) / h).ceil().as_ivec3();
+        let blocks = (cells + IVec3::splat(B - 1)) / B;
+        let cells = blocks * B;
+        let coarse = blocks + IVec3::ONE;
+        let ncoarse = coarse.x as u64 * coarse.y as u64 * coarse.z as u64;
+        if ncoarse > 40_000_000 || cells.max_element() > 1 << 20 {
+            bail!(
+                "the solid's grid would be {}x{}x{} cells of {h} mm: too fine for an object of {:.0} x {:.0} x {:.0} mm; use a larger --voxel-mm",
+                cells.x, cells.y, cells.z, hi.x - lo.x, hi.y - lo.y, hi.z - lo.z
+            );
+        }
+        Ok(Grid {
+            origin,
+            cells,
+            blocks,
+            coarse,
+            ncoarse,
+        })
+    }
+
+    fn block_index(&self, b: IVec3) -> usize {
+        ((b.x * self.blocks.y + b.y) * self.blocks.z + b.z) as usize
+    }
+
+    /// The blocks a surface may pass through: corners on both sides, or a triangle near.
+    fn seeds(&self, field: &Field) -> Vec<IVec3> {
+        let coarse = self.coarse;
+        let cidx = |p: IVec3| ((p.x * coarse.y + p.y) * coarse.z + p.z) as usize;
+        // The inside test at every block corner.
+        let corner_in: Vec<bool> = (0..self.ncoarse as usize)
+            .into_par_iter()
+            .map(|i| {
+                let i = i as i32;
+                let p = IVec3::new(
+                    i / (coarse.y * coarse.z),
+                    (i / coarse.z) % coarse.y,
+                    i % coarse.z,
+                );
+                field.sample(field.pos(p * B)).inside()
+            })
+            .collect();
+        let blocks = self.blocks;
+        let block_ids: Vec<IVec3> = (0..blocks.x)
+            .flat_map(|x| {
+                (0..blocks.y).flat_map(move |y| (0..blocks.z).map(move |z| IVec3::new(x, y, z)))
+            })
+            .collect();
+        let h = field.h;
+        let rho = (B as f32) * h * 3f32.sqrt() * 0.5 + h;
+        block_ids
+            .par_iter()
+            .filter(|&&bi| {
+                let ins: Vec<bool> = CORNER
+                    .iter()
+                    .map(|c| corner_in[cidx(bi + IVec3::from(*c))])
+                    .collect();
+                let mixed = ins.iter().any(|&x| x != ins[0]);
+                let c = field.pos(bi * B) + Vec3::splat(B as f32 * h * 0.5);
+                mixed
+                    || field.vol.closest_within(c, rho).is_some()
+                    || field.thin.closest_within(c, rho + field.r).is_some()
+            })
+            .copied()
+            .collect()
+    }
+
+    /// Marching cubes over the seed blocks and, wave by wave, the blocks across every face with
+    /// crossings. The seeds miss a surface that enters a block through a face without separating
+    /// its corners or coming near an input triangle: the winding number's film across a large
+    /// hole, far from every triangle, lying within the winding number's approximation error of a
+    /// grid plane that is a block face (its points then fall on both sides of ½ while the
+    /// corners agree). Every triangle edge on a block face must be matched by the block on the
+    /// other side, so whenever an evaluated block's face has points on both sides, the block
+    /// across it is evaluated too, until no face with crossings borders an unevaluated block.
+    /// Returned in grid order, so that the first block to place a shared vertex does not depend
+    /// on the order of evaluation.
+    fn march(
+        &self,
+        field: &Field,
+        mut wave: Vec<IVec3>,
+        rep: &mut SolidifyReport,
+    ) -> Vec<(usize, BlockMesh)> {
+        let mut queued = vec![false; rep.blocks];
+        for &bi in &wave {
+            queued[self.block_index(bi)] = true;
+        }
+        let mut per_block: Vec<(usize, BlockMesh)> = vec![];
+        while !wave.is_empty() {
+            let done: Vec<BlockMesh> = wave
+                .par_iter()
+                .map(|&bi| march_block(field, bi, self.cells))
+                .collect();
+            let mut next = vec![];
+            for (&bi, m) in wave.iter().zip(done) {
+                for f in 0..6 {
+                    if m.crossed_faces & (1 << f) == 0 {
+                        continue;
+                    }
+                    let mut nb = bi;
+                    nb[f / 2] += if f % 2 == 0 { -1 } else { 1 };
+                    if nb.min_element() >= 0
+                        && nb.cmplt(self.blocks).all()
+                        && !queued[self.block_index(nb)]
+                    {
+                        queued[self.block_index(nb)] = true;
+                        rep.blocks_added += 1;
+                        next.push(nb);
+                    }
+                }
+                per_block.push((self.block_index(bi), m));
+            }
+            wave = next;
+        }
+        per_block.sort_unstable_by_key(|b| b.0);
+        per_block
+    }
+}
+
+/// Closed as a chain: every edge is used as often in one direction as in the other, so the
+/// winding number is an integer away from the surface (an even use count alone is not enough:
+/// two triangles on the same side of an edge leave it a boundary of the winding number, which
+/// then varies off the surface and cannot be carried between points).
+fn closed_as_chain(mesh: &PrintMesh, keep: impl Fn(usize) -> bool) -> bool {
+    let mut e: HashMap<(u32, u32), i32> = HashMap::new();
+    for (i, t) in mesh.tris.iter().enumerate() {
+        if keep(i) {
+            for k in 0..3 {
+                let (a, b) = (t.v[k], t.v[(k + 1) % 3]);
+                *e.entry((a.min(b), a.max(b))).or_insert(0) += if a < b { 1 } else { -1 };
+            }
+        }
+    }
+    e.values().all(|&c| c == 0)
+}
+
+/// The blocks' triangles on one vertex per grid edge.
+fn merge(per_block: &[(usize, BlockMesh)]) -> (Vec<Vec3>, Vec<[u32; 3]>) {
     let mut index: HashMap<u64, u32> = HashMap::new();
     let mut positions: Vec<Vec3> = vec![];
     let mut tris_k: Vec<[u32; 3]> = vec![];
-    for (_, BlockMesh { verts, tris, .. }) in &per_block {
+    for (_, BlockMesh { verts, tris, .. }) in per_block {
         for &(k, p) in verts {
             index.entry(k).or_insert_with(|| {
                 positions.push(p);
@@ -394,13 +463,15 @@ pub fn solidify(
             tris_k.push(t.map(|k| index[&k]));
         }
     }
-    if tris_k.is_empty() {
-        bail!("the solid is empty at a voxel size of {h} mm (the object is smaller than the grid)");
-    }
-    // Paint from the closest original triangle.
+    (positions, tris_k)
+}
+
+/// Each new triangle painted from the closest original triangle (texture coordinates
+/// interpolated at its corners' closest points).
+fn paint_from(mesh: &PrintMesh, positions: &[Vec3], tris_k: &[[u32; 3]]) -> Vec<PrintTri> {
     let (all, _) = corners(mesh, |_| true);
     let all = SurfaceIndex::new(all);
-    let mut tris: Vec<PrintTri> = tris_k
+    tris_k
         .par_iter()
         .map(|&v| {
             let p = v.map(|k| positions[k as usize]);
@@ -424,19 +495,7 @@ pub fn solidify(
                 part: src.part,
             }
         })
-        .collect();
-    let (positions, report) = weld_and_check(&positions, &mut tris)?;
-    rep.triangles = tris.len();
-    rep.seconds = start.elapsed().as_secs_f64();
-    Ok((
-        PrintMesh {
-            positions,
-            tris,
-            report,
-            ..mesh.clone()
-        },
-        rep,
-    ))
+        .collect()
 }
 
 /// One block's share of the surface.

@@ -276,116 +276,185 @@ pub fn render_views(
             tmp.path()
         }
     };
-    // The object: paintable parts are white and take the per-view paint texture.
-    let mut scene = r.scene.clone();
-    for (m, &p) in scene.materials.iter_mut().zip(&scene.paintable) {
-        if p {
-            m.texture = None;
-            m.base_color = [1.0; 3];
+    let job = Job::new(r, env, s, dir)?;
+    let (job, cams) = job.views(conds, atlas, device)?;
+    run_blender(s, dir, &job)?;
+    // Read back, composite the backdrop, apply the photometric transforms.
+    cams.iter()
+        .zip(conds)
+        .enumerate()
+        .map(|(i, ((cam, backdrop), c))| read_view(r, dir, i, cam, backdrop, c, device))
+        .collect()
+}
+
+/// The job file Blender renders from, written into `dir` as it is built: the object as OBJ with
+/// its materials, then per view the camera, light, ground and paint texture (identical textures
+/// shared between views).
+struct Job<'a> {
+    r: &'a Renderer,
+    env: &'a Environment,
+    s: &'a BlenderSettings,
+    dir: &'a Path,
+    materials: serde_json::Map<String, serde_json::Value>,
+    paints: Vec<(Vec<u8>, String)>,
+    grounds: Vec<(*const Texture, String)>,
+}
+
+impl<'a> Job<'a> {
+    /// Writes the object (paintable parts white, to take the per-view paint texture) and
+    /// describes its materials.
+    fn new(
+        r: &'a Renderer,
+        env: &'a Environment,
+        s: &'a BlenderSettings,
+        dir: &'a Path,
+    ) -> Result<Self> {
+        let mut scene = r.scene.clone();
+        for (m, &p) in scene.materials.iter_mut().zip(&scene.paintable) {
+            if p {
+                m.texture = None;
+                m.base_color = [1.0; 3];
+            }
         }
+        obj_write::write_obj(&scene, dir, "object")?;
+        let mut materials = serde_json::Map::new();
+        for (m, &p) in scene.materials.iter().zip(&scene.paintable) {
+            let rough = (2.0 / (m.shininess.max(0.0) + 2.0)).powf(0.25);
+            materials.insert(
+                m.name.clone(),
+                json!({
+                    "color": m.base_color.map(|x| decode(s, x)),
+                    "texture": m.texture.map(|t| format!("object_tex{t}.png")),
+                    "paintable": p,
+                    "roughness": rough,
+                    // cac reflects min(1.5·specular, 1) × Schlick(F0 = 0.04); Principled's F0 is
+                    // 0.08 × Specular.
+                    "specular": 0.5 * (1.5 * m.specular).min(1.0),
+                }),
+            );
+        }
+        Ok(Job {
+            r,
+            env,
+            s,
+            dir,
+            materials,
+            paints: vec![],
+            grounds: vec![],
+        })
     }
-    obj_write::write_obj(&scene, dir, "object")?;
-    let mut materials = serde_json::Map::new();
-    let decode = |x: f32| match s.shading {
+
+    /// The whole job with one entry per condition, and each view's camera and backdrop (for
+    /// compositing the images Blender returns).
+    fn views(
+        mut self,
+        conds: &[Condition],
+        atlas: &Texture,
+        device: &Device,
+    ) -> Result<(serde_json::Value, Vec<(Camera, shade::Backdrop)>)> {
+        let s = self.s;
+        let cac_surfaces = matches!(s.shading, Shading::CacSurfaces | Shading::Cac);
+        let a = render::atlas_tensor(atlas, device);
+        let mut views = vec![];
+        let mut cams = vec![];
+        for (i, c) in conds.iter().enumerate() {
+            let pa = render::atlas_texture(&environment::print_error(
+                a.clone(),
+                std::slice::from_ref(c),
+            ))
+            .to_rgb8();
+            let paint = self.paint(pa)?;
+            let cam = self.r.camera(&c.viewpoint)?;
+            let light = self.env.lighting(c);
+            let backdrop = self.env.backdrop(c);
+            let amb = decode(s, light.ambient);
+            let sun = (light.sun > 0.0).then(|| {
+                json!({
+                    "strength": std::f32::consts::PI * (decode(s, light.ambient + light.sun) - amb),
+                    "matrix_world": sun_matrix(light.sun_dir),
+                })
+            });
+            let ground = match &backdrop.ground {
+                None => serde_json::Value::Null,
+                Some(g) => self.ground(g)?,
+            };
+            views.push(json!({
+                "camera": blender_camera(&cam),
+                "world_strength": amb,
+                "reflected_sky": (cac_surfaces || s.sky_reflections)
+                    .then(|| reflected_sky(&backdrop.background).map(|c| c.map(|x| decode(s, x)))),
+                "sun": sun,
+                "ground": ground,
+                "paint_texture": paint,
+                "out": format!("view{i:04}.png"),
+                "mask_prefix": format!("mask{i:04}_"),
+            }));
+            cams.push((cam, backdrop));
+        }
+        let job = json!({
+            "obj": "object.obj",
+            "width": self.r.settings.width, "height": self.r.settings.height,
+            "samples": s.samples, "mask_samples": s.mask_samples, "threads": s.threads,
+            "bounces": s.bounces,
+            "display_values": s.shading != Shading::Linear,
+            "cac_surfaces": cac_surfaces,
+            "cac_ambient": s.shading == Shading::Cac,
+            "sky_reflections": s.sky_reflections,
+            "denoise": s.denoise, "seed": 0, "ground_half_size": 1000.0,
+            "materials": self.materials,
+            "ground_textures": self.grounds.iter().map(|(_, n)| n.clone()).collect::<Vec<_>>(),
+            "views": views,
+        });
+        Ok((job, cams))
+    }
+
+    /// The file name of a view's paint texture (print error differs per view), written once.
+    fn paint(&mut self, pa: image::RgbImage) -> Result<String> {
+        if let Some((_, n)) = self
+            .paints
+            .iter()
+            .find(|(b, _)| *b == pa.as_raw().as_slice())
+        {
+            return Ok(n.clone());
+        }
+        let n = format!("paint{}.png", self.paints.len());
+        cac_core::io::save_png_atomic(&self.dir.join(&n), &pa)?;
+        self.paints.push((pa.into_raw(), n.clone()));
+        Ok(n)
+    }
+
+    /// A view's ground: its texture (written once per texture) and the UVs of its corners.
+    fn ground(&mut self, g: &shade::Ground) -> Result<serde_json::Value> {
+        let ptr = Arc::as_ptr(&g.texture);
+        let gi = match self.grounds.iter().position(|(p, _)| *p == ptr) {
+            Some(k) => k,
+            None => {
+                let n = format!("ground{}.png", self.grounds.len());
+                cac_core::io::save_png_atomic(&self.dir.join(&n), &g.texture.to_rgb8())?;
+                self.grounds.push((ptr, n));
+                self.grounds.len() - 1
+            }
+        };
+        // cac's ground UV is (x, z + ...) shifted and scaled: linear, so exact at corners.
+        const L: f32 = 1000.0;
+        let uv = [(-L, -L), (L, -L), (L, L), (-L, L)]
+            .map(|(x, z)| [(x + g.offset.x) / g.tile_m, (z + g.offset.y) / g.tile_m]);
+        Ok(json!({ "texture": gi, "uv": uv }))
+    }
+}
+
+/// A display value as the shading mode hands it to Blender (sRGB-decoded in linear mode).
+fn decode(s: &BlenderSettings, x: f32) -> f32 {
+    match s.shading {
         Shading::Linear => srgb_to_linear(x),
         Shading::Display | Shading::CacSurfaces | Shading::Cac => x,
-    };
-    let cac_surfaces = matches!(s.shading, Shading::CacSurfaces | Shading::Cac);
-    for (m, &p) in scene.materials.iter().zip(&scene.paintable) {
-        let rough = (2.0 / (m.shininess.max(0.0) + 2.0)).powf(0.25);
-        materials.insert(
-            m.name.clone(),
-            json!({
-                "color": m.base_color.map(decode),
-                "texture": m.texture.map(|t| format!("object_tex{t}.png")),
-                "paintable": p,
-                "roughness": rough,
-                // cac reflects min(1.5·specular, 1) × Schlick(F0 = 0.04); Principled's F0 is
-                // 0.08 × Specular.
-                "specular": 0.5 * (1.5 * m.specular).min(1.0),
-            }),
-        );
     }
-    // Per-view paint textures (print error differs per view); identical ones are shared.
-    let a = render::atlas_tensor(atlas, device);
-    let mut paints: Vec<(Vec<u8>, String)> = vec![];
-    let mut grounds: Vec<(*const Texture, String)> = vec![];
-    let mut views = vec![];
-    let mut cams = vec![];
-    for (i, c) in conds.iter().enumerate() {
-        let pa = render::atlas_texture(&environment::print_error(
-            a.clone(),
-            std::slice::from_ref(c),
-        ))
-        .to_rgb8();
-        let paint = match paints.iter().find(|(b, _)| *b == pa.as_raw().as_slice()) {
-            Some((_, n)) => n.clone(),
-            None => {
-                let n = format!("paint{}.png", paints.len());
-                cac_core::io::save_png_atomic(&dir.join(&n), &pa)?;
-                paints.push((pa.into_raw(), n.clone()));
-                n
-            }
-        };
-        let cam = r.camera(&c.viewpoint)?;
-        let light = env.lighting(c);
-        let backdrop = env.backdrop(c);
-        let amb = decode(light.ambient);
-        let sun = (light.sun > 0.0).then(|| {
-            json!({
-                "strength": std::f32::consts::PI * (decode(light.ambient + light.sun) - amb),
-                "matrix_world": sun_matrix(light.sun_dir),
-            })
-        });
-        let ground = match &backdrop.ground {
-            None => serde_json::Value::Null,
-            Some(g) => {
-                let ptr = Arc::as_ptr(&g.texture);
-                let gi = match grounds.iter().position(|(p, _)| *p == ptr) {
-                    Some(k) => k,
-                    None => {
-                        let n = format!("ground{}.png", grounds.len());
-                        cac_core::io::save_png_atomic(&dir.join(&n), &g.texture.to_rgb8())?;
-                        grounds.push((ptr, n));
-                        grounds.len() - 1
-                    }
-                };
-                // cac's ground UV is (x, z + ...) shifted and scaled: linear, so exact at corners.
-                const L: f32 = 1000.0;
-                let uv = [(-L, -L), (L, -L), (L, L), (-L, L)]
-                    .map(|(x, z)| [(x + g.offset.x) / g.tile_m, (z + g.offset.y) / g.tile_m]);
-                json!({ "texture": gi, "uv": uv })
-            }
-        };
-        views.push(json!({
-            "camera": blender_camera(&cam),
-            "world_strength": amb,
-            "reflected_sky": (cac_surfaces || s.sky_reflections)
-                .then(|| reflected_sky(&backdrop.background).map(|c| c.map(decode))),
-            "sun": sun,
-            "ground": ground,
-            "paint_texture": paint,
-            "out": format!("view{i:04}.png"),
-            "mask_prefix": format!("mask{i:04}_"),
-        }));
-        cams.push((cam, backdrop));
-    }
-    let job = json!({
-        "obj": "object.obj",
-        "width": r.settings.width, "height": r.settings.height,
-        "samples": s.samples, "mask_samples": s.mask_samples, "threads": s.threads,
-        "bounces": s.bounces,
-        "display_values": s.shading != Shading::Linear,
-        "cac_surfaces": cac_surfaces,
-        "cac_ambient": s.shading == Shading::Cac,
-        "sky_reflections": s.sky_reflections,
-        "denoise": s.denoise, "seed": 0, "ground_half_size": 1000.0,
-        "materials": materials,
-        "ground_textures": grounds.iter().map(|(_, n)| n.clone()).collect::<Vec<_>>(),
-        "views": views,
-    });
+}
+
+/// Writes the job and the script into `dir` and runs Blender headless on them.
+fn run_blender(s: &BlenderSettings, dir: &Path, job: &serde_json::Value) -> Result<()> {
     let job_path = dir.join("job.json");
-    cac_core::io::write_atomic(&job_path, serde_json::to_string_pretty(&job)?.as_bytes())?;
+    cac_core::io::write_atomic(&job_path, serde_json::to_string_pretty(job)?.as_bytes())?;
     let script = dir.join("render_views.py");
     cac_core::io::write_atomic(&script, SCRIPT.as_bytes())?;
     let out = Command::new(&s.executable)
@@ -411,48 +480,57 @@ pub fn render_views(
             tail(&String::from_utf8_lossy(&out.stderr), 2500)
         );
     }
-    // Read back, composite the backdrop, apply the photometric transforms.
+    Ok(())
+}
+
+/// View `i` as Blender rendered it: composited over cac's own backdrop, with the condition's
+/// photometric transforms, and the object's coverage and box from the mask layer.
+fn read_view(
+    r: &Renderer,
+    dir: &Path,
+    i: usize,
+    cam: &Camera,
+    backdrop: &shade::Backdrop,
+    cond: &Condition,
+    device: &Device,
+) -> Result<BlenderView> {
     let (w, h) = (r.settings.width, r.settings.height);
-    let mut result = Vec::with_capacity(conds.len());
-    for (i, (cam, backdrop)) in cams.iter().enumerate() {
-        let p = dir.join(format!("view{i:04}.png"));
-        let rgba = image::open(&p)
-            .with_context(|| format!("Blender wrote no readable image {}", p.display()))?
-            .to_rgba32f();
-        let mp = find_mask(dir, &format!("mask{i:04}_"))?;
-        let mask = image::open(&mp)
-            .with_context(|| format!("unreadable Blender mask {}", mp.display()))?
-            .to_luma32f();
-        if rgba.dimensions() != (w as u32, h as u32) || mask.dimensions() != rgba.dimensions() {
-            bail!(
-                "Blender image {} is {:?}, expected {w}x{h}",
-                p.display(),
-                rgba.dimensions()
-            );
-        }
-        let mut data = vec![0.0f32; 3 * w * h];
-        for (x, y, px) in rgba.enumerate_pixels() {
-            let (xi, yi) = (x as usize, y as usize);
-            let dirv = cam.ray_dir(x as f32 + 0.5, y as f32 + 0.5);
-            let bg = shade::background_colour(&backdrop.background, dirv, xi, yi, w, h);
-            let al = px[3];
-            for c in 0..3 {
-                data[(c * h + yi) * w + xi] = px[c] * al + bg[c] * (1.0 - al);
-            }
-        }
-        let img = burn::tensor::Tensor::<4>::from_data(
-            burn::tensor::TensorData::new(data, [1, 3, h, w]),
-            device,
+    let p = dir.join(format!("view{i:04}.png"));
+    let rgba = image::open(&p)
+        .with_context(|| format!("Blender wrote no readable image {}", p.display()))?
+        .to_rgba32f();
+    let mp = find_mask(dir, &format!("mask{i:04}_"))?;
+    let mask = image::open(&mp)
+        .with_context(|| format!("unreadable Blender mask {}", mp.display()))?
+        .to_luma32f();
+    if rgba.dimensions() != (w as u32, h as u32) || mask.dimensions() != rgba.dimensions() {
+        bail!(
+            "Blender image {} is {:?}, expected {w}x{h}",
+            p.display(),
+            rgba.dimensions()
         );
-        let img = environment::photometric(img, std::slice::from_ref(&conds[i]));
-        let coverage: Vec<f32> = mask.pixels().map(|p| p[0]).collect();
-        result.push(BlenderView {
-            image: render::to_images(&img).remove(0),
-            object_box: coverage_box(&coverage, w, 0.5 / 255.0),
-            coverage,
-        });
     }
-    Ok(result)
+    let mut data = vec![0.0f32; 3 * w * h];
+    for (x, y, px) in rgba.enumerate_pixels() {
+        let (xi, yi) = (x as usize, y as usize);
+        let dirv = cam.ray_dir(x as f32 + 0.5, y as f32 + 0.5);
+        let bg = shade::background_colour(&backdrop.background, dirv, xi, yi, w, h);
+        let al = px[3];
+        for c in 0..3 {
+            data[(c * h + yi) * w + xi] = px[c] * al + bg[c] * (1.0 - al);
+        }
+    }
+    let img = burn::tensor::Tensor::<4>::from_data(
+        burn::tensor::TensorData::new(data, [1, 3, h, w]),
+        device,
+    );
+    let img = environment::photometric(img, std::slice::from_ref(cond));
+    let coverage: Vec<f32> = mask.pixels().map(|p| p[0]).collect();
+    Ok(BlenderView {
+        image: render::to_images(&img).remove(0),
+        object_box: coverage_box(&coverage, w, 0.5 / 255.0),
+        coverage,
+    })
 }
 
 fn find_mask(dir: &Path, prefix: &str) -> Result<PathBuf> {
