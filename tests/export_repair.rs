@@ -271,3 +271,41 @@ fn milk_truck_exports_printable_without_allow_open() {
         }
     }
 }
+
+/// The same input exports to the same bytes: a solid rebuilt and baked into a colour 3MF twice
+/// (the bake subdivides edges; hash-map order once decided the vertex order).
+#[test]
+fn the_same_input_exports_to_the_same_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let tex = Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/meshes/barrel/cac-stop_sign.png"
+    ));
+    let mesh = Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/meshes/barrel/barrel.obj"
+    ));
+    let o = ExportOptions {
+        formats: vec![Format::ThreeMfColor, Format::ThreeMfTexture],
+        repair: RepairMode::Solid,
+        voxel_mm: Some(0.8),
+        ..opts("1:40")
+    };
+    let files: Vec<Vec<u8>> = (0..2)
+        .map(|k| {
+            let out = dir.path().join(format!("run{k}"));
+            export::export(mesh, tex, &out, &o).unwrap();
+            let mut names: Vec<_> = std::fs::read_dir(&out)
+                .unwrap()
+                .map(|e| e.unwrap().path())
+                .collect();
+            names.sort();
+            names
+                .iter()
+                .flat_map(|p| std::fs::read(p).unwrap())
+                .collect()
+        })
+        .collect();
+    assert!(files[0].len() > 100_000, "{} bytes", files[0].len());
+    assert!(files[0] == files[1], "two exports of the same input differ");
+}
