@@ -7,7 +7,7 @@
 //! two, three or four triangles; this repeats until no edge is marked. [`colour_error`] measures
 //! how far the per-corner colours (interpolated across each triangle) are from the texture.
 
-use super::texture::{delta_e, sample};
+use super::texture::delta_e;
 use super::{Paint, PrintMesh};
 use anyhow::{bail, Result};
 use cac_core::memory::MemoryBudget;
@@ -62,7 +62,7 @@ fn uv_at(uv: &[Vec2; 3], b: Vec3) -> Vec2 {
 /// The texture colour of the print mesh at barycentric `b` of triangle `parent`.
 pub fn reference_colour(mesh: &PrintMesh, parent: usize, b: Vec3) -> [f32; 3] {
     match mesh.tris[parent].paint {
-        Paint::Texture { tex, uv } => sample(&mesh.textures[tex as usize], uv_at(&uv, b)),
+        Paint::Texture { tex, uv } => mesh.textures[tex as usize].sample(uv_at(&uv, b)),
         Paint::Solid(c) => c,
     }
 }

@@ -98,7 +98,7 @@ fn edge_counts(tris: &[PrintTri]) -> HashMap<(u32, u32), u32> {
 /// The corner colour of triangle `t` at corner `k` (for painting hole fills).
 fn corner_colour(mesh: &PrintMesh, t: &PrintTri, k: usize) -> [f32; 3] {
     match t.paint {
-        Paint::Texture { tex, uv } => super::texture::sample(&mesh.textures[tex as usize], uv[k]),
+        Paint::Texture { tex, uv } => mesh.textures[tex as usize].sample(uv[k]),
         Paint::Solid(c) => c,
     }
 }

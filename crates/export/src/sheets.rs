@@ -7,7 +7,6 @@
 //! Outputs: `page_NN.png`, `sheets.pdf` (the same page images, one per PDF page at exact paper
 //! size) and `sheets.json` (physical sizes and placements).
 
-use super::texture::sample;
 use super::{PrintMesh, Scale};
 use anyhow::{bail, ensure, Context, Result};
 use cac_core::report::font::{draw_text, fill_rect, text_width};
@@ -566,7 +565,7 @@ fn render_piece(
             } else {
                 let tx = pl.texels[0] + (xx - bleed_px) as f32 * texel_per_px + 0.5 * texel_per_px;
                 let ty = pl.texels[1] + (yy - bleed_px) as f32 * texel_per_px + 0.5 * texel_per_px;
-                super::texture::to_rgb8(sample(tex, Vec2::new(tx / tw, 1.0 - ty / th)))
+                super::texture::to_rgb8(tex.sample(Vec2::new(tx / tw, 1.0 - ty / th)))
             };
             img.put_pixel(gx as u32, gy as u32, image::Rgb(c));
         }

@@ -1,32 +1,5 @@
-//! Texture sampling for the bake and its error measure: bilinear in sRGB values with repeat
-//! addressing (glTF's and 3MF's `wrap`), UV origin lower-left (`v = 1` is row 0), and CIE76 ΔE.
-
-use cac_scene::Texture;
-use glam::Vec2;
-
-/// Bilinear sample of `t` at `uv` (texel centres at half-integers, repeat addressing).
-pub fn sample(t: &Texture, uv: Vec2) -> [f32; 3] {
-    let (w, h) = (t.width as i64, t.height as i64);
-    let x = uv.x as f64 * w as f64 - 0.5;
-    let y = (1.0 - uv.y as f64) * h as f64 - 0.5;
-    let (x0, y0) = (x.floor(), y.floor());
-    let (fx, fy) = ((x - x0) as f32, (y - y0) as f32);
-    let (x0, y0) = (x0 as i64, y0 as i64);
-    let at = |xx: i64, yy: i64| t.texels[(yy.rem_euclid(h) * w + xx.rem_euclid(w)) as usize];
-    let (a, b, c, d) = (
-        at(x0, y0),
-        at(x0 + 1, y0),
-        at(x0, y0 + 1),
-        at(x0 + 1, y0 + 1),
-    );
-    let mut out = [0.0; 3];
-    for k in 0..3 {
-        let top = a[k] + (b[k] - a[k]) * fx;
-        let bot = c[k] + (d[k] - c[k]) * fx;
-        out[k] = top + (bot - top) * fy;
-    }
-    out
-}
+//! The bake's colour measures: sRGB to CIELAB and CIE76 ΔE, 8-bit colours. Textures are sampled
+//! by the one sampler the renderer trains with ([`cac_scene::bilinear`]).
 
 /// sRGB display value (0..1) to linear light.
 fn to_linear(c: f32) -> f32 {
@@ -68,21 +41,6 @@ pub fn to_rgb8(c: [f32; 3]) -> [u8; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn bilinear_hits_texel_centres_and_wraps() {
-        let t = Texture {
-            width: 2,
-            height: 1,
-            texels: vec![[0.0; 3], [1.0; 3]],
-        };
-        assert_eq!(sample(&t, Vec2::new(0.25, 0.5))[0], 0.0);
-        assert_eq!(sample(&t, Vec2::new(0.75, 0.5))[0], 1.0);
-        assert!((sample(&t, Vec2::new(0.5, 0.5))[0] - 0.5).abs() < 1e-6);
-        // u = 1.0 is halfway between the last texel and the first (wrapped).
-        assert!((sample(&t, Vec2::new(1.0, 0.5))[0] - 0.5).abs() < 1e-6);
-        assert!((sample(&t, Vec2::new(1.25, 0.5))[0]).abs() < 1e-6);
-    }
 
     #[test]
     fn delta_e_of_black_and_white_is_100() {

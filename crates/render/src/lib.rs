@@ -22,6 +22,7 @@ pub mod bench;
 pub mod camera;
 pub mod composite;
 pub mod gbuffer;
+pub mod light;
 pub mod shade;
 mod sheet;
 pub mod skyline;
@@ -29,7 +30,8 @@ pub use sheet::contact_sheet;
 
 pub use camera::{Camera, Intrinsics, Viewpoint};
 pub use composite::{atlas_tensor, atlas_texture, composite, to_images};
-pub use shade::{Backdrop, Background, Ground, Lighting, RenderPlan};
+pub use light::{Backdrop, Background, Ground, Lighting};
+pub use shade::RenderPlan;
 
 use anyhow::{bail, Result};
 use cac_scene::Scene;

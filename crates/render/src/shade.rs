@@ -3,76 +3,18 @@
 //! camouflage (sky or background, ground, fixed parts, highlights) and the taps hold the
 //! paintable surface: bilinear texel weights times diffuse shading, averaged over samples.
 //!
-//! Lighting is ambient plus one directional sun with shadow rays (none are cast when the sun is
-//! off). Shading is applied to display-encoded values, as in the neural renderers used by
+//! Lighting ([`super::light`]) is ambient plus one directional sun with shadow rays (none are
+//! cast when the sun is off). Shading is applied to display-encoded values, as in the neural renderers used by
 //! published camouflage attacks; paint replaces the paintable parts' colour entirely.
 
 use super::accel::Accel;
 use super::gbuffer::{GBuffer, Sample, Surface};
+use super::light::{background_colour, environment_colour, mean_colour};
+use super::light::{Backdrop, Background, Lighting};
+use cac_scene::bilinear::{self, Wrap};
 use cac_scene::{Scene, Texture};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
-use std::sync::Arc;
-
-/// Ambient plus a directional sun.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Lighting {
-    pub ambient: f32,
-    pub sun: f32,
-    /// Unit vector towards the sun.
-    pub sun_dir: Vec3,
-    /// `None`: the object's ambient light comes from every direction alike. `Some(albedo)`: it
-    /// comes from an open sky over a ground of that albedo (display value): a surface whose
-    /// normal has height `n_y` sees the sky with weight `(1 + n_y) / 2` and the lit ground, whose
-    /// light is `albedo × (ambient + sun × sun_y)`, with weight `(1 − n_y) / 2`, as a physical
-    /// renderer finds it (the body's occlusion of itself is not modelled).
-    pub sky_occlusion: Option<f32>,
-}
-
-impl Lighting {
-    /// A sun at the given azimuth/elevation (degrees).
-    pub fn sun_at(ambient: f32, sun: f32, azimuth_deg: f32, elevation_deg: f32) -> Self {
-        let (a, e) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
-        Lighting {
-            ambient,
-            sun,
-            sun_dir: Vec3::new(e.cos() * a.cos(), e.sin(), e.cos() * a.sin()),
-            sky_occlusion: None,
-        }
-    }
-}
-
-/// What is behind the object.
-#[derive(Clone, Debug)]
-pub enum Background {
-    /// A vertical gradient from horizon to zenith colour, with an optional distant skyline.
-    Sky {
-        horizon: [f32; 3],
-        zenith: [f32; 3],
-        skyline: Option<super::skyline::Skyline>,
-    },
-    /// A flat colour.
-    Color([f32; 3]),
-    /// An image stretched over the whole frame (screen space).
-    Image(Arc<Texture>),
-}
-
-/// A textured ground plane at `y = 0`.
-#[derive(Clone, Debug)]
-pub struct Ground {
-    pub texture: Arc<Texture>,
-    /// Metres covered by one repetition of the texture.
-    pub tile_m: f32,
-    /// Shift of the texture (metres), so each view sits at another place of the scene.
-    pub offset: Vec2,
-}
-
-/// Background and optional ground.
-#[derive(Clone, Debug)]
-pub struct Backdrop {
-    pub background: Background,
-    pub ground: Option<Ground>,
-}
 
 /// One view, ready to be composited with any camouflage atlas (see [`super::composite`]).
 #[derive(Clone, Debug)]
@@ -90,104 +32,6 @@ pub struct RenderPlan {
     pub coverage: Vec<f32>,
     /// Ground-truth box of the visible object, pixels `[x1, y1, x2, y2]`.
     pub object_box: Option<[f32; 4]>,
-}
-
-/// The four bilinear taps of `uv` in a `w x h` texture with repeat addressing (row 0 = `v = 1`).
-#[inline]
-pub fn bilinear_taps(uv: Vec2, w: usize, h: usize) -> [(u32, f32); 4] {
-    let x = uv.x * w as f32 - 0.5;
-    let y = (1.0 - uv.y) * h as f32 - 0.5;
-    let (x0, y0) = (x.floor(), y.floor());
-    let (fx, fy) = (x - x0, y - y0);
-    let wrap = |i: f32, n: usize| (i as i64).rem_euclid(n as i64) as u32;
-    let (xa, xb, ya, yb) = (
-        wrap(x0, w),
-        wrap(x0 + 1.0, w),
-        wrap(y0, h),
-        wrap(y0 + 1.0, h),
-    );
-    let w_ = w as u32;
-    [
-        (ya * w_ + xa, (1.0 - fx) * (1.0 - fy)),
-        (ya * w_ + xb, fx * (1.0 - fy)),
-        (yb * w_ + xa, (1.0 - fx) * fy),
-        (yb * w_ + xb, fx * fy),
-    ]
-}
-
-/// Bilinear sample with repeat addressing.
-pub fn sample(tex: &Texture, uv: Vec2) -> [f32; 3] {
-    let mut out = [0.0; 3];
-    for (i, w) in bilinear_taps(uv, tex.width, tex.height) {
-        let t = tex.texels[i as usize];
-        for c in 0..3 {
-            out[c] += w * t[c];
-        }
-    }
-    out
-}
-
-/// The mean texel of a texture (what reflections show of an image background).
-pub fn mean_colour(t: &Texture) -> [f32; 3] {
-    let n = t.texels.len().max(1) as f32;
-    t.texels.iter().fold([0.0f32; 3], |a, t| {
-        [a[0] + t[0] / n, a[1] + t[1] / n, a[2] + t[2] / n]
-    })
-}
-
-/// The colour the environment shows in direction `r` (sky above the horizon, lit ground below),
-/// for reflections.
-fn environment_colour(
-    backdrop: &Backdrop,
-    light: &Lighting,
-    image_mean: [f32; 3],
-    r: Vec3,
-) -> [f32; 3] {
-    if r.y < 0.0 && backdrop.ground.is_some() {
-        let k = (light.ambient + light.sun * light.sun_dir.y.max(0.0)) * 0.35;
-        return [k; 3];
-    }
-    match &backdrop.background {
-        Background::Sky {
-            horizon, zenith, ..
-        } => {
-            let t = r.y.max(0.0).sqrt();
-            [0, 1, 2].map(|i| horizon[i] * (1.0 - t) + zenith[i] * t)
-        }
-        Background::Color(c) => *c,
-        Background::Image(_) => image_mean,
-    }
-}
-
-/// The backdrop's colour seen along the view ray `dir` through pixel `(x, y)` of a `w x h`
-/// image: the sky gradient by ray height, a flat colour, or the image stretched over the frame.
-pub fn background_colour(
-    bg: &Background,
-    dir: Vec3,
-    x: usize,
-    y: usize,
-    w: usize,
-    h: usize,
-) -> [f32; 3] {
-    match bg {
-        Background::Sky {
-            horizon,
-            zenith,
-            skyline,
-        } => {
-            if let Some(c) = skyline.and_then(|s| s.colour(dir, *horizon)) {
-                return c;
-            }
-            let t = dir.y.max(0.0).sqrt();
-            [0, 1, 2].map(|i| horizon[i] * (1.0 - t) + zenith[i] * t)
-        }
-        Background::Color(c) => *c,
-        Background::Image(img) => {
-            let (x, y) = (x as f32 + 0.5, y as f32 + 0.5);
-            let uv = Vec2::new(x / w as f32, 1.0 - y / h as f32);
-            sample(img, uv.clamp(Vec2::splat(0.001), Vec2::splat(0.999)))
-        }
-    }
 }
 
 /// Shades a G-buffer into a render plan for an atlas of `atlas_res x atlas_res`: of the whole
@@ -310,7 +154,7 @@ impl Shader<'_> {
         };
         let k = self.light.ambient + self.light.sun * self.light.sun_dir.y.max(0.0) * vis;
         let uv = (Vec2::new(p.x, p.z) + gr.offset) / gr.tile_m;
-        let c = sample(&gr.texture, uv);
+        let c = gr.texture.sample(uv);
         // Aerial perspective: far ground fades to the horizon colour.
         let fog = 1.0 - (-sm.depth / 150.0).exp();
         let hz = match &self.backdrop.background {
@@ -368,7 +212,7 @@ impl Shader<'_> {
             add(base, env, gloss * fresnel * self.inv_s);
         }
         if self.scene.is_paintable(tri) {
-            for (texel, w) in bilinear_taps(sm.uv, self.atlas_res, self.atlas_res) {
+            for (texel, w) in bilinear::taps(sm.uv, self.atlas_res, self.atlas_res, Wrap::Repeat) {
                 if w > 0.0 {
                     taps.push((texel, w * diffuse * self.inv_s));
                 }
@@ -376,7 +220,7 @@ impl Shader<'_> {
         } else {
             let albedo = match (mat.texture, tri.uv) {
                 (Some(t), Some(_)) => {
-                    let c = sample(&self.scene.textures[t], sm.uv);
+                    let c = self.scene.textures[t].sample(sm.uv);
                     [0, 1, 2].map(|i| c[i] * mat.base_color[i])
                 }
                 _ => mat.base_color,

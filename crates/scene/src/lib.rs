@@ -10,6 +10,7 @@
 //!
 //! This module does not render and knows nothing about tensors.
 
+pub mod bilinear;
 pub mod generate;
 mod gltf_load;
 pub mod hostile;
@@ -88,7 +89,7 @@ impl Texture {
             for x in 0..width {
                 let u = (x as f32 + 0.5) / width as f32;
                 let v = 1.0 - (y as f32 + 0.5) / height as f32;
-                texels.push(self.sample_clamped(Vec2::new(u, v)));
+                texels.push(self.sample_wrapped(Vec2::new(u, v), bilinear::Wrap::Clamp));
             }
         }
         Texture {
@@ -96,23 +97,6 @@ impl Texture {
             height,
             texels,
         }
-    }
-
-    /// Bilinear sample at `uv` with clamp-to-edge addressing (used for resampling only).
-    fn sample_clamped(&self, uv: Vec2) -> [f32; 3] {
-        let x = (uv.x * self.width as f32 - 0.5).clamp(0.0, (self.width - 1) as f32);
-        let y = ((1.0 - uv.y) * self.height as f32 - 0.5).clamp(0.0, (self.height - 1) as f32);
-        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
-        let (x1, y1) = ((x0 + 1).min(self.width - 1), (y0 + 1).min(self.height - 1));
-        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
-        let t = |xx: usize, yy: usize| self.texels[yy * self.width + xx];
-        let mut out = [0.0; 3];
-        for (c, o) in out.iter_mut().enumerate() {
-            let top = t(x0, y0)[c] * (1.0 - fx) + t(x1, y0)[c] * fx;
-            let bot = t(x0, y1)[c] * (1.0 - fx) + t(x1, y1)[c] * fx;
-            *o = top * (1.0 - fy) + bot * fy;
-        }
-        out
     }
 }
 

@@ -31,7 +31,7 @@ use anyhow::{bail, Context, Result};
 use burn::tensor::Device;
 use cac_detect::Detector;
 use cac_render::environment::{self, Condition, Environment};
-use cac_render::{self as render, shade, Camera, Renderer};
+use cac_render::{self as render, light, Camera, Renderer};
 use cac_scene::{obj_write, Texture};
 use glam::Vec3;
 use serde_json::json;
@@ -145,7 +145,7 @@ fn reflected_sky(bg: &render::Background) -> [[f32; 3]; 2] {
             horizon, zenith, ..
         } => [*horizon, *zenith],
         render::Background::Color(c) => [*c, *c],
-        render::Background::Image(img) => [shade::mean_colour(img); 2],
+        render::Background::Image(img) => [light::mean_colour(img); 2],
     }
 }
 
@@ -351,7 +351,7 @@ impl<'a> Job<'a> {
         conds: &[Condition],
         atlas: &Texture,
         device: &Device,
-    ) -> Result<(serde_json::Value, Vec<(Camera, shade::Backdrop)>)> {
+    ) -> Result<(serde_json::Value, Vec<(Camera, light::Backdrop)>)> {
         let s = self.s;
         let cac_surfaces = matches!(s.shading, Shading::CacSurfaces | Shading::Cac);
         let a = render::atlas_tensor(atlas, device);
@@ -424,7 +424,7 @@ impl<'a> Job<'a> {
     }
 
     /// A view's ground: its texture (written once per texture) and the UVs of its corners.
-    fn ground(&mut self, g: &shade::Ground) -> Result<serde_json::Value> {
+    fn ground(&mut self, g: &light::Ground) -> Result<serde_json::Value> {
         let ptr = Arc::as_ptr(&g.texture);
         let gi = match self.grounds.iter().position(|(p, _)| *p == ptr) {
             Some(k) => k,
@@ -490,7 +490,7 @@ fn read_view(
     dir: &Path,
     i: usize,
     cam: &Camera,
-    backdrop: &shade::Backdrop,
+    backdrop: &light::Backdrop,
     cond: &Condition,
     device: &Device,
 ) -> Result<BlenderView> {
@@ -514,7 +514,7 @@ fn read_view(
     for (x, y, px) in rgba.enumerate_pixels() {
         let (xi, yi) = (x as usize, y as usize);
         let dirv = cam.ray_dir(x as f32 + 0.5, y as f32 + 0.5);
-        let bg = shade::background_colour(&backdrop.background, dirv, xi, yi, w, h);
+        let bg = light::background_colour(&backdrop.background, dirv, xi, yi, w, h);
         let al = px[3];
         for c in 0..3 {
             data[(c * h + yi) * w + xi] = px[c] * al + bg[c] * (1.0 - al);

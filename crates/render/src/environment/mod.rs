@@ -396,7 +396,7 @@ impl Environment {
             cond.sun_elevation_deg,
         );
         if cond.sky_occlusion && self.config.ground {
-            let [r, gr, b] = crate::shade::mean_colour(self.ground(cond));
+            let [r, gr, b] = crate::light::mean_colour(self.ground(cond));
             l.sky_occlusion = Some((r + gr + b) / 3.0);
         }
         l
