@@ -49,6 +49,10 @@ fn main() {
     quiet_when_stdout_closes();
     // Per-op timings of every detector graph run, on stderr (docs/detectors.md).
     cac::detect::exec::set_profiling(std::env::var_os("CAC_PROFILE_GRAPH").is_some());
+    // Where fetched models are cached (default: the user's cache folder).
+    if let Some(d) = std::env::var_os("CAC_CACHE_DIR").filter(|d| !d.is_empty()) {
+        cac::detect::fetch::set_cache_root(d.into());
+    }
     let args = cli::Cli::parse();
     if let Err(e) = cli::run(args) {
         eprintln!("error: {e:#}");

@@ -3,7 +3,7 @@
 
 mod export_common;
 
-use cac::export::{self, bake, texture, threemf, ExportOptions, Format, Paint, Scale};
+use cac::export::{self, bake, texture, ExportOptions, Format, Paint, Scale};
 use export_common::*;
 use glam::{Vec2, Vec3};
 use rand::{Rng, SeedableRng};
@@ -153,7 +153,7 @@ fn baked_3mf_round_trip_matches_the_texture() {
     let tex = camo_png(d.path(), 512);
     let out = d.path().join("out");
     export_to(Path::new("jeep"), &tex, &out, &[Format::ThreeMfColor]);
-    let m = threemf::read(&out.join("jeep_color.3mf")).unwrap();
+    let m = read_3mf(&out.join("jeep_color.3mf")).unwrap();
     assert_eq!(m.unit, "millimeter");
     let mesh = print_mesh(Path::new("jeep"), &tex, Scale { denominator: 24.0 });
     let areas: Vec<f32> = m
@@ -232,7 +232,7 @@ fn textured_3mf_round_trip_keeps_texture_uvs_and_geometry() {
     let out = d.path().join("out");
     export_to(Path::new("jeep"), &tex, &out, &[Format::ThreeMfTexture]);
     let file = out.join("jeep_texture.3mf");
-    let m = threemf::read(&file).unwrap();
+    let m = read_3mf(&file).unwrap();
     let mesh = print_mesh(Path::new("jeep"), &tex, Scale { denominator: 24.0 });
     for want in [
         "[Content_Types].xml",

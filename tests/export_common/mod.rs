@@ -7,7 +7,12 @@
 mod support;
 pub use support::require;
 
+use anyhow::{anyhow, bail, Context, Result};
 use cac::export::{self, benchmark, ExportOptions, PrintMesh, Scale};
+use glam::{Vec2, Vec3};
+use quick_xml::events::Event;
+use std::collections::HashMap;
+use std::io::{Read, Seek};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -97,4 +102,139 @@ pub fn have_pdfinfo() -> bool {
         &["-v"],
         "pdfinfo (apt-get install poppler-utils)",
     )
+}
+
+/// What [`read_3mf`] finds in a 3MF written by `cac export` (one mesh object).
+#[derive(Clone, Debug, Default)]
+pub struct Model3mf {
+    pub unit: String,
+    pub vertices: Vec<Vec3>,
+    /// `(v, pid, [p1, p2, p3])`; `pid` 0 when absent.
+    pub triangles: Vec<([u32; 3], u32, [u32; 3])>,
+    pub color_groups: HashMap<u32, Vec<[u8; 3]>>,
+    /// id → (texture id, coordinates).
+    pub tex_groups: HashMap<u32, (u32, Vec<Vec2>)>,
+    /// texture2d id → package path.
+    pub textures: HashMap<u32, String>,
+    /// Package files.
+    pub files: Vec<String>,
+}
+
+impl Model3mf {
+    /// The three corner colours of triangle `i` if it is coloured by a colour group.
+    pub fn corner_colours(&self, i: usize) -> Option<[[u8; 3]; 3]> {
+        let (_, pid, p) = self.triangles[i];
+        let g = self.color_groups.get(&pid)?;
+        Some([
+            g.get(p[0] as usize)?.to_owned(),
+            *g.get(p[1] as usize)?,
+            *g.get(p[2] as usize)?,
+        ])
+    }
+}
+
+/// Reads the model part of a 3MF package as `cac export` writes it (the tests' reader: lib3mf and
+/// PrusaSlicer are the independent ones).
+pub fn read_3mf(path: &Path) -> Result<Model3mf> {
+    let f = std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+    read_from(f).with_context(|| format!("cannot read 3MF {}", path.display()))
+}
+
+fn read_from<R: Read + Seek>(r: R) -> Result<Model3mf> {
+    let mut zip = zip::ZipArchive::new(r)?;
+    let mut m = Model3mf {
+        files: zip.file_names().map(String::from).collect(),
+        ..Default::default()
+    };
+    let mut xml = String::new();
+    zip.by_name("3D/3dmodel.model")?.read_to_string(&mut xml)?;
+    let mut rd = quick_xml::Reader::from_str(&xml);
+    let mut group: Option<(bool, u32)> = None; // (is colour group, id)
+    loop {
+        let ev = rd.read_event()?;
+        let (e, _is_empty) = match &ev {
+            Event::Start(e) => (e, false),
+            Event::Empty(e) => (e, true),
+            Event::End(e) => {
+                if matches!(e.name().as_ref(), b"m:colorgroup" | b"m:texture2dgroup") {
+                    group = None;
+                }
+                continue;
+            }
+            Event::Eof => break,
+            _ => continue,
+        };
+        let mut a: HashMap<String, String> = HashMap::new();
+        for at in e.attributes() {
+            let at = at?;
+            a.insert(
+                String::from_utf8_lossy(at.key.as_ref()).into_owned(),
+                at.normalized_value(quick_xml::XmlVersion::Explicit1_0)?
+                    .into_owned(),
+            );
+        }
+        let num = |k: &str| -> Result<f32> {
+            a.get(k)
+                .ok_or_else(|| anyhow!("missing attribute {k}"))?
+                .parse::<f32>()
+                .with_context(|| format!("attribute {k}"))
+        };
+        let int = |k: &str| -> Result<u32> {
+            a.get(k).map_or(Ok(0), |v| {
+                v.parse::<u32>().with_context(|| format!("attribute {k}"))
+            })
+        };
+        match e.name().as_ref() {
+            b"model" => m.unit = a.get("unit").cloned().unwrap_or_default(),
+            b"vertex" => m.vertices.push(Vec3::new(num("x")?, num("y")?, num("z")?)),
+            b"triangle" => {
+                let p1 = int("p1")?;
+                let p2 = a.get("p2").map_or(Ok(p1), |_| int("p2"))?;
+                let p3 = a.get("p3").map_or(Ok(p1), |_| int("p3"))?;
+                m.triangles.push((
+                    [int("v1")?, int("v2")?, int("v3")?],
+                    int("pid")?,
+                    [p1, p2, p3],
+                ));
+            }
+            b"m:colorgroup" => {
+                group = Some((true, int("id")?));
+                m.color_groups.insert(int("id")?, vec![]);
+            }
+            b"m:texture2dgroup" => {
+                group = Some((false, int("id")?));
+                m.tex_groups.insert(int("id")?, (int("texid")?, vec![]));
+            }
+            b"m:texture2d" => {
+                m.textures
+                    .insert(int("id")?, a.get("path").cloned().unwrap_or_default());
+            }
+            b"m:color" => {
+                let Some((true, id)) = group else {
+                    bail!("m:color outside a colour group")
+                };
+                let s = a
+                    .get("color")
+                    .ok_or_else(|| anyhow!("m:color without color"))?;
+                let hex = s.trim_start_matches('#');
+                if hex.len() < 6 {
+                    bail!("bad colour '{s}'");
+                }
+                let c = |i: usize| u8::from_str_radix(&hex[i..i + 2], 16);
+                m.color_groups
+                    .get_mut(&id)
+                    .unwrap()
+                    .push([c(0)?, c(2)?, c(4)?]);
+            }
+            b"m:tex2coord" => {
+                let Some((false, id)) = group else {
+                    bail!("m:tex2coord outside a texture group")
+                };
+                let q = Vec2::new(num("u")?, num("v")?);
+                m.tex_groups.get_mut(&id).unwrap().1.push(q);
+            }
+            _ => {}
+        }
+    }
+    Ok(m)
 }

@@ -35,11 +35,21 @@ pub const FILES: [(&str, &str); 4] = [
     ),
 ];
 
-/// The cache folder of the models: `$CAC_CACHE_DIR/models`, else `<XDG cache>/cac/models`.
+static CACHE_ROOT: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+
+/// Sets the cache folder (models go to `root/models`) for the rest of the process; the binary
+/// sets it from `CAC_CACHE_DIR` before anything loads (library code reads no environment).
+/// Later calls are ignored.
+pub fn set_cache_root(root: PathBuf) {
+    let _ = CACHE_ROOT.set(root);
+}
+
+/// The cache folder of the models: `root/models` where [`set_cache_root`] set a root, else
+/// `<XDG cache>/cac/models`.
 pub fn models_dir() -> Result<PathBuf> {
-    let root = match std::env::var_os("CAC_CACHE_DIR") {
-        Some(d) if !d.is_empty() => PathBuf::from(d),
-        _ => dirs::cache_dir()
+    let root = match CACHE_ROOT.get() {
+        Some(d) => d.clone(),
+        None => dirs::cache_dir()
             .ok_or_else(|| anyhow!("no cache folder: set CAC_CACHE_DIR"))?
             .join("cac"),
     };
