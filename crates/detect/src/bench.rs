@@ -158,7 +158,7 @@ impl TfjsRow {
 
 /// Times each TFJS detector of the catalogue (their own files, not the parity variants) at
 /// batch 1 and 4, fastest of `runs`, beside the TFJS runner at `runner` (default:
-/// `$CAC_TFJS_RUNNER`, else `target/tfjsref`) on `image` (default: a reference image from
+/// `target/tfjsref`; the command line also reads `$CAC_TFJS_RUNNER`) on `image` (default: a reference image from
 /// `../shared`, else a synthetic one). `on_row` sees the table after each row; returns the
 /// CSV table.
 pub fn tfjs_models(
@@ -172,7 +172,6 @@ pub fn tfjs_models(
     let root = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."));
     let runner = runner
         .map(Path::to_path_buf)
-        .or_else(|| std::env::var_os("CAC_TFJS_RUNNER").map(PathBuf::from))
         .unwrap_or_else(|| root.join("target/tfjsref"));
     let tmp = tempfile::tempdir()?;
     let image = match image {

@@ -72,7 +72,9 @@ pub fn run(a: DetectBench) -> Result<()> {
 
 fn bench_tfjs(a: &DetectBench) -> Result<()> {
     let devices = (&device::inference(), &device::training());
-    let (runner, image) = (a.runner.as_deref(), a.image.as_deref());
+    let runner =
+        (a.runner.clone()).or_else(|| std::env::var_os("CAC_TFJS_RUNNER").map(PathBuf::from));
+    let (runner, image) = (runner.as_deref(), a.image.as_deref());
     let rows = bench::tfjs_models(runner, image, a.runs, devices, &mut |t| {
         print!("{}", t.markdown_last())
     })?;
