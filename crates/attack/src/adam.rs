@@ -40,7 +40,7 @@ impl Adam {
 
     /// One step without the projection (for parameters that are not colours, e.g. the coarse
     /// levels of [`super::pyramid`]; the caller projects what they compose to).
-    pub fn step_unclipped(&mut self, x: &mut [f32], g: &[f32]) -> usize {
+    pub(crate) fn step_unclipped(&mut self, x: &mut [f32], g: &[f32]) -> usize {
         self.step_within(x, g, f32::NEG_INFINITY, f32::INFINITY)
     }
 

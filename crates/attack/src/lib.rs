@@ -202,7 +202,7 @@ fn hide_labels(labels: &str) -> Result<Vec<&str>> {
 
 impl AttackConfig {
     /// The learning rate of iteration `i` (from 0) under [`Self::lr_decay`].
-    pub fn lr_at(&self, i: usize) -> f32 {
+    pub(crate) fn lr_at(&self, i: usize) -> f32 {
         match self.lr_decay {
             LrDecay::Constant => self.lr,
             LrDecay::Cosine => {
@@ -221,7 +221,7 @@ impl AttackConfig {
     }
 
     /// [`Self::goal_for`] with a class list `classes` of model `model`.
-    pub fn goal_in(&self, classes: &[&str], model: &str) -> Result<Goal> {
+    pub(crate) fn goal_in(&self, classes: &[&str], model: &str) -> Result<Goal> {
         if !self.method.is_targeted() {
             return Ok(Goal::Hide(ClassSet::ALL));
         }

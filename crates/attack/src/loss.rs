@@ -253,7 +253,7 @@ pub fn softplus<const D: usize>(x: Tensor<D>) -> Tensor<D> {
 
 /// Row `k·N + i` of a `[B·N, ·]` view of per-candidate tensors for proposal `i` of image `k`, in
 /// the order of `sel`, as an index tensor; `None` when `sel` holds no proposal.
-pub fn proposal_rows(
+pub(crate) fn proposal_rows(
     sel: &[Vec<usize>],
     n: usize,
     device: &burn::tensor::Device,

@@ -39,7 +39,7 @@ pub fn check(res: usize, scales: usize) -> Result<()> {
 }
 
 /// The parameters of an initial atlas (row-major RGB, `res²`): level 0 = the atlas, others 0.
-pub fn from_atlas(atlas: &[f32], res: usize, scales: usize) -> Vec<f32> {
+pub(crate) fn from_atlas(atlas: &[f32], res: usize, scales: usize) -> Vec<f32> {
     let mut p = atlas.to_vec();
     p.resize(len(res, scales), 0.0);
     p

@@ -15,7 +15,7 @@ use cac_scene::Texture;
 
 /// Renders `atlas` in `n` street-level views (azimuths evenly around the object, alternating
 /// bright and dark, distance ratio 1.5) and lays them out in a grid.
-pub fn views_sheet(
+pub(crate) fn views_sheet(
     r: &Renderer,
     env: &Environment,
     atlas: &Texture,
@@ -34,7 +34,12 @@ pub fn views_sheet(
 }
 
 /// The per-iteration loss (thin) and its moving average over 10 iterations (bold), `w × h` px.
-pub fn loss_plot(log: &[IterationLog], title: &str, w: u32, h: u32) -> Result<image::RgbImage> {
+pub(crate) fn loss_plot(
+    log: &[IterationLog],
+    title: &str,
+    w: u32,
+    h: u32,
+) -> Result<image::RgbImage> {
     let pts: Vec<(f64, f64)> = log
         .iter()
         .filter(|l| l.loss.is_finite())

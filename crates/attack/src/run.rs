@@ -21,7 +21,7 @@ const BURN_VERSION: &str = "0.22.1";
 
 /// `run.json`.
 #[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct RunFile {
+pub(crate) struct RunFile {
     #[serde(default)]
     pub cac_version: String,
     #[serde(default)]
@@ -100,7 +100,11 @@ impl RunDir {
     /// The run in `path` for `scene` and `attack`: a new one where the folder holds none, the one
     /// there where its settings are these (but for `iterations`), and an error naming the
     /// settings that differ otherwise.
-    pub fn open_or_create(path: &Path, scene: SceneConfig, attack: AttackConfig) -> Result<RunDir> {
+    pub(crate) fn open_or_create(
+        path: &Path,
+        scene: SceneConfig,
+        attack: AttackConfig,
+    ) -> Result<RunDir> {
         if !path.join("run.json").exists() {
             return RunDir::create(path, scene, attack);
         }
@@ -138,7 +142,7 @@ impl RunDir {
     }
 
     /// Whether the folder holds a checkpoint to continue from.
-    pub fn has_checkpoint(&self) -> bool {
+    pub(crate) fn has_checkpoint(&self) -> bool {
         checkpoint::exists(&self.path)
     }
 

@@ -163,7 +163,7 @@ impl<'a> Trainer<'a> {
     }
 
     /// Extra images for the run folder (name, image): the 2D patch.
-    pub fn extra_images(&self) -> Vec<(String, image::RgbImage)> {
+    pub(crate) fn extra_images(&self) -> Vec<(String, image::RgbImage)> {
         match self.param {
             Parameterisation::Atlas { .. } => vec![],
             Parameterisation::Patch(_) => vec![("patch.png".into(), self.patch().to_rgb8())],

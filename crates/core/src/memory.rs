@@ -24,8 +24,8 @@ pub fn set_process_budget(b: MemoryBudget) {
 }
 
 /// Bytes in one MiB / GiB.
-pub const MIB: u64 = 1 << 20;
-pub const GIB: u64 = 1 << 30;
+pub(crate) const MIB: u64 = 1 << 20;
+pub(crate) const GIB: u64 = 1 << 30;
 
 /// The most memory a job may plan to hold, in bytes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -141,7 +141,7 @@ pub fn human(bytes: u64) -> String {
 }
 
 /// Peak resident set size of this process (`VmHWM`, Linux), `None` where unknown.
-pub fn peak_rss_bytes() -> Option<u64> {
+pub(crate) fn peak_rss_bytes() -> Option<u64> {
     let s = std::fs::read_to_string("/proc/self/status").ok()?;
     let kb: u64 = s
         .lines()

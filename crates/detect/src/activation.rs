@@ -36,7 +36,7 @@ use rayon::prelude::*;
 /// backend but Flex and autodiff uses); the `_backward` kernels take the op's *input* `x` and the
 /// incoming gradient `g`.
 #[backend_extension(Flex, Autodiff, Cube: cfg(feature = "gpu"))]
-pub trait ActivationKernels: Backend {
+pub(crate) trait ActivationKernels: Backend {
     fn act_sigmoid(x: FloatTensor<Self>) -> FloatTensor<Self> {
         Self::sigmoid(x)
     }
@@ -78,12 +78,12 @@ pub fn sigmoid<const D: usize>(x: Tensor<D>) -> Tensor<D> {
 }
 
 /// `x · sigmoid(x)` (SiLU, swish), elementwise.
-pub fn silu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
+pub(crate) fn silu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
     Tensor::from_dispatch(<Dispatch as ActivationKernels>::act_silu(x.into_dispatch()))
 }
 
 /// `x` where `x ≥ 0`, `slope · x` elsewhere.
-pub fn leaky_relu<const D: usize>(x: Tensor<D>, slope: f32) -> Tensor<D> {
+pub(crate) fn leaky_relu<const D: usize>(x: Tensor<D>, slope: f32) -> Tensor<D> {
     Tensor::from_dispatch(<Dispatch as ActivationKernels>::act_leaky_relu(
         x.into_dispatch(),
         slope,
@@ -187,20 +187,20 @@ impl Lane for Leaky {
 /// The composite default bodies on Flex, for what the fast path does not take (not f32).
 mod slow {
     use super::*;
-    pub fn sigmoid_backward(x: FlexTensor, g: FlexTensor) -> FlexTensor {
+    pub(crate) fn sigmoid_backward(x: FlexTensor, g: FlexTensor) -> FlexTensor {
         Flex::sigmoid_backward(Flex::sigmoid(x), g)
     }
-    pub fn silu(x: FlexTensor) -> FlexTensor {
+    pub(crate) fn silu(x: FlexTensor) -> FlexTensor {
         let s = Flex::sigmoid(x.clone());
         Flex::float_mul(x, s)
     }
-    pub fn silu_backward(x: FlexTensor, g: FlexTensor) -> FlexTensor {
+    pub(crate) fn silu_backward(x: FlexTensor, g: FlexTensor) -> FlexTensor {
         let s = Flex::sigmoid(x.clone());
         let one_minus = Flex::float_add_scalar(Flex::float_neg(s.clone()), 1.0.into());
         let inner = Flex::float_add_scalar(Flex::float_mul(x, one_minus), 1.0.into());
         Flex::float_mul(g, Flex::float_mul(s, inner))
     }
-    pub fn leaky_relu_backward(x: FlexTensor, g: FlexTensor, slope: f32) -> FlexTensor {
+    pub(crate) fn leaky_relu_backward(x: FlexTensor, g: FlexTensor, slope: f32) -> FlexTensor {
         let dtype = burn::backend::get_or_init_device_settings::<Flex>(&x.device()).bool_dtype;
         let neg = Flex::float_lower_elem(x, 0f32.into(), dtype);
         let scaled = Flex::float_mul_scalar(g.clone(), slope.into());
@@ -345,7 +345,7 @@ fn lanes<L: Lane>(op: L, y: &mut [f32], x: Option<&[f32]>) {
 /// [-87.3, 88.7], so the result is a normal float (0 and ∞ are not reached, which the sigmoid and
 /// SiLU below rely on); NaN propagates (the clamp's comparisons are false for it).
 #[inline(always)]
-pub fn exp_f32(x: f32) -> f32 {
+pub(crate) fn exp_f32(x: f32) -> f32 {
     const LN2_HI: f32 = 0.693_359_4;
     const LN2_LO: f32 = -2.121_944_4e-4;
     let x = if x > 88.7 { 88.7 } else { x };
@@ -375,7 +375,7 @@ pub fn exp_f32(x: f32) -> f32 {
 /// `1 / (1 + exp(−x))`: within a few ulp of the exact sigmoid (tested), 1 above x ≈ 87 and below
 /// 3e-39 under x ≈ −89, NaN for NaN.
 #[inline(always)]
-pub fn sigmoid_f32(x: f32) -> f32 {
+pub(crate) fn sigmoid_f32(x: f32) -> f32 {
     1.0 / (1.0 + exp_f32(-x))
 }
 

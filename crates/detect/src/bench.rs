@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 /// Fastest ms of the TFJS wasm runner, from its `--time` report; None when it cannot run.
-pub fn tfjs_wasm(
+pub(crate) fn tfjs_wasm(
     runner: &Path,
     model: &str,
     image: &Path,
@@ -38,7 +38,7 @@ pub fn tfjs_wasm(
 }
 
 /// The astronaut from ../shared, or a synthetic 512² image written into `tmp`.
-pub fn reference_image(root: &Path, tmp: &Path) -> Result<PathBuf> {
+pub(crate) fn reference_image(root: &Path, tmp: &Path) -> Result<PathBuf> {
     let shared = root.join("../shared/reference/images/astronaut.png");
     if shared.exists() {
         return Ok(shared);
@@ -53,7 +53,7 @@ pub fn reference_image(root: &Path, tmp: &Path) -> Result<PathBuf> {
 
 /// Milliseconds of a forward pass on `x` and of a forward and backward pass on a random batch
 /// of its shape on the `training` device.
-pub fn forward_backward_ms(
+pub(crate) fn forward_backward_ms(
     det: &dyn Detector,
     runs: usize,
     x: Tensor<4>,
@@ -79,7 +79,7 @@ pub fn forward_backward_ms(
 
 /// PyTorch's (forward, forward+backward) ms on `device` (cpu or cuda), or None when torch cannot
 /// run there.
-pub fn torch_ms(
+pub(crate) fn torch_ms(
     python: &str,
     model: &str,
     (threads, device): (usize, &str),
@@ -103,7 +103,7 @@ pub fn torch_ms(
 
 /// The input size of `name` (synthetic weights), and milliseconds of a forward pass on the
 /// `inference` device and of forward and backward (to the input) on `training`.
-pub fn frcnn_forward_backward_ms(
+pub(crate) fn frcnn_forward_backward_ms(
     name: &str,
     runs: usize,
     inference: &Device,
@@ -299,7 +299,7 @@ pub fn frcnn_models(
 /// onnxruntime's fastest forward ms (CPU, `threads` intra-op threads) of `model` on a uniform
 /// random input of `shape`, run by `python` (`tools/onnx/ort_run.py --bench`); None when
 /// onnxruntime cannot run.
-pub fn ort_ms(
+pub(crate) fn ort_ms(
     python: &str,
     model: &Path,
     input: &str,
@@ -466,7 +466,7 @@ fn onnx_torch_ms(
 }
 
 /// `v` with `p` decimals, or `n/a`.
-pub fn na(v: Option<f64>, p: usize) -> String {
+pub(crate) fn na(v: Option<f64>, p: usize) -> String {
     v.map(|v| format!("{v:.p$}")).unwrap_or("n/a".into())
 }
 

@@ -23,9 +23,9 @@ const SIZE: usize = 512;
 /// Grad-CAM's default layer.
 const CAM_LAYER: &str = "tower_0/MobilenetV3/expanded_conv_11/add";
 /// Post-processing thresholds of `@vladmandic/human` (config.ts `object`).
-pub const MIN_SCORE: f64 = 0.2;
-pub const IOU: f64 = 0.4;
-pub const MAX_DETECTIONS: usize = 10;
+pub(crate) const MIN_SCORE: f64 = 0.2;
+pub(crate) const IOU: f64 = 0.4;
+pub(crate) const MAX_DETECTIONS: usize = 10;
 /// Peaks kept by the graph's TopKV2.
 const TOP_K: usize = 100;
 
@@ -70,7 +70,7 @@ impl CenterNet {
 
 /// The graph's decode tail, on the host: `[100, 6]` rows `x1, y1, x2, y2, score, class` in
 /// 512-input pixels. `kp` is `[G, G, C]` keypoints, `wh` is `[G, G, 4]`.
-pub fn decode_tail(kp: &[f32], wh: &[f32], grid: usize, classes: usize) -> Vec<[f32; 6]> {
+pub(crate) fn decode_tail(kp: &[f32], wh: &[f32], grid: usize, classes: usize) -> Vec<[f32; 6]> {
     let g = grid as isize;
     let at = |y: isize, x: isize, c: usize| kp[((y * g + x) as usize) * classes + c];
     // Peak mask: kp == maxpool3x3(kp) (SAME, -inf padding), kept values else 0.

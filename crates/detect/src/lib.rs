@@ -175,7 +175,7 @@ pub struct ModelInfo {
 }
 
 /// The detector catalogue: every detector [`load`] knows, in the order help texts list them.
-pub const MODELS: [ModelInfo; 7] = [
+pub(crate) const MODELS: [ModelInfo; 7] = [
     ModelInfo {
         name: "centernet",
         weights: Weights::Folder,
@@ -368,7 +368,7 @@ pub fn load_all<S: AsRef<str>>(
 }
 
 /// Checks an image batch is `[B, 3, H, W]` with B, H, W > 0.
-pub fn check_images(images: &Tensor<4>) -> Result<[usize; 4]> {
+pub(crate) fn check_images(images: &Tensor<4>) -> Result<[usize; 4]> {
     let d = images.dims();
     if d[1] != 3 || d[0] == 0 || d[2] == 0 || d[3] == 0 {
         anyhow::bail!(

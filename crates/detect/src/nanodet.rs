@@ -21,11 +21,11 @@ const SIZE: usize = 416;
 const CAM_LAYER: &str = "PartitionedCall/onnx_tf_prefix_LeakyRelu_41";
 const CLASSES: usize = 80;
 /// NanoDet's training normalisation, in B, G, R order.
-pub const MEAN_BGR: [f32; 3] = [103.53, 116.28, 123.675];
-pub const STD_BGR: [f32; 3] = [57.375, 57.12, 58.395];
-pub const MIN_SCORE: f64 = 0.2;
-pub const IOU: f64 = 0.4;
-pub const MAX_DETECTIONS: usize = 10;
+pub(crate) const MEAN_BGR: [f32; 3] = [103.53, 116.28, 123.675];
+pub(crate) const STD_BGR: [f32; 3] = [57.375, 57.12, 58.395];
+pub(crate) const MIN_SCORE: f64 = 0.2;
+pub(crate) const IOU: f64 = 0.4;
+pub(crate) const MAX_DETECTIONS: usize = 10;
 
 /// Input normalisation.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -10,7 +10,7 @@
 use burn::tensor::{Device, Int, Tensor, TensorData};
 
 /// Source indices (floor, ceil) and fractional weights of one resized axis, tfjs-cpu formula.
-pub fn resize_table(
+pub(crate) fn resize_table(
     input: usize,
     output: usize,
     align_corners: bool,
@@ -42,7 +42,7 @@ pub fn resize_table(
 
 /// Bilinear resize of the axes `h_axis`, `w_axis` of a rank-4 tensor to `(out_h, out_w)`,
 /// with TF `align_corners` / `half_pixel_centers` semantics (tfjs-cpu index formula).
-pub fn resize_bilinear(
+pub(crate) fn resize_bilinear(
     x: Tensor<4>,
     h_axis: usize,
     w_axis: usize,

@@ -71,7 +71,7 @@ pub fn reference_colour(mesh: &PrintMesh, parent: usize, b: Vec3) -> [f32; 3] {
 /// vectors and edge map, the colour-error sample, the 3MF's property list, the OBJ's vertices):
 /// the jeep's whole `cac export` at 2.55 M and 10.2 M baked triangles peaked at 489 and 1889 MB,
 /// 192 bytes per added triangle (docs/memory.md).
-pub const BYTES_PER_BAKED_TRIANGLE: u64 = 200;
+pub(crate) const BYTES_PER_BAKED_TRIANGLE: u64 = 200;
 
 /// Memory an export holds before the bake's triangles (binary, mesh, textures, buffers).
 const BAKE_FIXED_BYTES: u64 = 128 << 20;
@@ -80,7 +80,7 @@ const BAKE_FIXED_BYTES: u64 = 128 << 20;
 /// at most the area `√3/4 L²`, so a triangle of area `A` (in texels² or mm²) ends as at least
 /// `A / (√3/4 L²)` pieces. Known without subdividing, so a bake that cannot fit is refused at
 /// once.
-pub fn min_triangles(mesh: &PrintMesh, limits: &BakeLimits) -> u64 {
+pub(crate) fn min_triangles(mesh: &PrintMesh, limits: &BakeLimits) -> u64 {
     let piece = |l: f32| 3f64.sqrt() / 4.0 * (l as f64).powi(2);
     let (mm_piece, tx_piece) = (piece(limits.max_edge_mm), piece(limits.max_edge_texels));
     mesh.tris
@@ -135,7 +135,7 @@ fn too_many(n: u64, limits: &BakeLimits, budget: &MemoryBudget) -> anyhow::Error
 
 /// Refuses, without subdividing, a bake whose [`min_triangles`] is already over the limit or the
 /// budget (the exporter calls it before repairing, so a hopeless bake costs no solidify).
-pub fn check_lower_bound(
+pub(crate) fn check_lower_bound(
     mesh: &PrintMesh,
     limits: &BakeLimits,
     budget: &MemoryBudget,
@@ -290,7 +290,7 @@ fn split(t: &BakedTri, mid: [Option<u32>; 3], out: &mut Vec<BakedTri>) {
 
 /// Colour error of a bake against the texture.
 #[derive(Clone, Debug, Serialize)]
-pub struct ColourError {
+pub(crate) struct ColourError {
     pub samples: usize,
     /// Root mean square error per channel, in 8-bit sRGB steps.
     pub rmse_8bit: f64,
@@ -302,7 +302,7 @@ pub struct ColourError {
 /// Samples `n` area-uniform random points on the textured triangles and compares the baked
 /// colour (corner colours quantised to 8 bits, interpolated barycentrically in sRGB, as the
 /// 3MF stores them) with the texture's bilinear colour there.
-pub fn colour_error(mesh: &PrintMesh, baked: &Baked, n: usize, seed: u64) -> ColourError {
+pub(crate) fn colour_error(mesh: &PrintMesh, baked: &Baked, n: usize, seed: u64) -> ColourError {
     let area = |t: &BakedTri| {
         let [a, b, c] = t.v.map(|i| baked.positions[i as usize]);
         0.5 * (b - a).cross(c - a).length() as f64

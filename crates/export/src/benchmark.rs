@@ -154,7 +154,7 @@ pub struct SolidRow {
 
 /// Subdivides `mesh` (midpoint splits, as the bake does) until it has at least `n` triangles,
 /// keeping each piece's paint: a larger input of the same shape for the solidify benchmark.
-pub fn refine(mesh: &PrintMesh, n: usize) -> Result<PrintMesh> {
+pub(crate) fn refine(mesh: &PrintMesh, n: usize) -> Result<PrintMesh> {
     let mut mm = mesh.report.size_mm.iter().copied().fold(0.0f32, f32::max);
     loop {
         let b = bake(
@@ -199,7 +199,7 @@ pub fn refine(mesh: &PrintMesh, n: usize) -> Result<PrintMesh> {
 }
 
 /// Solidifies `mesh` at each grid spacing and measures the result against it.
-pub fn run_solid(
+pub(crate) fn run_solid(
     mesh: &PrintMesh,
     voxels: &[f32],
     min_wall: f32,

@@ -42,7 +42,7 @@ pub use printcheck::PrintReport;
 pub use solidify::{Fidelity, SolidifyReport};
 
 /// Largest accepted texture side, in texels (larger ones are refused before decoding).
-pub const MAX_TEXTURE_SIDE: u32 = 16384;
+pub(crate) const MAX_TEXTURE_SIDE: u32 = 16384;
 
 /// The object scale `1:N` (the printed object is `N` times smaller than the real one).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -52,7 +52,7 @@ pub struct Scale {
 
 impl Scale {
     /// Millimetres on the print per metre of the real object.
-    pub fn mm_per_m(&self) -> f64 {
+    pub(crate) fn mm_per_m(&self) -> f64 {
         1000.0 / self.denominator
     }
 }
@@ -131,7 +131,7 @@ impl Format {
     }
 
     /// Does this format carry printable geometry (and so need a closed mesh)?
-    pub fn is_geometry(&self) -> bool {
+    pub(crate) fn is_geometry(&self) -> bool {
         !matches!(self, Format::Sheets)
     }
 }
@@ -269,7 +269,7 @@ pub fn load_mesh(path: &Path, opts: &LoadOptions) -> Result<Scene> {
 
 /// Every material that the paint rule selects must have UVs on all its triangles, and at least
 /// one part must be paintable.
-pub fn check_paint_uvs(scene: &Scene, rule: &PaintRule) -> Result<()> {
+pub(crate) fn check_paint_uvs(scene: &Scene, rule: &PaintRule) -> Result<()> {
     for (mi, m) in scene.materials.iter().enumerate() {
         if !rule.is_paintable(&m.name) {
             continue;
@@ -452,7 +452,7 @@ impl std::fmt::Display for ExportSummary {
 
 /// The solidify grid spacing for a print of `size_mm`: half the minimum wall (so walls are
 /// resolved), but no finer than 1/600 of the longest side (bounded time and memory).
-pub fn auto_voxel(size_mm: [f32; 3], limits: &PrintLimits) -> f32 {
+pub(crate) fn auto_voxel(size_mm: [f32; 3], limits: &PrintLimits) -> f32 {
     let longest = size_mm.iter().copied().fold(0.0f32, f32::max);
     (limits.min_wall_mm * 0.5).max(longest / 600.0).max(1e-3)
 }
@@ -578,7 +578,7 @@ pub fn export(
 
 /// Above this share of the surface thinner than the minimum wall, thickening would change the
 /// object too much: the scale is refused instead (the jeep at 1:1000 has 18 %).
-pub const MAX_THIN_SHARE: f64 = 0.15;
+pub(crate) const MAX_THIN_SHARE: f64 = 0.15;
 
 /// Light repair, solidification and the printability check at scale (`--repair` other than
 /// off): the mesh to write, the solidify report when rebuilt, the printability report, and the
@@ -838,7 +838,7 @@ fn drop_parts(m: &PrintMesh, min_mm: f32) -> Result<PrintMesh> {
 }
 
 /// Creates the output folder and proves it is writable before any work is done.
-pub fn check_output_dir(out: &Path) -> Result<()> {
+pub(crate) fn check_output_dir(out: &Path) -> Result<()> {
     std::fs::create_dir_all(out)
         .with_context(|| format!("cannot create output folder {}", out.display()))?;
     tempfile::Builder::new()
@@ -849,7 +849,7 @@ pub fn check_output_dir(out: &Path) -> Result<()> {
 }
 
 /// A file-name-safe stem.
-pub fn sanitize(name: &str) -> String {
+pub(crate) fn sanitize(name: &str) -> String {
     let s: String = name
         .chars()
         .map(|c| {

@@ -56,7 +56,12 @@ fn to_scene(mesh: &PrintMesh) -> Scene {
 
 /// Writes `<stem>.obj`, `<stem>.mtl`, `<stem>_texK.png` into `dir`, and with `zip` also
 /// `<stem>_obj.zip` holding the three kinds of file. Returns the files written.
-pub fn write_textured(mesh: &PrintMesh, dir: &Path, stem: &str, zip: bool) -> Result<Vec<PathBuf>> {
+pub(crate) fn write_textured(
+    mesh: &PrintMesh,
+    dir: &Path,
+    stem: &str,
+    zip: bool,
+) -> Result<Vec<PathBuf>> {
     let scene = to_scene(mesh);
     cac_scene::obj_write::write_obj(&scene, dir, stem)
         .with_context(|| format!("cannot write OBJ into {}", dir.display()))?;
@@ -87,7 +92,7 @@ pub fn write_textured(mesh: &PrintMesh, dir: &Path, stem: &str, zip: bool) -> Re
 }
 
 /// Writes the bake as an OBJ with per-vertex colours (`v x y z r g b`, sRGB in 0..1).
-pub fn write_vertex_colour(baked: &Baked, path: &Path) -> Result<()> {
+pub(crate) fn write_vertex_colour(baked: &Baked, path: &Path) -> Result<()> {
     let mut index: HashMap<(u32, [u8; 3]), u32> = HashMap::new();
     let mut verts = String::new();
     let mut faces = String::new();

@@ -6,7 +6,11 @@ use anyhow::Result;
 use image::RgbImage;
 
 /// A PDF with one page per image, each image covering its page at the paper's exact size.
-pub fn pages_to_pdf(images: &[RgbImage], paper_mm: (f32, f32), title: &str) -> Result<Vec<u8>> {
+pub(crate) fn pages_to_pdf(
+    images: &[RgbImage],
+    paper_mm: (f32, f32),
+    title: &str,
+) -> Result<Vec<u8>> {
     use pdf_writer::{Content, Filter, Finish, Name, Pdf, Rect, Ref, TextStr};
     use std::io::Write;
     let (wpt, hpt) = (paper_mm.0 / 25.4 * 72.0, paper_mm.1 / 25.4 * 72.0);

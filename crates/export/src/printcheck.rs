@@ -92,7 +92,7 @@ impl PrintReport {
     }
 
     /// What was repaired, in words.
-    pub fn repairs(&self) -> Vec<String> {
+    pub(crate) fn repairs(&self) -> Vec<String> {
         let mut r = vec![];
         if self.input_vertices != self.welded_vertices {
             r.push(format!(
@@ -141,7 +141,7 @@ pub fn edge_stats(tris: impl Iterator<Item = [u32; 3]>) -> (usize, usize, usize)
 
 /// Merges positions closer than `eps` (grid hashing, 27 neighbour cells). Returns the new
 /// positions and the old-to-new index map.
-pub fn weld(positions: &[Vec3], eps: f32) -> (Vec<Vec3>, Vec<u32>) {
+pub(crate) fn weld(positions: &[Vec3], eps: f32) -> (Vec<Vec3>, Vec<u32>) {
     let cell = |p: Vec3| (p / eps).floor().as_ivec3();
     let mut grid: HashMap<glam::IVec3, Vec<u32>> = HashMap::new();
     let mut out: Vec<Vec3> = vec![];
@@ -181,7 +181,10 @@ fn flip(t: &mut PrintTri) {
 }
 
 /// Welds, repairs what can safely be repaired, and reports the rest (see the module doc).
-pub fn weld_and_check(raw: &[Vec3], tris: &mut Vec<PrintTri>) -> Result<(Vec<Vec3>, PrintReport)> {
+pub(crate) fn weld_and_check(
+    raw: &[Vec3],
+    tris: &mut Vec<PrintTri>,
+) -> Result<(Vec<Vec3>, PrintReport)> {
     if tris.is_empty() {
         bail!("the mesh has no triangles");
     }

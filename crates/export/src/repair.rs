@@ -20,7 +20,7 @@ use std::collections::{HashMap, HashSet};
 
 /// What the light repair did.
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
-pub struct RepairLog {
+pub(crate) struct RepairLog {
     pub touch_welded: usize,
     pub duplicates_removed: usize,
     pub degenerate_removed: usize,
@@ -105,7 +105,7 @@ fn corner_colour(mesh: &PrintMesh, t: &PrintTri, k: usize) -> [f32; 3] {
 
 /// Light repair of `mesh` (see the module doc). Returns the repaired mesh (checked again) and
 /// what was done.
-pub fn light_repair(mesh: &PrintMesh, max_hole_mm: f32) -> Result<(PrintMesh, RepairLog)> {
+pub(crate) fn light_repair(mesh: &PrintMesh, max_hole_mm: f32) -> Result<(PrintMesh, RepairLog)> {
     let mut log = RepairLog::default();
     let mut tris = mesh.tris.clone();
     // 1. Weld what touches (0.01 mm at print scale).
@@ -396,7 +396,7 @@ pub fn components(tris: &[[u32; 3]]) -> Vec<u32> {
 }
 
 /// Flips open components whose volume about their own centroid is clearly negative.
-pub fn orient_open_shells(pos: &[Vec3], tris: &mut [PrintTri]) -> usize {
+pub(crate) fn orient_open_shells(pos: &[Vec3], tris: &mut [PrintTri]) -> usize {
     let counts = edge_counts(tris);
     let comp = components(&tris.iter().map(|t| t.v).collect::<Vec<_>>());
     let nc = comp.iter().max().map_or(0, |&m| m as usize + 1);

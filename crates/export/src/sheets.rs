@@ -68,7 +68,7 @@ impl Default for SheetOptions {
 
 /// One piece placed on a page (all lengths in mm from the page's top-left corner).
 #[derive(Clone, Debug, Serialize)]
-pub struct Placement {
+pub(crate) struct Placement {
     pub label: String,
     pub page: usize,
     pub x_mm: f32,
@@ -81,7 +81,7 @@ pub struct Placement {
 
 /// One part (UV island) of the painted surface.
 #[derive(Clone, Debug, Serialize)]
-pub struct PartSheet {
+pub(crate) struct PartSheet {
     pub id: usize,
     pub material: String,
     pub triangles: usize,
@@ -95,7 +95,7 @@ pub struct PartSheet {
 
 /// The JSON sidecar.
 #[derive(Clone, Debug, Serialize)]
-pub struct SheetLayout {
+pub(crate) struct SheetLayout {
     pub object: String,
     pub scale: String,
     pub paper: Paper,

@@ -46,13 +46,18 @@ pub struct SolidifyOptions {
 /// Memory per output triangle through solidify and the weld that follows: measured on the jeep
 /// at 1:24 (`cac bench export --solid-voxels 0.8,0.4,0.2`: 144, 538 and 1970 MB peak for 0.24,
 /// 0.98 and 3.94 M triangles, about 500 bytes each).
-pub const BYTES_PER_SOLID_TRIANGLE: u64 = 500;
+pub(crate) const BYTES_PER_SOLID_TRIANGLE: u64 = 500;
 
 /// An upper estimate of the solid's memory before its grid is evaluated: marching cubes makes
 /// at most two triangles per crossed cell and a surface of area `A` crosses at most `√3 A / h²`
 /// cells (an axis-aligned one `A / h²`); thickened triangles count for both sides of their slab.
 /// Plus a byte per coarse grid point and 12 per block.
-pub fn estimate_bytes(volume: &[[Vec3; 3]], thin: &[[Vec3; 3]], h: f32, coarse_points: u64) -> u64 {
+pub(crate) fn estimate_bytes(
+    volume: &[[Vec3; 3]],
+    thin: &[[Vec3; 3]],
+    h: f32,
+    coarse_points: u64,
+) -> u64 {
     let area = |t: &[[Vec3; 3]]| -> f64 {
         t.iter()
             .map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length() as f64)
@@ -686,7 +691,7 @@ fn march_block(f: &Field, bi: IVec3, cells: IVec3) -> BlockMesh {
 /// Recolours a bake of a rebuilt solid from the original surface: every baked vertex takes the
 /// colour of the closest original point (texture or solid colour), so colours follow the
 /// original across part borders instead of the per-triangle source of the textured transfer.
-pub fn recolour_from(original: &PrintMesh, baked: &mut super::Baked) {
+pub(crate) fn recolour_from(original: &PrintMesh, baked: &mut super::Baked) {
     let (ot, _) = corners(original, |_| true);
     let orig = SurfaceIndex::new(ot);
     let cols: Vec<[f32; 3]> = baked

@@ -126,7 +126,7 @@ impl SurfaceIndex {
     }
 
     /// The closest point within `max_dist` of `p`.
-    pub fn closest_within(&self, p: Vec3, max_dist: f32) -> Option<Closest> {
+    pub(crate) fn closest_within(&self, p: Vec3, max_dist: f32) -> Option<Closest> {
         if self.bvh.nodes.is_empty() {
             return None;
         }
@@ -170,7 +170,7 @@ impl SurfaceIndex {
     }
 
     /// The generalised winding number at `p` (1 inside a closed outward surface, 0 outside).
-    pub fn winding(&self, p: Vec3) -> f32 {
+    pub(crate) fn winding(&self, p: Vec3) -> f32 {
         if self.bvh.nodes.is_empty() {
             return 0.0;
         }
@@ -236,7 +236,7 @@ fn solid_angle(p: Vec3, t: &[Vec3; 3]) -> f32 {
 
 /// The closest point to `p` on triangle `t` and its barycentric coordinates (Ericson,
 /// Real-Time Collision Detection, 5.1.5).
-pub fn closest_on_triangle(p: Vec3, t: &[Vec3; 3]) -> (Vec3, Vec3) {
+pub(crate) fn closest_on_triangle(p: Vec3, t: &[Vec3; 3]) -> (Vec3, Vec3) {
     let (a, b, c) = (t[0], t[1], t[2]);
     let (ab, ac, ap) = (b - a, c - a, p - a);
     let (d1, d2) = (ab.dot(ap), ac.dot(ap));

@@ -11,7 +11,7 @@ fn to_linear(c: f32) -> f32 {
 }
 
 /// sRGB (0..1) to CIELAB (D65).
-pub fn srgb_to_lab(c: [f32; 3]) -> [f32; 3] {
+pub(crate) fn srgb_to_lab(c: [f32; 3]) -> [f32; 3] {
     let [r, g, b] = c.map(|v| to_linear(v.clamp(0.0, 1.0)));
     let x = (0.4124 * r + 0.3576 * g + 0.1805 * b) / 0.95047;
     let y = 0.2126 * r + 0.7152 * g + 0.0722 * b;

@@ -245,7 +245,7 @@ fn png_bytes(t: &cac_scene::Texture) -> Result<Vec<u8>> {
 
 /// Textured 3MF: one `m:texture2d` + `m:texture2dgroup` per texture, a `m:colorgroup` for
 /// untextured parts.
-pub fn write_textured(mesh: &PrintMesh, path: &Path) -> Result<()> {
+pub(crate) fn write_textured(mesh: &PrintMesh, path: &Path) -> Result<()> {
     let used: Vec<bool> = (0..mesh.textures.len())
         .map(|k| {
             mesh.tris
@@ -337,7 +337,7 @@ pub fn write_textured(mesh: &PrintMesh, path: &Path) -> Result<()> {
 
 /// Baked-colour 3MF: the subdivided mesh with one `m:colorgroup` entry per distinct corner
 /// colour (8-bit sRGB); every triangle coloured.
-pub fn write_colored(mesh: &PrintMesh, baked: &Baked, path: &Path) -> Result<()> {
+pub(crate) fn write_colored(mesh: &PrintMesh, baked: &Baked, path: &Path) -> Result<()> {
     let mut colours = Colours::default();
     let props: Vec<(u32, [u32; 3])> = baked
         .tris

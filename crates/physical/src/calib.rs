@@ -112,7 +112,7 @@ impl CameraModel {
     }
 
     /// Applies the distortion to normalised image coordinates `(x/z, y/z)`.
-    pub fn distort(&self, p: DVec2) -> DVec2 {
+    pub(crate) fn distort(&self, p: DVec2) -> DVec2 {
         let [k1, k2, p1, p2, k3] = self.dist;
         let (x, y) = (p.x, p.y);
         let r2 = x * x + y * y;
@@ -125,7 +125,7 @@ impl CameraModel {
 
     /// Inverts [`CameraModel::distort`] by Newton's method (numerical Jacobian), starting from
     /// the distorted point; within the image of a real lens it converges to < 1e-12.
-    pub fn undistort(&self, d: DVec2) -> DVec2 {
+    pub(crate) fn undistort(&self, d: DVec2) -> DVec2 {
         let mut p = d;
         for _ in 0..30 {
             let r = self.distort(p) - d;

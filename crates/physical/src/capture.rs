@@ -161,7 +161,7 @@ impl CaptureJob {
 /// The V4L2 camera at the lens's size, with the rig file's frame rate and control values, or
 /// (resuming) the values the session recorded.
 #[cfg(target_os = "linux")]
-pub fn open_camera(
+pub(crate) fn open_camera(
     dev: &std::path::Path,
     rig: &Rig,
     recorded: Option<&CameraSettings>,
@@ -192,7 +192,7 @@ pub fn open_camera(
 }
 
 #[cfg(not(target_os = "linux"))]
-pub fn open_camera(
+pub(crate) fn open_camera(
     dev: &std::path::Path,
     _: &Rig,
     _: Option<&CameraSettings>,

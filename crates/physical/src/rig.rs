@@ -225,7 +225,7 @@ impl Rig {
     }
 
     /// The object's length (m).
-    pub fn object_length(&self) -> f64 {
+    pub(crate) fn object_length(&self) -> f64 {
         f64::from(self.renderer.scene.length())
     }
 
@@ -263,7 +263,7 @@ impl Rig {
 
     /// The camera pose in the object's frame with the table at `angle_deg` and the camera
     /// `horizontal_m` from the axis (its intrinsics are the lens's pinhole part).
-    pub fn camera_at(&self, angle_deg: f64, horizontal_m: f64) -> Result<Camera> {
+    pub(crate) fn camera_at(&self, angle_deg: f64, horizontal_m: f64) -> Result<Camera> {
         let e = self.config.camera.elevation_deg.to_radians() as f32;
         let eye = Vec3::new(horizontal_m as f32, self.config.camera.height_m as f32, 0.0);
         let world = Camera::look_at(
@@ -286,7 +286,7 @@ impl Rig {
     }
 
     /// The key lamp's direction (towards the lamp) in the object's frame at `angle_deg`.
-    pub fn lamp_dir(&self, angle_deg: f64) -> Vec3 {
+    pub(crate) fn lamp_dir(&self, angle_deg: f64) -> Vec3 {
         let [az, el] = self.config.twin.lamp_dir_deg.map(f32::to_radians);
         let world = Vec3::new(el.cos() * az.cos(), el.sin(), el.cos() * az.sin());
         Mat3::from_rotation_y(-(angle_deg.to_radians() as f32)) * world

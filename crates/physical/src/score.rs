@@ -127,7 +127,7 @@ pub fn score(
 /// Per-ratio (mean ± std over repeats) and per-angle P@0.5 from frame scores (frames without a
 /// ground-truth box are not scored; a ratio and repeat, or an angle, without scored frames is
 /// left out).
-pub fn aggregate(
+pub(crate) fn aggregate(
     models: &[String],
     ratios: &[f64],
     angles: &[f64],

@@ -75,7 +75,7 @@ impl SessionPlan {
     }
 
     /// Parses a comma list of distance ratios.
-    pub fn parse_ratios(s: &str) -> Result<Vec<f64>> {
+    pub(crate) fn parse_ratios(s: &str) -> Result<Vec<f64>> {
         s.split(',')
             .map(|t| {
                 t.trim()

@@ -24,10 +24,10 @@ pub trait Stage {
 }
 
 /// Moves the camera by hand: called with the ratio and the camera-to-axis distance (m).
-pub type Operator = Box<dyn FnMut(f64, f64) -> Result<()> + Send>;
+pub(crate) type Operator = Box<dyn FnMut(f64, f64) -> Result<()> + Send>;
 
 /// An operator at the terminal: prints where to put the camera and waits for Enter on stdin.
-pub fn terminal_operator() -> Operator {
+pub(crate) fn terminal_operator() -> Operator {
     Box::new(|ratio, dist| {
         eprintln!(
             "\nMove the camera to {dist:.3} m from the turntable axis (distance ratio {ratio}), horizontally, then press Enter."
@@ -78,7 +78,7 @@ impl<T: Transport> TurntableStage<T> {
     /// completed move (table position from the move's report, rail position plus the rig's
     /// `near_m`, or the distance the operator was asked to set). Fails before the first turn
     /// and camera placement.
-    pub fn reported_pose(&self) -> PoseSource {
+    pub(crate) fn reported_pose(&self) -> PoseSource {
         let r = self.reported.clone();
         Box::new(move || {
             let r = *r.lock().unwrap_or_else(|e| e.into_inner());

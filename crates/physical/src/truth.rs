@@ -52,7 +52,7 @@ pub fn ground_truth_box(rig: &Rig, angle_deg: f64, horizontal_m: f64) -> Result<
 
 /// The normalised radius where the radial distortion stops growing (the lens model folds back);
 /// 10 when it does not within that.
-pub fn fold_radius(lens: &CameraModel) -> f64 {
+pub(crate) fn fold_radius(lens: &CameraModel) -> f64 {
     let [k1, k2, _, _, k3] = lens.dist;
     let f = |r: f64| {
         let r2 = r * r;

@@ -23,7 +23,7 @@ pub struct Pose {
 }
 
 /// Reads the rig's current pose (from a simulated device, an encoder, ...).
-pub type PoseSource = Box<dyn FnMut() -> Result<Pose, String> + Send>;
+pub(crate) type PoseSource = Box<dyn FnMut() -> Result<Pose, String> + Send>;
 
 /// One rendered frame with what the renderer knows about it.
 pub struct TwinFrame {

@@ -87,7 +87,7 @@ impl Accel {
     }
 
     /// Builds the BVH and returns the build's wall time.
-    pub fn build_timed(scene: &Scene) -> (Accel, Duration) {
+    pub(crate) fn build_timed(scene: &Scene) -> (Accel, Duration) {
         let start = std::time::Instant::now();
         let tris: Vec<obvhs::triangle::Triangle> = scene
             .triangles

@@ -23,13 +23,13 @@ pub struct ThreadRun {
 }
 
 impl ThreadRun {
-    pub fn mrays_per_s(&self) -> f64 {
+    pub(crate) fn mrays_per_s(&self) -> f64 {
         self.rays as f64 / self.secs / 1e6
     }
 }
 
 /// Embree's figures on the same rays: build ms, rays/s, hits.
-pub type EmbreeRun = (f64, f64, usize);
+pub(crate) type EmbreeRun = (f64, f64, usize);
 
 /// One scene's ray-throughput figures.
 #[derive(Clone, Debug)]
@@ -151,7 +151,7 @@ fn scenes() -> Vec<(String, Scene)> {
 }
 
 /// Seconds of the fastest of `n` (at least one) runs of `f`, no warm-up, and its last output.
-pub fn best_of<T>(n: usize, mut f: impl FnMut() -> T) -> (f64, T) {
+pub(crate) fn best_of<T>(n: usize, mut f: impl FnMut() -> T) -> (f64, T) {
     let (ms, out) = fastest_ms(0, n.max(1), || Ok(f())).expect("infallible");
     (ms / 1e3, out)
 }

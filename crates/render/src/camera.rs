@@ -21,7 +21,7 @@ pub struct Intrinsics {
 
 impl Intrinsics {
     /// Square pixels, principal point at the image centre, vertical field of view in degrees.
-    pub fn from_vfov(width: usize, height: usize, vfov_deg: f32) -> Self {
+    pub(crate) fn from_vfov(width: usize, height: usize, vfov_deg: f32) -> Self {
         let f = 0.5 * height as f32 / (0.5 * vfov_deg.to_radians()).tan();
         Intrinsics {
             width,

@@ -52,7 +52,7 @@ pub struct GBuffer {
 }
 
 /// Sub-pixel offsets in `[0,1)²` for `n` samples.
-pub fn sample_offsets(n: usize) -> Vec<Vec2> {
+pub(crate) fn sample_offsets(n: usize) -> Vec<Vec2> {
     let n = n.max(1);
     let k = (n as f64).sqrt().round() as usize;
     if k * k == n {
@@ -98,7 +98,7 @@ impl GBuffer {
     /// Casts the image rows `rows` only (a band of the image, so a view can be cast and shaded a
     /// band at a time in little memory), with the world-space ray direction through each image
     /// point `(px, py)` given by `ray` (unit length; e.g. through a lens-distortion model).
-    pub fn cast_rows(
+    pub(crate) fn cast_rows(
         scene: &Scene,
         accel: &Accel,
         camera: &Camera,

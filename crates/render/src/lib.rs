@@ -95,7 +95,7 @@ impl RenderSettings {
     /// Memory one view holds while it is cast, shaded and composed: 32 bytes per sample (the
     /// G-buffer's hit, barycentrics, normal and texel taps) and 16 per pixel (the image and its
     /// PNG). Calibrated on `cac render` at 8000² and 4 spp: 7.5 GB peak, 30.5 bytes per sample.
-    pub fn bytes_per_view(&self) -> u64 {
+    pub(crate) fn bytes_per_view(&self) -> u64 {
         let pixels = (self.width * self.height) as u64;
         pixels * (32 * self.samples as u64 + 16)
     }

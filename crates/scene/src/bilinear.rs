@@ -52,7 +52,7 @@ impl Texture {
     }
 
     /// Bilinear sample at `uv` with the given addressing.
-    pub fn sample_wrapped(&self, uv: Vec2, wrap: Wrap) -> [f32; 3] {
+    pub(crate) fn sample_wrapped(&self, uv: Vec2, wrap: Wrap) -> [f32; 3] {
         let mut out = [0.0; 3];
         for (i, w) in taps(uv, self.width, self.height, wrap) {
             let t = self.texels[i as usize];

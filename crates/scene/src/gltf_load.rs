@@ -11,7 +11,7 @@ use glam::{Mat4, Vec2, Vec3};
 use std::path::Path;
 
 /// Linear → sRGB display encoding.
-pub fn linear_to_srgb(c: f32) -> f32 {
+pub(crate) fn linear_to_srgb(c: f32) -> f32 {
     let c = c.clamp(0.0, 1.0);
     if c <= 0.003_130_8 {
         12.92 * c

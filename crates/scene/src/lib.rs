@@ -247,7 +247,7 @@ impl Scene {
     }
 
     /// Marks materials paintable by name; untextured (UV-less) parts are never painted.
-    pub fn apply_paint_rule(&mut self, rule: &PaintRule) {
+    pub(crate) fn apply_paint_rule(&mut self, rule: &PaintRule) {
         let mut has_uv = vec![true; self.materials.len()];
         let mut used = vec![false; self.materials.len()];
         for t in &self.triangles {

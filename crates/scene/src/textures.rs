@@ -23,7 +23,7 @@ pub enum Kind {
 }
 
 /// The Naive texture's palette (woodland camouflage: olive, brown, black, tan).
-pub const NAIVE_PALETTE: [[u8; 3]; 4] =
+pub(crate) const NAIVE_PALETTE: [[u8; 3]; 4] =
     [[85, 96, 52], [110, 78, 48], [28, 28, 24], [176, 160, 118]];
 
 /// The Natural texture's colour ramp, dark to light (shadowed leaves, leaves, bark, sunlit leaves).
@@ -36,7 +36,7 @@ const NATURAL_RAMP: [[f32; 3]; 5] = [
 ];
 
 /// Side of one Random cell in texels at a given atlas side (32 cells across, at least 1 texel).
-pub fn random_cell(res: usize) -> usize {
+pub(crate) fn random_cell(res: usize) -> usize {
     (res / 32).max(1)
 }
 

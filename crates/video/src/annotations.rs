@@ -134,7 +134,7 @@ impl Annotations {
     }
 
     /// Parses the COCO form.
-    pub fn from_coco(text: &str) -> Result<Annotations> {
+    pub(crate) fn from_coco(text: &str) -> Result<Annotations> {
         #[derive(Deserialize)]
         struct Coco {
             images: Vec<Image>,

@@ -80,7 +80,7 @@ pub fn open(tools: &Tools, input: &Path, opts: &OpenOptions) -> Result<Box<dyn F
 }
 
 /// Images of a folder in name order; frame `i` is at `i / fps` seconds.
-pub struct FolderStream {
+pub(crate) struct FolderStream {
     src: FolderSource,
     size: (u32, u32),
     fps: f64,
@@ -175,7 +175,7 @@ fn rotation_filter(ccw: u32) -> Option<&'static str> {
 }
 
 /// ffmpeg decoding to a pipe.
-pub struct FfmpegStream {
+pub(crate) struct FfmpegStream {
     path: PathBuf,
     info: StreamInfo,
     child: Child,
@@ -248,11 +248,6 @@ impl FfmpegStream {
             index: 0,
             done: false,
         })
-    }
-
-    /// What ffprobe said about the stream.
-    pub fn info(&self) -> &StreamInfo {
-        &self.info
     }
 
     fn log_tail(&self) -> String {

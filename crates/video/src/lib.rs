@@ -123,7 +123,7 @@ pub(crate) fn run_tool(tools: &Tools, tool: &Path, args: &[&std::ffi::OsStr]) ->
 }
 
 /// Is `path` a printf-style image-sequence pattern (`frames/%04d.png`)?
-pub fn is_pattern(path: &Path) -> bool {
+pub(crate) fn is_pattern(path: &Path) -> bool {
     path.to_string_lossy().contains('%')
 }
 

@@ -9,7 +9,7 @@ use std::ffi::OsStr;
 use std::path::Path;
 
 /// The codecs whose tolerances were measured (docs/video.md); others need `allow_any_codec`.
-pub const SUPPORTED_CODECS: [&str; 4] = ["h264", "hevc", "mjpeg", "png"];
+pub(crate) const SUPPORTED_CODECS: [&str; 4] = ["h264", "hevc", "mjpeg", "png"];
 
 /// What ffprobe says about the first video stream.
 #[derive(Clone, Debug, PartialEq)]
@@ -67,7 +67,7 @@ fn num(v: &Value) -> Option<f64> {
 
 /// Counter-clockwise display rotation from a stream's side data (preferred) or `rotate` tag
 /// (clockwise degrees), rounded to a multiple of 90.
-pub fn rotation_of(stream: &Value) -> Result<u32> {
+pub(crate) fn rotation_of(stream: &Value) -> Result<u32> {
     let side = stream["side_data_list"].as_array().and_then(|l| {
         l.iter()
             .find(|s| s["side_data_type"].as_str() == Some("Display Matrix"))
@@ -144,7 +144,7 @@ pub fn probe(tools: &Tools, path: &Path) -> Result<StreamInfo> {
 }
 
 /// Unix seconds of an ISO 8601 UTC time `YYYY-MM-DDTHH:MM:SS[.frac]Z` (the form ffmpeg writes).
-pub fn parse_utc(s: &str) -> Option<f64> {
+pub(crate) fn parse_utc(s: &str) -> Option<f64> {
     let s = s.trim().strip_suffix('Z').unwrap_or(s.trim());
     let (date, time) = s.split_once(['T', ' '])?;
     let d: Vec<i64> = date

@@ -15,7 +15,7 @@ fn f3(v: f64) -> String {
 }
 
 /// One row per scored frame and model.
-pub fn frames_table(s: &VideoScores) -> Table {
+pub(crate) fn frames_table(s: &VideoScores) -> Table {
     let mut t = Table::new([
         "frame",
         "pts_s",
@@ -68,7 +68,7 @@ pub fn frames_table(s: &VideoScores) -> Table {
 }
 
 /// P@0.5 per segment and model.
-pub fn segments_table(s: &VideoScores) -> Table {
+pub(crate) fn segments_table(s: &VideoScores) -> Table {
     let mut t = Table::new([
         "model",
         "segment",
@@ -93,7 +93,7 @@ pub fn segments_table(s: &VideoScores) -> Table {
 }
 
 /// One row per model: P@0.5 over frames and mean ± std over segments.
-pub fn summary_table(s: &VideoScores) -> Table {
+pub(crate) fn summary_table(s: &VideoScores) -> Table {
     let mut t = Table::new([
         "model",
         "frames",
@@ -121,7 +121,7 @@ pub fn summary_table(s: &VideoScores) -> Table {
 
 /// Best true-class confidence (IoU >= threshold) of each model against time, with the
 /// confidence threshold as a grey line.
-pub fn time_plot(s: &VideoScores) -> Result<image::RgbImage> {
+pub(crate) fn time_plot(s: &VideoScores) -> Result<image::RgbImage> {
     let t0 = s.frames.first().map_or(0.0, |f| f.pts);
     let t1 = s.frames.last().map_or(1.0, |f| f.pts).max(t0 + 1e-3);
     let mut series: Vec<Series> = s
@@ -158,7 +158,7 @@ pub fn time_plot(s: &VideoScores) -> Result<image::RgbImage> {
 
 /// P@0.5 of each segment against the segment's middle time, per model; the legend gives the
 /// mean ± std over segments.
-pub fn segments_plot(s: &VideoScores) -> Result<image::RgbImage> {
+pub(crate) fn segments_plot(s: &VideoScores) -> Result<image::RgbImage> {
     let series: Vec<Series> = s
         .summary
         .iter()
@@ -186,7 +186,7 @@ pub fn segments_plot(s: &VideoScores) -> Result<image::RgbImage> {
 
 /// With a turntable log: the best true-class confidence against the turntable angle (polar, 0° at
 /// the top, clockwise), one curve per model and revolution-free angle (mod 360).
-pub fn angle_plot(s: &VideoScores) -> Result<Option<image::RgbImage>> {
+pub(crate) fn angle_plot(s: &VideoScores) -> Result<Option<image::RgbImage>> {
     if s.frames.iter().all(|f| f.angle_deg.is_none()) {
         return Ok(None);
     }

@@ -15,7 +15,7 @@ pub use cac_scene::paint::{paint, paintable_texels};
 
 /// `base` with `patch` tiled `tiles × tiles` times over the atlas, written into the texels where
 /// `mask` is true (all others keep `base`).
-pub fn paste_tiled(base: &Texture, patch: &Texture, mask: &[bool], tiles: usize) -> Texture {
+pub(crate) fn paste_tiled(base: &Texture, patch: &Texture, mask: &[bool], tiles: usize) -> Texture {
     let res = base.width;
     assert_eq!(base.height, res, "the atlas must be square");
     assert_eq!(mask.len(), res * res, "mask size");

@@ -27,7 +27,7 @@ use burn::tensor::{activation::sigmoid, Tensor, TensorData};
 use cac_detect::Candidates;
 
 /// COCO-80 ids of the vehicle ("true") classes the hiding objectives suppress: car, bus, truck.
-pub const VEHICLE_CLASSES: [usize; 3] = [2, 5, 7];
+pub(crate) const VEHICLE_CLASSES: [usize; 3] = [2, 5, 7];
 
 /// How the proposals are chosen, and the objects' ground-truth boxes (one per image, from the
 /// renderer) that [`ProposalRule::Overlap`] needs.
@@ -102,26 +102,26 @@ fn vehicle_logits(logits: Tensor<3>) -> Tensor<3> {
 }
 
 /// AdvPat: mean over images of the highest vehicle-class probability among all candidates.
-pub fn advpat_loss(logits: Tensor<3>) -> Tensor<1> {
+pub(crate) fn advpat_loss(logits: Tensor<3>) -> Tensor<1> {
     let best = vehicle_logits(logits).max_dim(2).max_dim(1); // [B, 1, 1]
     sigmoid(best).mean()
 }
 
 /// CAMOU: `−log(1 − σ(z))` of every vehicle class in every candidate, averaged over candidates.
-pub fn camou_loss(logits: Tensor<3>) -> Tensor<1> {
+pub(crate) fn camou_loss(logits: Tensor<3>) -> Tensor<1> {
     let [b, n, _] = logits.dims();
     softplus(vehicle_logits(logits)).sum() / (b * n) as f64
 }
 
 /// Smooth L1 (Huber with δ = 1): `0.5 x²` for `|x| < 1`, else `|x| − 0.5`.
-pub fn smooth_l1<const D: usize>(x: Tensor<D>) -> Tensor<D> {
+pub(crate) fn smooth_l1<const D: usize>(x: Tensor<D>) -> Tensor<D> {
     let a = x.abs();
     let q = a.clone().clamp_max(1.0);
     q.clone() * (a - q * 0.5)
 }
 
 /// UPC's joint objectness + targeted classification + box-regression loss over the proposals.
-pub fn upc_loss(c: &Candidates, sel: &[Vec<usize>], target: usize) -> Result<Tensor<1>> {
+pub(crate) fn upc_loss(c: &Candidates, sel: &[Vec<usize>], target: usize) -> Result<Tensor<1>> {
     let [b, n, classes] = c.logits.dims();
     if target >= classes {
         bail!("target class {target} is out of range for {classes} classes");

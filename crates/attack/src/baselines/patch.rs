@@ -20,7 +20,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 /// Thys et al.'s weight of the total-variation term (AdvPat only).
-pub const TV_WEIGHT: f64 = 2.5;
+pub(crate) const TV_WEIGHT: f64 = 2.5;
 
 /// Where a 2D patch goes: the object's texture and its paintable texels.
 pub struct Patch {
@@ -80,14 +80,14 @@ impl Patch {
     }
 
     /// `patch` tiled over every paintable texel of the object's texture.
-    pub fn on_object(&self, patch: &Texture) -> Texture {
+    pub(crate) fn on_object(&self, patch: &Texture) -> Texture {
         atlas::paste_tiled(&self.base, patch, &self.mask, self.tiles)
     }
 }
 
 /// Thys et al.'s total variation: mean absolute difference of horizontal and vertical neighbours
 /// of a `[1, P, P, 3]` patch.
-pub fn total_variation(patch: Tensor<4>) -> Tensor<1> {
+pub(crate) fn total_variation(patch: Tensor<4>) -> Tensor<1> {
     let [_, p, _, _] = patch.dims();
     let dx = patch.clone().slice([0..1, 0..p, 1..p, 0..3])
         - patch.clone().slice([0..1, 0..p, 0..p - 1, 0..3]);

@@ -80,7 +80,7 @@ pub fn throughput(
 }
 
 /// Seconds to form one image of `c`, to detect with `dets`, and to score the detections.
-pub fn time_image(
+pub(crate) fn time_image(
     r: &Renderer,
     env: &Environment,
     c: &Condition,

@@ -40,7 +40,7 @@ use std::process::Command;
 use std::sync::Arc;
 
 /// The Python side, run by Blender.
-pub const SCRIPT: &str = include_str!("../../../../tools/blender/render_views.py");
+pub(crate) const SCRIPT: &str = include_str!("../../../../tools/blender/render_views.py");
 
 /// How Blender is run.
 #[derive(Clone, Debug)]
@@ -159,7 +159,7 @@ pub struct BlenderView {
 }
 
 /// sRGB decoding, extended linearly-in-power above 1 (cac's light levels may exceed 1).
-pub fn srgb_to_linear(x: f32) -> f32 {
+pub(crate) fn srgb_to_linear(x: f32) -> f32 {
     if x <= 0.04045 {
         x / 12.92
     } else {
@@ -169,7 +169,7 @@ pub fn srgb_to_linear(x: f32) -> f32 {
 
 /// Blender's camera for a cac camera: `matrix_world` (row-major 4×4), lens and sensor (mm),
 /// sensor fit and shift. Assumes square pixels (`fx == fy`).
-pub fn blender_camera(cam: &Camera) -> serde_json::Value {
+pub(crate) fn blender_camera(cam: &Camera) -> serde_json::Value {
     let k = cam.intrinsics;
     let (w, h) = (k.width as f32, k.height as f32);
     let big = w.max(h);
@@ -545,7 +545,7 @@ fn find_mask(dir: &Path, prefix: &str) -> Result<PathBuf> {
 }
 
 /// The tight box of the pixels whose coverage exceeds `eps`.
-pub fn coverage_box(cov: &[f32], w: usize, eps: f32) -> Option<[f32; 4]> {
+pub(crate) fn coverage_box(cov: &[f32], w: usize, eps: f32) -> Option<[f32; 4]> {
     let mut b: Option<[f32; 4]> = None;
     for (i, &c) in cov.iter().enumerate() {
         if c > eps {
@@ -565,7 +565,7 @@ pub fn coverage_box(cov: &[f32], w: usize, eps: f32) -> Option<[f32; 4]> {
 }
 
 /// Scores Blender views with each model against the views' own (Blender) boxes.
-pub fn score_views(
+pub(crate) fn score_views(
     views: &[BlenderView],
     dets: &[&dyn Detector],
     p: &Protocol,

@@ -74,14 +74,14 @@ fn static_label(l: &str) -> &'static str {
 }
 
 /// The file-name stem of a texture's cache files (letters and digits, others as `_`).
-pub fn safe_name(name: &str) -> String {
+pub(crate) fn safe_name(name: &str) -> String {
     name.chars()
         .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
         .collect()
 }
 
 /// The stem of shard `k` of `n` of a texture: `NAME.shard-K-of-N`.
-pub fn shard_stem(name: &str, k: usize, n: usize) -> String {
+pub(crate) fn shard_stem(name: &str, k: usize, n: usize) -> String {
     format!("{}.shard-{k}-of-{n}", safe_name(name))
 }
 
@@ -100,7 +100,7 @@ pub fn store(dir: &Path, name: &str, key: &str, r: &TextureResult) -> Result<()>
 
 /// Writes shard `k` of `n`'s part of a texture (its `views`), atomically, into its own file;
 /// returns the JSON file's path.
-pub fn store_shard(
+pub(crate) fn store_shard(
     dir: &Path,
     name: &str,
     key: &str,
@@ -186,7 +186,7 @@ pub struct ShardPart {
 }
 
 /// The shard files of texture `name` in `dir` (`NAME.shard-*.json`), sorted by name.
-pub fn shard_files(dir: &Path, name: &str) -> Result<Vec<PathBuf>> {
+pub(crate) fn shard_files(dir: &Path, name: &str) -> Result<Vec<PathBuf>> {
     let prefix = format!("{}.shard-", safe_name(name));
     let rd = match std::fs::read_dir(dir) {
         Ok(rd) => rd,
@@ -206,7 +206,7 @@ pub fn shard_files(dir: &Path, name: &str) -> Result<Vec<PathBuf>> {
 }
 
 /// The shard's stored part whose key matches `key` (None when absent, unreadable or stale).
-pub fn load_shard(
+pub(crate) fn load_shard(
     dir: &Path,
     name: &str,
     key: &str,
@@ -223,7 +223,7 @@ pub fn load_shard(
 }
 
 /// Reads a shard file's number, key and views, not its examples (errors name the file).
-pub fn read_shard_header(path: &Path) -> Result<ShardHeader> {
+pub(crate) fn read_shard_header(path: &Path) -> Result<ShardHeader> {
     let st = read_stored(path)?;
     Ok(ShardHeader {
         path: path.to_path_buf(),
@@ -236,7 +236,7 @@ pub fn read_shard_header(path: &Path) -> Result<ShardHeader> {
 }
 
 /// A shard file's identity: which shard, written with which settings, covering which views.
-pub struct ShardHeader {
+pub(crate) struct ShardHeader {
     pub path: PathBuf,
     pub key: String,
     /// `(K, N)`: shard K of N.

@@ -13,7 +13,7 @@ use std::path::Path;
 
 /// One model in one viewpoint set, before and after.
 #[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct BeforeAfter {
+pub(crate) struct BeforeAfter {
     pub model: String,
     /// What the model is to the attack (white-box, transfer).
     pub role: String,
@@ -31,7 +31,7 @@ pub struct BeforeAfter {
 
 /// Per `(model, role)` and viewpoint set (FV, RV): texture `before_name` in `before` against
 /// `after_name` in `after`.
-pub fn before_after(
+pub(crate) fn before_after(
     (before_name, before): (&str, &TextureResult),
     (after_name, after): (&str, &TextureResult),
     models: &[(&str, &str)],

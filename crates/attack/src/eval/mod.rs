@@ -137,7 +137,7 @@ impl Protocol {
 
     /// This protocol with its classes as ids into `classes`, the class list of model `model`
     /// (resolved by name; an error names the class the model lacks and lists its classes).
-    pub fn for_model(&self, classes: &[&str], model: &str) -> anyhow::Result<Protocol> {
+    pub(crate) fn for_model(&self, classes: &[&str], model: &str) -> anyhow::Result<Protocol> {
         use anyhow::Context;
         let id = |c: usize, what: &str| {
             labels::resolve(self.label(c), classes, model)

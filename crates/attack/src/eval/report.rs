@@ -40,7 +40,7 @@ fn class_names(p: &Protocol, ids: &[usize]) -> String {
 }
 
 /// The protocol statement.
-pub fn protocol_text(i: &EvalInfo) -> String {
+pub(crate) fn protocol_text(i: &EvalInfo) -> String {
     let p = &i.protocol;
     let sets: Vec<&str> = i.plan.sets.iter().map(|&s| set_name(s)).collect();
     format!(
@@ -159,7 +159,7 @@ fn records_table(records: &[ImageRecord]) -> Table {
 }
 
 /// Per model: P@0.5 ± s.e. against a factor, one series per texture.
-pub fn factor_plot(
+pub(crate) fn factor_plot(
     i: &EvalInfo,
     records: &[ImageRecord],
     model: &str,
@@ -218,7 +218,7 @@ pub fn factor_plot(
 
 /// An example view, scaled to at most `max_side` pixels, with the ground truth (white) and one
 /// model's detections (label and confidence) drawn.
-pub fn example_image(e: &Example, model: usize, max_side: u32) -> image::RgbImage {
+pub(crate) fn example_image(e: &Example, model: usize, max_side: u32) -> image::RgbImage {
     let (w, h) = e.image.dimensions();
     let k = (max_side as f32 / w.max(h) as f32).min(1.0);
     let mut img = if k < 1.0 {

@@ -37,13 +37,13 @@ impl Default for ViewPlan {
 }
 
 /// Short names used in tables and files: FV/RV, L_b/L_d.
-pub fn set_name(s: ViewpointSet) -> &'static str {
+pub(crate) fn set_name(s: ViewpointSet) -> &'static str {
     match s {
         ViewpointSet::Free => "FV",
         ViewpointSet::Restricted => "RV",
     }
 }
-pub fn level_name(b: Brightness) -> &'static str {
+pub(crate) fn level_name(b: Brightness) -> &'static str {
     match b {
         Brightness::Bright => "L_b",
         Brightness::Dark => "L_d",
@@ -59,7 +59,7 @@ pub struct ViewGroup {
 }
 
 /// The plan's view groups, drawn from `env` (same plan and environment, same views).
-pub fn view_groups(env: &Environment, plan: &ViewPlan) -> Vec<ViewGroup> {
+pub(crate) fn view_groups(env: &Environment, plan: &ViewPlan) -> Vec<ViewGroup> {
     let mut out = vec![];
     for &set in &plan.sets {
         for &b in &plan.levels {
@@ -119,7 +119,7 @@ pub struct TextureResult {
 
 /// Every view of the plan as `(group index, view index)`, group by group: the seeded view list
 /// that shards split (see [`super::shard`]).
-pub fn all_views(groups: &[ViewGroup]) -> Vec<(usize, usize)> {
+pub(crate) fn all_views(groups: &[ViewGroup]) -> Vec<(usize, usize)> {
     groups
         .iter()
         .enumerate()
@@ -132,7 +132,7 @@ pub fn all_views(groups: &[ViewGroup]) -> Vec<(usize, usize)> {
 /// each group. The records and examples of a part of the views are those a whole run has for
 /// them. `progress` is called once per image.
 #[allow(clippy::too_many_arguments)]
-pub fn evaluate_texture_in(
+pub(crate) fn evaluate_texture_in(
     r: &Renderer,
     env: &Environment,
     groups: &[ViewGroup],

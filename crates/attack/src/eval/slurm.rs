@@ -145,7 +145,7 @@ pub fn shards_then_merge(base: &[String], shards: usize) -> Result<Vec<Stage>> {
 }
 
 /// The name shared by every job of the sweep writing into `out`.
-pub fn job_name(out: &Path) -> String {
+pub(crate) fn job_name(out: &Path) -> String {
     use sha2::{Digest, Sha256};
     let h = Sha256::digest(out.display().to_string().as_bytes());
     let tag: String = h.iter().take(4).map(|b| format!("{b:02x}")).collect();

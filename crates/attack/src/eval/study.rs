@@ -11,7 +11,7 @@ use cac_core::report::{plot, Plot, Series, Table};
 use cac_render::environment::ViewpointSet;
 
 /// The texture (row) name of the run trained with `n` proposals.
-pub fn run_name(n: usize) -> String {
+pub(crate) fn run_name(n: usize) -> String {
     format!("n{n}")
 }
 
@@ -28,7 +28,7 @@ fn at(records: &[ImageRecord], texture: &str, model: &str) -> Figures {
 }
 
 /// Rows n; per model P@0.5, its standard error and the drop against `Original` (all views).
-pub fn topn_table(
+pub(crate) fn topn_table(
     records: &[ImageRecord],
     ns: &[usize],
     models: &[String],
@@ -61,7 +61,7 @@ pub fn topn_table(
 
 /// P@0.5 ± s.e. against n, one curve per model, with the model's P@0.5 on the original texture
 /// as a thin flat line of the same colour.
-pub fn topn_plot(
+pub(crate) fn topn_plot(
     records: &[ImageRecord],
     ns: &[usize],
     models: &[String],
@@ -107,7 +107,7 @@ pub fn topn_plot(
 
 /// One row per texture (`(name, training seconds)`, `None` for textures not trained); per model
 /// P@0.5 and targeted success in each viewpoint set, over both brightness levels.
-pub fn methods_table(
+pub(crate) fn methods_table(
     records: &[ImageRecord],
     rows: &[(String, Option<f64>)],
     models: &[String],

@@ -116,7 +116,7 @@ pub fn breakdown<'a>(
 
 /// What a paper-shaped table shows.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Metric {
+pub(crate) enum Metric {
     /// P@0.5, with the drop against the reference texture in the Avg column.
     P05,
     TargetedSuccess,
@@ -143,7 +143,7 @@ fn avg_cell(m: Metric, v: f64, reference: Option<f64>) -> String {
 
 /// The paper's main table for one viewpoint set: textures as rows; per model L_b, L_d and Avg
 /// (with the drop against `reference`, the first texture named there, for P@0.5).
-pub fn level_table(
+pub(crate) fn level_table(
     records: &[ImageRecord],
     textures: &[String],
     models: &[String],
@@ -181,7 +181,7 @@ pub fn level_table(
 }
 
 /// RV against FV: textures as rows; per model the metric in each viewpoint set (both levels).
-pub fn set_table(
+pub(crate) fn set_table(
     records: &[ImageRecord],
     textures: &[String],
     models: &[String],
@@ -211,7 +211,7 @@ pub fn set_table(
 }
 
 /// Every summary as a long table: texture, model, set, level (`all` = both), figures, drop.
-pub fn summary_rows(
+pub(crate) fn summary_rows(
     records: &[ImageRecord],
     textures: &[String],
     models: &[String],
@@ -257,7 +257,11 @@ pub fn summary_rows(
 }
 
 /// Every breakdown as a long table: texture, model, factor, bin, figures (all groups pooled).
-pub fn breakdown_rows(records: &[ImageRecord], textures: &[String], models: &[String]) -> Table {
+pub(crate) fn breakdown_rows(
+    records: &[ImageRecord],
+    textures: &[String],
+    models: &[String],
+) -> Table {
     let mut t = Table::new([
         "texture",
         "model",

@@ -58,7 +58,7 @@ pub fn resolve(spec: &str, scene: &Scene, res: usize, seed: u64) -> Result<Named
 }
 
 /// Resolves every spec; names must be unique.
-pub fn resolve_all(
+pub(crate) fn resolve_all(
     specs: &[String],
     scene: &Scene,
     res: usize,

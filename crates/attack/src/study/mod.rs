@@ -62,7 +62,7 @@ impl Source {
 /// command that trains it) an unfinished run is an error. Says which on stdout, prefixed with
 /// `label`. Returns the run's logged training seconds (the iterations' own times).
 #[allow(clippy::too_many_arguments)]
-pub fn train_run(
+pub(crate) fn train_run(
     dir: &Path,
     cfg: &SceneConfig,
     ac: AttackConfig,
@@ -112,7 +112,7 @@ pub fn train_run(
 /// The evaluation of a study's textures as `cac eval` judges them: `views` per brightness level
 /// and set of `sets`, view seed `seed`, targeted success for class `target`, one example view
 /// per group, written to `out/eval`.
-pub fn protocol_job(
+pub(crate) fn protocol_job(
     scene: SceneConfig,
     textures: Vec<String>,
     (views, seed, sets): (usize, u64, Vec<ViewpointSet>),

@@ -40,7 +40,7 @@ pub fn base64(bytes: &[u8]) -> String {
 }
 
 /// A PNG data URI of `img`.
-pub fn png_data_uri(img: &image::RgbImage) -> Result<String> {
+pub(crate) fn png_data_uri(img: &image::RgbImage) -> Result<String> {
     let mut buf = Vec::new();
     img.write_to(&mut std::io::Cursor::new(&mut buf), image::ImageFormat::Png)
         .context("cannot encode an image for the HTML report")?;
@@ -48,7 +48,7 @@ pub fn png_data_uri(img: &image::RgbImage) -> Result<String> {
 }
 
 /// A JPEG data URI of `img` (quality 1–100): for photographs and renders, far smaller than PNG.
-pub fn jpeg_data_uri(img: &image::RgbImage, quality: u8) -> Result<String> {
+pub(crate) fn jpeg_data_uri(img: &image::RgbImage, quality: u8) -> Result<String> {
     let mut buf = Vec::new();
     image::codecs::jpeg::JpegEncoder::new_with_quality(&mut buf, quality.clamp(1, 100))
         .encode_image(img)

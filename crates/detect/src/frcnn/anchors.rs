@@ -3,7 +3,7 @@
 //! `padded_size / grid_size` (integer division).
 
 /// Cell anchors `[x1, y1, x2, y2]` of one level.
-pub fn cell_anchors(sizes: &[f32], ratios: &[f32]) -> Vec<[f32; 4]> {
+pub(crate) fn cell_anchors(sizes: &[f32], ratios: &[f32]) -> Vec<[f32; 4]> {
     let mut out = Vec::new();
     for &r in ratios {
         let hr = r.sqrt();
@@ -17,7 +17,7 @@ pub fn cell_anchors(sizes: &[f32], ratios: &[f32]) -> Vec<[f32; 4]> {
 }
 
 /// All anchors of one level over a `(gh, gw)` grid of the `(ph, pw)` padded input.
-pub fn grid_anchors(
+pub(crate) fn grid_anchors(
     cell: &[[f32; 4]],
     grid: (usize, usize),
     padded: (usize, usize),

@@ -67,7 +67,7 @@ fn act(x: Tensor<4>, hswish: bool) -> Tensor<4> {
 
 impl MobileNetV3 {
     /// Output channels of the two returned levels.
-    pub const CHANNELS: [usize; 2] = [160, 960];
+    pub(crate) const CHANNELS: [usize; 2] = [160, 960];
 
     pub fn load(l: &mut Loader, p: &str, dev: &Device) -> Self {
         let cbn = |l: &mut Loader, name: String, s: ConvShape| {

@@ -21,7 +21,7 @@ pub struct ResNet50 {
 }
 
 impl ResNet50 {
-    pub const CHANNELS: [usize; 4] = [256, 512, 1024, 2048];
+    pub(crate) const CHANNELS: [usize; 4] = [256, 512, 1024, 2048];
 
     pub fn load(l: &mut Loader, p: &str, dev: &Device) -> Self {
         let stem = Conv::load_bn(

@@ -6,9 +6,9 @@ use super::weights::Loader;
 use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
 
-pub const REPRESENTATION: usize = 1024;
+pub(crate) const REPRESENTATION: usize = 1024;
 
-pub struct BoxHead {
+pub(crate) struct BoxHead {
     fc6: Linear,
     fc7: Linear,
     cls: Linear,

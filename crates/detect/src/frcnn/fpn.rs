@@ -5,15 +5,15 @@ use super::layers::{Conv, ConvShape};
 use super::weights::Loader;
 use burn::tensor::{Device, Int, Tensor, TensorData};
 
-pub const CHANNELS: usize = 256;
+pub(crate) const CHANNELS: usize = 256;
 
-pub struct Fpn {
+pub(crate) struct Fpn {
     inner: Vec<Conv>,
     layer: Vec<Conv>,
 }
 
 /// PyTorch's `interpolate(mode="nearest", size=out)` source index of each output index.
-pub fn nearest_index(input: usize, output: usize) -> Vec<i64> {
+pub(crate) fn nearest_index(input: usize, output: usize) -> Vec<i64> {
     if input == output {
         return (0..output as i64).collect();
     }

@@ -70,7 +70,13 @@ impl Conv {
     }
 
     /// A bias-free convolution `{conv}.weight` followed by the BatchNorm `{bn}.*`, folded.
-    pub fn load_bn(l: &mut Loader, conv: &str, bn: &str, s: ConvShape, dev: &Device) -> Self {
+    pub(crate) fn load_bn(
+        l: &mut Loader,
+        conv: &str,
+        bn: &str,
+        s: ConvShape,
+        dev: &Device,
+    ) -> Self {
         let ws = s.weight_shape();
         let mut w = l.take(&format!("{conv}.weight"), &ws);
         let c = [s.cout];

@@ -38,13 +38,13 @@ use transform::Geometry;
 use weights::{Loader, StateDict};
 
 /// The three torchvision models by their cac names.
-pub const MODELS: [&str; 3] = [
+pub(crate) const MODELS: [&str; 3] = [
     "frcnn-mobilenet-v3-320",
     "frcnn-mobilenet-v3",
     "frcnn-resnet50",
 ];
 /// Categories of the box predictor (torchvision's COCO ids, background 0).
-pub const CLASSES: usize = 91;
+pub(crate) const CLASSES: usize = 91;
 const ANCHOR_SIZES: [f32; 5] = [32.0, 64.0, 128.0, 256.0, 512.0];
 const ASPECT_RATIOS: [f32; 3] = [0.5, 1.0, 2.0];
 
@@ -67,7 +67,7 @@ pub struct FrcnnConfig {
 }
 
 impl Arch {
-    pub fn from_name(name: &str) -> Result<Self> {
+    pub(crate) fn from_name(name: &str) -> Result<Self> {
         Ok(match name {
             "frcnn-mobilenet-v3-320" => Arch::MobileNetV3Large320,
             "frcnn-mobilenet-v3" => Arch::MobileNetV3Large,
@@ -230,7 +230,11 @@ impl FasterRcnn {
     }
 
     /// The RPN's proposals per image from the FPN levels (host boxes, resized-image pixels).
-    pub fn rpn_proposals(&self, features: &[Tensor<4>], g: Geometry) -> Result<Vec<Vec<[f32; 4]>>> {
+    pub(crate) fn rpn_proposals(
+        &self,
+        features: &[Tensor<4>],
+        g: Geometry,
+    ) -> Result<Vec<Vec<[f32; 4]>>> {
         let detached: Vec<Tensor<4>> = features.iter().map(|f| f.clone().detach()).collect();
         let levels = self.rpn.forward(&detached)?;
         let b = features[0].dims()[0];

@@ -4,7 +4,7 @@
 //! torchvision switches), and the box head's `postprocess_detections`.
 
 /// `log(1000 / 16)`, the clamp of decoded log-size deltas.
-pub const BBOX_XFORM_CLIP: f32 = 4.135_166_6;
+pub(crate) const BBOX_XFORM_CLIP: f32 = 4.135_166_6;
 
 /// `BoxCoder.decode_single` of one delta `[dx, dy, dw, dh]` on one box, with weights `wts`.
 pub fn decode(b: &[f32; 4], d: &[f32], wts: [f32; 4]) -> [f32; 4] {
@@ -36,7 +36,7 @@ pub fn clip(b: [f32; 4], size: (usize, usize)) -> [f32; 4] {
 }
 
 /// `remove_small_boxes`: both sides `>= min_size`.
-pub fn big_enough(b: &[f32; 4], min_size: f32) -> bool {
+pub(crate) fn big_enough(b: &[f32; 4], min_size: f32) -> bool {
     b[2] - b[0] >= min_size && b[3] - b[1] >= min_size
 }
 
@@ -74,7 +74,12 @@ pub fn nms(boxes: &[[f32; 4]], scores: &[f32], iou: f64) -> Vec<usize> {
 }
 
 /// torchvision's `batched_nms`: NMS within each `class`, kept indices by decreasing score.
-pub fn batched_nms(boxes: &[[f32; 4]], scores: &[f32], class: &[usize], iou: f64) -> Vec<usize> {
+pub(crate) fn batched_nms(
+    boxes: &[[f32; 4]],
+    scores: &[f32],
+    class: &[usize],
+    iou: f64,
+) -> Vec<usize> {
     if boxes.is_empty() {
         return vec![];
     }
@@ -170,7 +175,11 @@ pub fn detections(
 }
 
 /// `resize_boxes`: from the resized `(h, w)` back to the original `(h, w)`.
-pub fn resize_box(b: [f32; 4], resized: (usize, usize), original: (usize, usize)) -> [f32; 4] {
+pub(crate) fn resize_box(
+    b: [f32; 4],
+    resized: (usize, usize),
+    original: (usize, usize),
+) -> [f32; 4] {
     let rh = original.0 as f32 / resized.0 as f32;
     let rw = original.1 as f32 / resized.1 as f32;
     [b[0] * rw, b[1] * rh, b[2] * rw, b[3] * rh]

@@ -9,16 +9,16 @@
 
 use burn::tensor::{Int, Tensor, TensorData};
 
-pub const OUTPUT: usize = 7;
+pub(crate) const OUTPUT: usize = 7;
 
 /// `_infer_scale`: the power of two nearest to `feature / image` (in f32).
-pub fn infer_scale(feature: usize, image: usize) -> f32 {
+pub(crate) fn infer_scale(feature: usize, image: usize) -> f32 {
     let approx = (feature as f64 / image as f64) as f32;
     2f32.powf(approx.log2().round_ties_even())
 }
 
 /// `LevelMapper`: the level index (0-based from `k_min`) of each box.
-pub fn map_levels(boxes: &[[f32; 4]], k_min: i64, k_max: i64) -> Vec<usize> {
+pub(crate) fn map_levels(boxes: &[[f32; 4]], k_min: i64, k_max: i64) -> Vec<usize> {
     boxes
         .iter()
         .map(|b| {
@@ -104,7 +104,7 @@ fn box_entries(
 
 /// RoIAlign of `boxes` (`(image index, box)`) on one level `[B, C, H, W]`: `[N·49, C]` rows
 /// `(box, bin row, bin column)`.
-pub fn roi_align_level(
+pub(crate) fn roi_align_level(
     features: &Tensor<4>,
     boxes: &[(usize, [f32; 4])],
     scale: f32,
@@ -138,7 +138,7 @@ pub fn roi_align_level(
 /// `MultiScaleRoIAlign` of every box of the batch (`(image index, box)`, in that order) on the
 /// FPN `levels` of a batch whose largest resized image is `image` `(h, w)`: `[N, C·7·7]`, the
 /// flattening of torchvision's `[N, C, 7, 7]`.
-pub fn multiscale_roi_align(
+pub(crate) fn multiscale_roi_align(
     levels: &[Tensor<4>],
     boxes: &[(usize, [f32; 4])],
     image: (usize, usize),

@@ -10,7 +10,7 @@ use super::weights::Loader;
 use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
 
-pub struct RpnHead {
+pub(crate) struct RpnHead {
     conv: Conv,
     cls: Conv,
     bbox: Conv,

@@ -5,8 +5,8 @@
 
 use burn::tensor::{Int, Tensor, TensorData};
 
-pub const MEAN: [f32; 3] = [0.485, 0.456, 0.406];
-pub const STD: [f32; 3] = [0.229, 0.224, 0.225];
+pub(crate) const MEAN: [f32; 3] = [0.485, 0.456, 0.406];
+pub(crate) const STD: [f32; 3] = [0.229, 0.224, 0.225];
 const SIZE_DIVISIBLE: usize = 32;
 
 /// Size bookkeeping of one batch (all images share one size).
@@ -32,7 +32,10 @@ pub fn resized_size(h: usize, w: usize, min_size: usize, max_size: usize) -> (us
 
 /// Source indices and weights of one axis of PyTorch's bilinear resize (align_corners=False,
 /// scale `in / out` in f32, negative source coordinates clamped to 0).
-pub fn bilinear_table(input: usize, output: usize) -> (Vec<i64>, Vec<i64>, Vec<f32>, Vec<f32>) {
+pub(crate) fn bilinear_table(
+    input: usize,
+    output: usize,
+) -> (Vec<i64>, Vec<i64>, Vec<f32>, Vec<f32>) {
     let scale = input as f32 / output as f32;
     let (mut i0, mut i1, mut w0, mut w1) = (vec![], vec![], vec![], vec![]);
     for d in 0..output {

@@ -31,7 +31,7 @@ fn ignored(name: &str) -> bool {
 
 impl StateDict {
     /// From tensors already in memory.
-    pub fn from_map(source: &str, tensors: BTreeMap<String, HostTensor>) -> Self {
+    pub(crate) fn from_map(source: &str, tensors: BTreeMap<String, HostTensor>) -> Self {
         StateDict {
             source: source.into(),
             tensors,

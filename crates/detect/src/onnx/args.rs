@@ -22,15 +22,15 @@ impl<'a> Args<'a> {
     pub fn input(&self, k: usize) -> Result<&'a Val> {
         self.opt(k).ok_or_else(|| anyhow!("missing input {k}"))
     }
-    pub fn n_inputs(&self) -> usize {
+    pub(crate) fn n_inputs(&self) -> usize {
         self.args.len()
     }
     /// Input `k` as a device float tensor.
-    pub fn dev_input(&self, k: usize) -> Result<Dev> {
+    pub(crate) fn dev_input(&self, k: usize) -> Result<Dev> {
         self.input(k)?.dev(self.dev)
     }
     /// Input `k` as host integers (shape, axis, size arguments); `None` when omitted.
-    pub fn ints_input(&self, k: usize) -> Result<Option<Vec<i64>>> {
+    pub(crate) fn ints_input(&self, k: usize) -> Result<Option<Vec<i64>>> {
         Ok(match self.opt(k) {
             None => None,
             Some(Val::H(h)) => Some(h.ints()),
@@ -44,7 +44,7 @@ impl<'a> Args<'a> {
             }
         })
     }
-    pub fn attr(&self, key: &str) -> Option<&'a Attr> {
+    pub(crate) fn attr(&self, key: &str) -> Option<&'a Attr> {
         self.node.attrs.get(key)
     }
     pub fn f(&self, key: &str) -> Option<f32> {
@@ -60,7 +60,7 @@ impl<'a> Args<'a> {
             _ => None,
         }
     }
-    pub fn ints(&self, key: &str) -> Option<Vec<i64>> {
+    pub(crate) fn ints(&self, key: &str) -> Option<Vec<i64>> {
         match self.attr(key)? {
             Attr::Is(v) => Some(v.clone()),
             Attr::I(v) => Some(vec![*v]),
@@ -80,7 +80,7 @@ impl<'a> Args<'a> {
             _ => None,
         }
     }
-    pub fn n_outputs(&self) -> usize {
+    pub(crate) fn n_outputs(&self) -> usize {
         self.node.outputs.len()
     }
 }

@@ -8,7 +8,10 @@ use anyhow::{anyhow, bail, ensure, Result};
 use burn::tensor::{Device, Tensor};
 use ndarray::{ArrayD, IxDyn, Zip};
 
-pub fn unary(a: &Args, f: impl Fn(Tensor<MAX_RANK>) -> Tensor<MAX_RANK>) -> Result<Vec<Val>> {
+pub(crate) fn unary(
+    a: &Args,
+    f: impl Fn(Tensor<MAX_RANK>) -> Tensor<MAX_RANK>,
+) -> Result<Vec<Val>> {
     let x = a.dev_input(0)?;
     Ok(vec![Val::D(Dev {
         t: f(x.t),
@@ -46,7 +49,7 @@ pub fn clip(a: &Args) -> Result<Val> {
 }
 
 /// The binary arithmetic ops, folded left over the inputs for the variadic ones.
-pub fn variadic(a: &Args) -> Result<Val> {
+pub(crate) fn variadic(a: &Args) -> Result<Val> {
     let op = a.node.op.as_str();
     let mut acc = a.input(0)?.clone();
     for k in 1..a.n_inputs() {
@@ -109,7 +112,7 @@ pub fn compare(args: &Args) -> Result<Val> {
     Ok(Val::D(Dev::new(m.float(), out)?))
 }
 
-pub fn where_(a: &Args) -> Result<Val> {
+pub(crate) fn where_(a: &Args) -> Result<Val> {
     let (c, x, y) = (a.input(0)?, a.input(1)?, a.input(2)?);
     if let (Val::H(c), Val::H(x), Val::H(y)) = (c, x, y) {
         let out = broadcast(&broadcast(c.shape(), x.shape())?, y.shape())?;

@@ -181,10 +181,10 @@ impl OnnxGraph {
     pub fn source(&self) -> String {
         self.model.source()
     }
-    pub fn graph_inputs(&self) -> &[Io] {
+    pub(crate) fn graph_inputs(&self) -> &[Io] {
         &self.model.inputs
     }
-    pub fn graph_outputs(&self) -> &[Io] {
+    pub(crate) fn graph_outputs(&self) -> &[Io] {
         &self.model.outputs
     }
     pub fn node(&self, k: usize) -> &NodeDef {
@@ -192,13 +192,13 @@ impl OnnxGraph {
     }
 
     /// The node producing value `name`.
-    pub fn producer_of(&self, name: &str) -> Option<usize> {
+    pub(crate) fn producer_of(&self, name: &str) -> Option<usize> {
         self.flow.producer(*self.slots.get(name)?)
     }
 
     /// The nodes producing the inputs of node `k` (omitted inputs, graph inputs and
     /// initializers have none).
-    pub fn input_producers(&self, k: usize) -> Vec<Option<usize>> {
+    pub(crate) fn input_producers(&self, k: usize) -> Vec<Option<usize>> {
         self.flow
             .inputs(k)
             .iter()
@@ -218,7 +218,7 @@ impl OnnxGraph {
 
     /// Runs the graph and returns `(outputs, outputs with the sigmoid nodes in taps replaced by
     /// the identity)`; the second list is empty when `taps` is.
-    pub fn run_tapped(
+    pub(crate) fn run_tapped(
         &self,
         feeds: &[(&str, Val)],
         outputs: &[&str],
@@ -230,7 +230,7 @@ impl OnnxGraph {
     /// [`OnnxGraph::run_tapped`] with the values of some graph values replaced (`inject`: value
     /// name, value): the nodes only they depend on are not run (Grad-CAM injects an autodiff
     /// leaf in place of a feature map).
-    pub fn run_full(
+    pub(crate) fn run_full(
         &self,
         feeds: &[(&str, Val)],
         inject: &[(&str, Val)],

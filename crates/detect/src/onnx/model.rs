@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 /// The default-domain opsets this executor implements (the ops' versions in between are
 /// handled where their semantics changed: Split, Squeeze, Unsqueeze, Softmax, Slice, Clip,
 /// Resize, Reduce*).
-pub const OPSETS: std::ops::RangeInclusive<i64> = 9..=22;
+pub(crate) const OPSETS: std::ops::RangeInclusive<i64> = 9..=22;
 
 /// One dimension of a graph input or output.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -55,7 +55,7 @@ impl Io {
             })
             .collect()
     }
-    pub fn shape_text(&self) -> String {
+    pub(crate) fn shape_text(&self) -> String {
         let d: Vec<String> = self.dims.iter().map(|d| d.to_string()).collect();
         format!("[{}]", d.join(", "))
     }
@@ -365,7 +365,7 @@ fn value_info(v: &ValueInfoProto) -> Io {
 }
 
 /// The name of an ONNX `DataType`.
-pub fn dtype_name(t: i32) -> &'static str {
+pub(crate) fn dtype_name(t: i32) -> &'static str {
     match t {
         1 => "float32",
         2 => "uint8",

@@ -125,7 +125,7 @@ pub fn conv(a: &Args) -> Result<Val> {
 }
 
 /// `scale * (x - mean) / sqrt(var + epsilon) + bias` per channel (axis 1).
-pub fn batch_norm(a: &Args) -> Result<Val> {
+pub(crate) fn batch_norm(a: &Args) -> Result<Val> {
     let x = a.dev_input(0)?;
     ensure!(x.rank() >= 2, "input of shape {:?}", x.shape);
     let c = x.shape[1];
@@ -191,7 +191,7 @@ pub fn pool(a: &Args) -> Result<Val> {
     Ok(Val::D(Dev::from(y)?))
 }
 
-pub fn global_pool(a: &Args) -> Result<Val> {
+pub(crate) fn global_pool(a: &Args) -> Result<Val> {
     let x = a.dev_input(0)?;
     let (xt, [n, c, _, _]) = nchw(&x)?;
     let flat: Tensor<3> = xt.reshape([n as i64, c as i64, -1]);
@@ -415,7 +415,7 @@ fn matmul2(x: Dev, y: Dev) -> Result<Dev> {
     Dev::new(t, shape)
 }
 
-pub fn gemm(a: &Args) -> Result<Val> {
+pub(crate) fn gemm(a: &Args) -> Result<Val> {
     let (mut x, mut y) = (a.dev_input(0)?, a.dev_input(1)?);
     ensure!(
         x.rank() == 2 && y.rank() == 2,
@@ -466,7 +466,7 @@ fn reduce_axes(a: &Args, r: usize) -> Result<Vec<usize>> {
     })
 }
 
-pub fn reduce(a: &Args) -> Result<Val> {
+pub(crate) fn reduce(a: &Args) -> Result<Val> {
     let x = a.input(0)?;
     let r = x.shape().len();
     let axes = reduce_axes(a, r)?;
@@ -541,7 +541,7 @@ pub fn argmax(a: &Args) -> Result<Val> {
 }
 
 /// TopK: values stay on the device (differentiable), indices on the host.
-pub fn top_k(a: &Args) -> Result<Vec<Val>> {
+pub(crate) fn top_k(a: &Args) -> Result<Vec<Val>> {
     let x = a.dev_input(0)?;
     let k = if a.opset >= 10 {
         a.ints_input(1)?.and_then(|v| v.first().copied())

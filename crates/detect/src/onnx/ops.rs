@@ -101,7 +101,12 @@ pub const SUPPORTED: &[&str] = &[
 /// Evaluates `node` (opset `opset`) on its inputs (`None`: an omitted optional input) on `dev`.
 /// `x · sigmoid(x)` for a `Mul(x, Sigmoid(x))` pair the executor runs as one op (`node` is the
 /// Mul; `args` holds `x` alone).
-pub fn silu(node: &NodeDef, opset: i64, dev: &Device, args: &[Option<&Val>]) -> Result<Vec<Val>> {
+pub(crate) fn silu(
+    node: &NodeDef,
+    opset: i64,
+    dev: &Device,
+    args: &[Option<&Val>],
+) -> Result<Vec<Val>> {
     let a = Args {
         node,
         opset,

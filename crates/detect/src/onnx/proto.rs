@@ -169,6 +169,6 @@ pub struct Dimension {
 }
 
 /// Decodes a serialised `ModelProto`.
-pub fn decode_model(bytes: &[u8]) -> Result<ModelProto, prost::DecodeError> {
+pub(crate) fn decode_model(bytes: &[u8]) -> Result<ModelProto, prost::DecodeError> {
     ModelProto::decode(bytes)
 }

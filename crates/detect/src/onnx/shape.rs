@@ -90,7 +90,7 @@ pub fn flatten(a: &Args) -> Result<Val> {
     with_shape(x, vec![s[..k].iter().product(), s[k..].iter().product()])
 }
 
-pub fn squeeze(a: &Args) -> Result<Val> {
+pub(crate) fn squeeze(a: &Args) -> Result<Val> {
     let x = a.input(0)?;
     let axes = if a.opset >= 13 {
         a.ints_input(1)?
@@ -350,7 +350,7 @@ pub fn gather(a: &Args) -> Result<Val> {
     with_shape(&picked, shape)
 }
 
-pub fn expand_op(a: &Args) -> Result<Val> {
+pub(crate) fn expand_op(a: &Args) -> Result<Val> {
     let x = a.input(0)?;
     let target: Vec<usize> = a
         .ints_input(1)?
@@ -422,7 +422,7 @@ pub fn constant(a: &Args) -> Result<Val> {
     ))
 }
 
-pub fn constant_of_shape(a: &Args) -> Result<Val> {
+pub(crate) fn constant_of_shape(a: &Args) -> Result<Val> {
     let shape: Vec<usize> = a
         .ints_input(0)?
         .unwrap_or_default()

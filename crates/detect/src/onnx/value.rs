@@ -8,10 +8,10 @@ use burn::tensor::{Device, Tensor, TensorData};
 use ndarray::{ArrayD, IxDyn};
 
 /// The largest logical rank the executor holds (YOLOv5's head uses rank 5).
-pub const MAX_RANK: usize = 6;
+pub(crate) const MAX_RANK: usize = 6;
 
 /// A shape padded with leading 1s to [`MAX_RANK`].
-pub fn pad6(shape: &[usize]) -> [usize; MAX_RANK] {
+pub(crate) fn pad6(shape: &[usize]) -> [usize; MAX_RANK] {
     let mut out = [1usize; MAX_RANK];
     out[MAX_RANK - shape.len()..].copy_from_slice(shape);
     out
@@ -48,7 +48,7 @@ impl Dev {
         MAX_RANK - self.rank() + a
     }
     /// The value as a rank-4 tensor (rank <= 4; leading 1s added).
-    pub fn t4(&self) -> Result<Tensor<4>> {
+    pub(crate) fn t4(&self) -> Result<Tensor<4>> {
         if self.rank() > 4 {
             bail!("expected rank <= 4, got shape {:?}", self.shape);
         }
@@ -93,7 +93,7 @@ impl Host {
         self.len() == 0
     }
     /// Values as i64 (floats truncated toward zero), row-major.
-    pub fn ints(&self) -> Vec<i64> {
+    pub(crate) fn ints(&self) -> Vec<i64> {
         match self {
             Host::I(a) => a.iter().copied().collect(),
             Host::F(a) => a.iter().map(|&v| v as i64).collect(),
@@ -106,7 +106,7 @@ impl Host {
             Host::I(a) => a.iter().map(|&v| v as f32).collect(),
         }
     }
-    pub fn as_f(&self) -> ArrayD<f32> {
+    pub(crate) fn as_f(&self) -> ArrayD<f32> {
         match self {
             Host::F(a) => a.clone(),
             Host::I(a) => a.mapv(|v| v as f32),
@@ -121,10 +121,10 @@ impl Host {
             self.shape().to_vec(),
         )
     }
-    pub fn scalar_i(v: i64) -> Host {
+    pub(crate) fn scalar_i(v: i64) -> Host {
         Host::I(ArrayD::from_elem(IxDyn(&[]), v))
     }
-    pub fn vec_i(v: Vec<i64>) -> Host {
+    pub(crate) fn vec_i(v: Vec<i64>) -> Host {
         let n = v.len();
         Host::I(ArrayD::from_shape_vec(IxDyn(&[n]), v).expect("1-D"))
     }

@@ -108,12 +108,12 @@ impl Graph {
     }
 
     /// The index of a node by name (a `name:k` output reference is accepted).
-    pub fn node_index(&self, name: &str) -> Option<usize> {
+    pub(crate) fn node_index(&self, name: &str) -> Option<usize> {
         self.index.get(parse_ref(name).0).copied()
     }
 
     /// The reference (`name` or `name:k`) of input `k` of node `i`.
-    pub fn input_ref(&self, i: usize, k: usize) -> Option<String> {
+    pub(crate) fn input_ref(&self, i: usize, k: usize) -> Option<String> {
         let &(j, out) = self.nodes[i].inputs.get(k)?;
         let name = self.nodes[j].name();
         Some(if out == 0 {
@@ -125,7 +125,7 @@ impl Graph {
 
     /// Follows `Identity` nodes back from `output` to a `Sigmoid` and returns the reference of
     /// the sigmoid's input: the pre-sigmoid logits behind a probability output.
-    pub fn sigmoid_input(&self, output: &str) -> Result<String> {
+    pub(crate) fn sigmoid_input(&self, output: &str) -> Result<String> {
         let mut i = self
             .node_index(output)
             .ok_or_else(|| anyhow!("{}: no node named {output:?}", self.source))?;
@@ -313,7 +313,7 @@ impl exec::Ops for Graph {
 }
 
 /// Splits `name:k` into (name, k); a plain name is output 0.
-pub fn parse_ref(r: &str) -> (&str, usize) {
+pub(crate) fn parse_ref(r: &str) -> (&str, usize) {
     if let Some((name, k)) = r.rsplit_once(':') {
         if let Ok(k) = k.parse() {
             return (name, k);

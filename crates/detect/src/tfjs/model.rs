@@ -38,7 +38,7 @@ impl HostTensor {
         }
     }
     /// Values as f32.
-    pub fn as_f32(&self) -> Vec<f32> {
+    pub(crate) fn as_f32(&self) -> Vec<f32> {
         match &self.data {
             HostData::F32(v) => v.clone(),
             HostData::I64(v) => v.iter().map(|&x| x as f32).collect(),

@@ -39,7 +39,7 @@ impl FloatValue {
         }
     }
     /// A logical NHWC value from its physical NCHW tensor.
-    pub fn from_nchw(t: Tensor<4>) -> Self {
+    pub(crate) fn from_nchw(t: Tensor<4>) -> Self {
         let [n, c, h, w] = t.dims();
         FloatValue {
             t,
@@ -49,7 +49,7 @@ impl FloatValue {
     }
     /// The physical NCHW tensor of a rank-4 NHWC value (also aligns a broadcastable
     /// lower-rank value, padded to rank 4, with NCHW-held values).
-    pub fn to_nchw(&self) -> Tensor<4> {
+    pub(crate) fn to_nchw(&self) -> Tensor<4> {
         if self.nchw {
             self.t.clone()
         } else {
@@ -69,7 +69,7 @@ impl FloatValue {
         }
     }
     /// A rank-4 value as it is.
-    pub fn from4(t: Tensor<4>) -> Self {
+    pub(crate) fn from4(t: Tensor<4>) -> Self {
         let shape = t.dims().to_vec();
         FloatValue {
             t,
@@ -102,7 +102,7 @@ impl FloatValue {
 }
 
 /// Pads a shape of rank <= 4 with leading 1s to rank 4.
-pub fn pad4(shape: &[usize]) -> [usize; 4] {
+pub(crate) fn pad4(shape: &[usize]) -> [usize; 4] {
     let mut out = [1usize; 4];
     let off = 4 - shape.len();
     out[off..].copy_from_slice(shape);

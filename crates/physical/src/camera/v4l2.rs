@@ -22,7 +22,7 @@ use std::time::{Duration, Instant};
 
 /// Pixel formats this source decodes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum PixelFormat {
+pub(crate) enum PixelFormat {
     /// Motion-JPEG (`MJPG`), Huffman tables optional.
     Mjpeg,
     /// Packed YUV 4:2:2 (`YUYV`).
@@ -47,7 +47,7 @@ impl PixelFormat {
 
 /// What to ask the camera for.
 #[derive(Debug, Clone, PartialEq)]
-pub struct V4l2Config {
+pub(crate) struct V4l2Config {
     /// Device node, e.g. `/dev/video0`.
     pub path: PathBuf,
     /// Frame size: the calibrated lens's; a camera that cannot deliver it is refused.
@@ -107,7 +107,7 @@ enum Fault {
 }
 
 /// A streaming V4L2 camera.
-pub struct V4l2Source {
+pub(crate) struct V4l2Source {
     cfg: V4l2Config,
     stream: Option<ReadStream>,
     settings: CameraSettings,
@@ -198,11 +198,6 @@ impl V4l2Source {
             index: 0,
             dequeued: u64::from(n),
         })
-    }
-
-    /// The negotiated format: width, height and pixel format.
-    pub fn format(&self) -> (u32, u32, PixelFormat) {
-        (self.settings.width, self.settings.height, self.pixel)
     }
 
     /// Close and reopen the device, lock the same controls and stream again; for a replugged

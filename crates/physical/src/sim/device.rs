@@ -13,7 +13,7 @@ use std::collections::HashMap;
 use std::time::Duration;
 
 /// One full turn in millidegrees; the turntable's index mark is at every multiple of it.
-pub const TURN_MDEG: i64 = 360_000;
+pub(crate) const TURN_MDEG: i64 = 360_000;
 
 /// What the simulated board is.
 #[derive(Debug, Clone)]
@@ -217,7 +217,7 @@ impl SimDevice {
     }
 
     /// Whether `axis` is moving.
-    pub fn is_moving(&self, axis: Axis) -> bool {
+    pub(crate) fn is_moving(&self, axis: Axis) -> bool {
         self.axes[axis.index()].motion.is_some()
     }
 
@@ -245,7 +245,7 @@ impl SimDevice {
     }
 
     /// When something will happen on its own (end of boot, end of a motion).
-    pub fn next_event_time(&self) -> Option<Duration> {
+    pub(crate) fn next_event_time(&self) -> Option<Duration> {
         let boot = self.booting_until.map(|(t, _)| t);
         let motions = self.axes.iter().filter_map(|a| {
             a.motion
@@ -663,7 +663,7 @@ impl SimDevice {
     }
 
     /// Physical (mechanical) position of `axis`, independent of homing: what a camera would see.
-    pub fn physical_position(&self, axis: Axis) -> f64 {
+    pub(crate) fn physical_position(&self, axis: Axis) -> f64 {
         self.physical_now(axis).0
     }
 }

@@ -206,7 +206,7 @@ impl FaultInjector {
     }
 
     /// Whether a motion of `eta` just started should be cut by a reboot, and after how long.
-    pub fn reset_during(&mut self, eta: Duration) -> Option<Duration> {
+    pub(crate) fn reset_during(&mut self, eta: Duration) -> Option<Duration> {
         self.chance(self.cfg.reset_per_motion)
             .then(|| eta.mul_f64(self.rng.random_range(0.0..1.1)))
     }

@@ -123,7 +123,7 @@ impl SimRig {
 }
 
 /// The fault kinds `cac capture --simulate --faults` accepts.
-pub const FAULT_KINDS: [&str; 7] = [
+pub(crate) const FAULT_KINDS: [&str; 7] = [
     "none",
     "drops",
     "garbles",

@@ -86,7 +86,7 @@ impl SimWorld {
     }
 
     /// Whether the link is down (unplugged).
-    pub fn is_down(&self) -> bool {
+    pub(crate) fn is_down(&self) -> bool {
         self.down_until.is_some()
     }
 
@@ -110,7 +110,7 @@ impl SimWorld {
     }
 
     /// The host writes bytes. Fails while the link is down (and may bring it down).
-    pub fn host_write(&mut self, bytes: &[u8]) -> io::Result<()> {
+    pub(crate) fn host_write(&mut self, bytes: &[u8]) -> io::Result<()> {
         if self.down_until.is_some() {
             return Err(io::Error::new(
                 io::ErrorKind::BrokenPipe,
@@ -131,7 +131,7 @@ impl SimWorld {
     }
 
     /// Unplug the link for `d` (bytes in flight are lost).
-    pub fn go_down(&mut self, d: Duration) {
+    pub(crate) fn go_down(&mut self, d: Duration) {
         self.to_device.clear();
         self.to_host.clear();
         self.down_until = Some(self.now + d);
@@ -139,7 +139,7 @@ impl SimWorld {
 
     /// The host (re)opens the port: fails while unplugged; may reboot the device (DTR reset, or a
     /// board that lost power with the link).
-    pub fn host_open(&mut self) -> io::Result<()> {
+    pub(crate) fn host_open(&mut self) -> io::Result<()> {
         let was_down = match self.down_until {
             Some(t) if self.now < t => {
                 return Err(io::Error::new(
@@ -163,7 +163,7 @@ impl SimWorld {
     }
 
     /// Take up to `max` bytes that have reached the host by now.
-    pub fn host_take(&mut self, max: usize) -> Vec<u8> {
+    pub(crate) fn host_take(&mut self, max: usize) -> Vec<u8> {
         let mut out = Vec::new();
         while out.len() < max {
             match self.to_host.front() {
@@ -178,7 +178,7 @@ impl SimWorld {
     }
 
     /// Drop bytes that have reached the host but were not read.
-    pub fn host_discard(&mut self) {
+    pub(crate) fn host_discard(&mut self) {
         while self.to_host.front().is_some_and(|&(t, _)| t <= self.now) {
             self.to_host.pop_front();
         }
@@ -186,7 +186,7 @@ impl SimWorld {
 
     /// The next time anything happens (a byte arrives at either end, a motion ends, a boot
     /// finishes, a reset fires).
-    pub fn next_event_time(&self) -> Option<Duration> {
+    pub(crate) fn next_event_time(&self) -> Option<Duration> {
         [
             self.to_device.front().map(|b| b.0),
             self.to_host.front().map(|b| b.0),
@@ -199,7 +199,7 @@ impl SimWorld {
     }
 
     /// Run the world forward to `t`.
-    pub fn advance_to(&mut self, t: Duration) {
+    pub(crate) fn advance_to(&mut self, t: Duration) {
         loop {
             let next = [
                 self.to_device.front().map(|b| b.0),
