@@ -181,3 +181,72 @@ pub fn grid_sample(a: &Args) -> Result<Val> {
     let y = acc.expect("at least one corner");
     Ok(Val::D(Dev::new(y, vec![n, c, ho, wo])?))
 }
+
+#[cfg(test)]
+mod tests {
+    //! What GridSample and ConvTranspose refuse, each error naming what is wrong.
+    use super::super::model::{Attr, NodeDef};
+    use super::super::ops::eval;
+    use super::super::value::{Dev, Val};
+    use burn::tensor::{Device, Tensor};
+
+    fn node(op: &str, attrs: &[(&str, Attr)]) -> NodeDef {
+        NodeDef {
+            name: "n".into(),
+            op: op.into(),
+            domain: String::new(),
+            inputs: vec!["x".into(), "g".into()],
+            outputs: vec!["y".into()],
+            attrs: attrs
+                .iter()
+                .map(|(k, v)| (k.to_string(), v.clone()))
+                .collect(),
+        }
+    }
+
+    fn zeros(shape: &[usize], dev: &Device) -> Val {
+        let n = shape.iter().product::<usize>();
+        Val::D(Dev::new(Tensor::<1>::zeros([n], dev), shape.to_vec()).unwrap())
+    }
+
+    fn refusal(op: &str, opset: i64, attrs: &[(&str, Attr)], x: &[usize], g: &[usize]) -> String {
+        let dev = Device::from(burn::backend::FlexDevice);
+        let (x, g) = (zeros(x, &dev), zeros(g, &dev));
+        match eval(&node(op, attrs), opset, &dev, &[Some(&x), Some(&g)]) {
+            Ok(_) => panic!("{op} {attrs:?} ran"),
+            Err(e) => format!("{e:#}"),
+        }
+    }
+
+    #[test]
+    fn cubic_grid_sampling_and_volumes_are_refused_by_name() {
+        let s = |v: &str| Attr::S(v.into());
+        let (x, g) = ([1, 2, 4, 4], [1, 3, 3, 2]);
+        let e = refusal("GridSample", 16, &[("mode", s("bicubic"))], &x, &g);
+        assert!(e.contains("mode bicubic"), "{e}");
+        let e = refusal("GridSample", 20, &[("mode", s("cubic"))], &x, &g);
+        assert!(e.contains("mode cubic"), "{e}");
+        let e = refusal("GridSample", 16, &[("padding_mode", s("wrap"))], &x, &g);
+        assert!(e.contains("padding_mode wrap"), "{e}");
+        let e = refusal("GridSample", 20, &[], &[1, 2, 3, 4, 4], &[1, 2, 3, 3, 3]);
+        assert!(e.contains("only 2D"), "{e}");
+        let e = refusal("GridSample", 16, &[], &x, &[1, 3, 3, 3]);
+        assert!(e.contains("[N, H_out, W_out, 2]"), "{e}");
+    }
+
+    #[test]
+    fn conv_transpose_refuses_volumes_and_mismatched_weights() {
+        let e = refusal("ConvTranspose", 17, &[], &[1, 2, 3, 4, 4], &[2, 2, 3, 3, 3]);
+        assert!(e.contains("only 2D"), "{e}");
+        let e = refusal("ConvTranspose", 17, &[], &[1, 4, 5, 5], &[3, 2, 3, 3]);
+        assert!(e.contains("does not fit input"), "{e}");
+        let e = refusal(
+            "ConvTranspose",
+            17,
+            &[("output_shape", Attr::Is(vec![30, 30]))],
+            &[1, 4, 5, 5],
+            &[4, 2, 3, 3],
+        );
+        assert!(e.contains("output_shape [30, 30]"), "{e}");
+    }
+}
