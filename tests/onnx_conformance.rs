@@ -49,6 +49,9 @@ struct Entry {
     kind: String,
     opset: i64,
     outputs: Vec<String>,
+    /// How far onnxruntime's own output moves with float rounding (the ultralytics exports).
+    #[serde(default)]
+    noise: f64,
 }
 
 #[derive(Deserialize)]
@@ -223,6 +226,11 @@ fn feed(t: &T) -> Val {
 }
 
 fn run_case(dir: &Path, e: &Entry) -> Result<f64, String> {
+    run_case_within(dir, e, 1e-4)
+}
+
+/// [`run_case`] with every output held to `rel` of its largest magnitude.
+fn run_case_within(dir: &Path, e: &Entry, rel: f64) -> Result<f64, String> {
     let path = dir.join(&e.file);
     let stem = path.with_extension("");
     let g = onnx::load_graph(&path, &support::device()).map_err(|x| format!("{x:#}"))?;
@@ -234,10 +242,11 @@ fn run_case(dir: &Path, e: &Entry) -> Result<f64, String> {
     let got = g.run(&refs, &outs).map_err(|x| format!("{x:#}"))?;
     let mut worst = 0.0f64;
     for (name, v) in e.outputs.iter().zip(&got) {
-        worst = worst.max(compare(
+        worst = worst.max(compare_within(
             &format!("{} output {name}", e.name),
             v,
             &want[name],
+            rel,
         )?);
     }
     Ok(worst)
@@ -278,10 +287,26 @@ fn every_op_case_matches_onnxruntime() {
 fn yolo_exports_match_onnxruntime_on_their_seeded_input() {
     let Some(dir) = fixtures() else { return };
     has_ultralytics(dir);
-    for e in manifest(dir).models.iter().filter(|e| e.kind == "detector") {
-        let w = run_case(dir, e).unwrap_or_else(|x| panic!("{x}"));
+    // Held to 1e-4 of the largest magnitude, or twice the model's own float noise where that
+    // is larger (the random YOLOv6n moves onnxruntime's output by ~2e-4).
+    let exports = manifest(dir).models;
+    let exports: Vec<&Entry> = exports
+        .iter()
+        .filter(|e| e.kind == "detector" || e.kind == "export")
+        .collect();
+    assert!(
+        !dir.join("yolov8n.onnx").is_file() || exports.iter().any(|e| e.name == "yolov6n"),
+        "the ultralytics exports lack YOLOv6n (ConvTranspose)"
+    );
+    for e in exports {
+        let bound = 1e-4f64.max(2.0 * e.noise);
+        let w = run_case_within(dir, e, bound).unwrap_or_else(|x| panic!("{x}"));
+        let noise = match e.noise {
+            0.0 => String::new(),
+            n => format!(" (bound {bound:.1e}: float noise moves onnxruntime's by {n:.2e})"),
+        };
         eprintln!(
-            "{} (opset {}): largest error {w:.2e} of the output's magnitude",
+            "{} (opset {}): largest error {w:.2e} of the output's magnitude{noise}",
             e.name, e.opset
         );
     }
