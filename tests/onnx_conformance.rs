@@ -1092,6 +1092,24 @@ fn bad_files_are_refused_naming_the_file_node_and_op() {
         "{e}"
     );
     assert!(!err(&unsupported).contains("NMS"), "Einsum alone is no NMS");
+    // Top-k with the gathers that pick its rows, every op of them supported: still refused as
+    // selection inside (an end-to-end head's `[1, 300, 6]` would read as one class).
+    let e2e = tmp.path().join("e2e.onnx");
+    tiny_chain(
+        &e2e,
+        &["Relu", "TopK", "GatherElements"],
+        17,
+        &[Some(1), Some(3), Some(32), Some(32)],
+    );
+    let e = err(&e2e);
+    assert!(
+        e.contains("e2e.onnx")
+            && e.contains("selects boxes inside")
+            && e.contains("TopK (node \"node1\")")
+            && e.contains("GatherElements (node \"node2\")")
+            && e.contains("dense head"),
+        "{e}"
+    );
     // An ultralytics segmentation export: refused as not a detector, before its ops are listed.
     let seg = tmp.path().join("seg.onnx");
     tiny_chain_meta(
