@@ -1,8 +1,9 @@
 //! ONNX detectors (src/detect/onnx) against onnxruntime, on models the tests build themselves:
-//! `tools/onnx/make_models.py` writes 81 single-op graphs (opsets 11–21, `onnx.helper`), a
-//! hand-built anchor-based YOLOv5/v3-style detector, and ultralytics' YOLOv8n and YOLOv5su built
-//! from their yaml with seeded random weights and exported; onnxruntime's outputs on seeded
-//! inputs come with them, and `tools/onnx/ort_run.py` runs onnxruntime on inputs cac makes.
+//! `tools/onnx/make_models.py` writes 111 single-op graphs (opsets 11–21, `onnx.helper`), a
+//! hand-built anchor-based YOLOv5/v3-style detector, and ultralytics' YOLOv8n, YOLOv5su and
+//! YOLOv6n built from their yaml with seeded random weights and exported; onnxruntime's outputs
+//! on seeded inputs come with them, and `tools/onnx/ort_run.py` runs onnxruntime on inputs cac
+//! makes.
 //!
 //! Checked: every op case and every detector's raw output within 1e-4 of the output's largest
 //! magnitude; the detectors' final detections on reference images equal those decoded from
@@ -49,6 +50,9 @@ struct Entry {
     kind: String,
     opset: i64,
     outputs: Vec<String>,
+    /// How far onnxruntime's own output moves with float rounding (the ultralytics exports).
+    #[serde(default)]
+    noise: f64,
 }
 
 #[derive(Deserialize)]
@@ -223,6 +227,11 @@ fn feed(t: &T) -> Val {
 }
 
 fn run_case(dir: &Path, e: &Entry) -> Result<f64, String> {
+    run_case_within(dir, e, 1e-4)
+}
+
+/// [`run_case`] with every output held to `rel` of its largest magnitude.
+fn run_case_within(dir: &Path, e: &Entry, rel: f64) -> Result<f64, String> {
     let path = dir.join(&e.file);
     let stem = path.with_extension("");
     let g = onnx::load_graph(&path, &support::device()).map_err(|x| format!("{x:#}"))?;
@@ -234,10 +243,11 @@ fn run_case(dir: &Path, e: &Entry) -> Result<f64, String> {
     let got = g.run(&refs, &outs).map_err(|x| format!("{x:#}"))?;
     let mut worst = 0.0f64;
     for (name, v) in e.outputs.iter().zip(&got) {
-        worst = worst.max(compare(
+        worst = worst.max(compare_within(
             &format!("{} output {name}", e.name),
             v,
             &want[name],
+            rel,
         )?);
     }
     Ok(worst)
@@ -248,7 +258,7 @@ fn every_op_case_matches_onnxruntime() {
     let Some(dir) = fixtures() else { return };
     let m = manifest(dir);
     let cases: Vec<&Entry> = m.models.iter().filter(|e| e.kind == "op").collect();
-    assert!(cases.len() >= 80, "{} op cases", cases.len());
+    assert!(cases.len() >= 110, "{} op cases", cases.len());
     let mut failures = Vec::new();
     let mut worst = (0.0f64, "");
     let mut opsets = std::collections::BTreeSet::new();
@@ -278,10 +288,26 @@ fn every_op_case_matches_onnxruntime() {
 fn yolo_exports_match_onnxruntime_on_their_seeded_input() {
     let Some(dir) = fixtures() else { return };
     has_ultralytics(dir);
-    for e in manifest(dir).models.iter().filter(|e| e.kind == "detector") {
-        let w = run_case(dir, e).unwrap_or_else(|x| panic!("{x}"));
+    // Held to 1e-4 of the largest magnitude, or twice the model's own float noise where that
+    // is larger (the random YOLOv6n moves onnxruntime's output by ~2e-4).
+    let exports = manifest(dir).models;
+    let exports: Vec<&Entry> = exports
+        .iter()
+        .filter(|e| e.kind == "detector" || e.kind == "export")
+        .collect();
+    assert!(
+        !dir.join("yolov8n.onnx").is_file() || exports.iter().any(|e| e.name == "yolov6n"),
+        "the ultralytics exports lack YOLOv6n (ConvTranspose)"
+    );
+    for e in exports {
+        let bound = 1e-4f64.max(2.0 * e.noise);
+        let w = run_case_within(dir, e, bound).unwrap_or_else(|x| panic!("{x}"));
+        let noise = match e.noise {
+            0.0 => String::new(),
+            n => format!(" (bound {bound:.1e}: float noise moves onnxruntime's by {n:.2e})"),
+        };
         eprintln!(
-            "{} (opset {}): largest error {w:.2e} of the output's magnitude",
+            "{} (opset {}): largest error {w:.2e} of the output's magnitude{noise}",
             e.name, e.opset
         );
     }
@@ -888,7 +914,7 @@ fn op_gradients_match_central_differences() {
     }
     eprintln!("{} op cases checked: {}", checked.len(), checked.join(" "));
     assert!(
-        checked.len() >= 50,
+        checked.len() >= 95,
         "only {} cases were differentiable",
         checked.len()
     );
@@ -1052,7 +1078,7 @@ fn bad_files_are_refused_naming_the_file_node_and_op() {
     let several = tmp.path().join("several.onnx");
     tiny_chain(
         &several,
-        &["Einsum", "Relu", "TopK", "Einsum", "GatherElements"],
+        &["Einsum", "Relu", "TopK", "Einsum", "NonZero"],
         17,
         &[Some(1), Some(3), Some(32), Some(32)],
     );
@@ -1061,11 +1087,29 @@ fn bad_files_are_refused_naming_the_file_node_and_op() {
         e.contains("several.onnx")
             && e.contains("2 op types")
             && e.contains("Einsum (2 nodes, first \"the_node\")")
-            && e.contains("GatherElements (node \"node4\")")
+            && e.contains("NonZero (node \"node4\")")
             && e.contains("NMS or top-k selection inside"),
         "{e}"
     );
     assert!(!err(&unsupported).contains("NMS"), "Einsum alone is no NMS");
+    // Top-k with the gathers that pick its rows, every op of them supported: still refused as
+    // selection inside (an end-to-end head's `[1, 300, 6]` would read as one class).
+    let e2e = tmp.path().join("e2e.onnx");
+    tiny_chain(
+        &e2e,
+        &["Relu", "TopK", "GatherElements"],
+        17,
+        &[Some(1), Some(3), Some(32), Some(32)],
+    );
+    let e = err(&e2e);
+    assert!(
+        e.contains("e2e.onnx")
+            && e.contains("selects boxes inside")
+            && e.contains("TopK (node \"node1\")")
+            && e.contains("GatherElements (node \"node2\")")
+            && e.contains("dense head"),
+        "{e}"
+    );
     // An ultralytics segmentation export: refused as not a detector, before its ops are listed.
     let seg = tmp.path().join("seg.onnx");
     tiny_chain_meta(

@@ -78,6 +78,7 @@ impl OnnxDetector {
         let model = Model::load(path)?;
         not_a_detector(&model, &src)?;
         let graph = OnnxGraph::new(model, device)?;
+        selection_inside(&graph.model, &src)?;
         let input_io = match &config.input {
             Some(n) => graph
                 .graph_inputs()
@@ -376,6 +377,34 @@ fn not_a_detector(model: &Model, src: &str) -> Result<()> {
          its output holds {what} beside the class scores, which cac would misread. cac attacks \
          detectors: export the detection variant of the model (task = detect, e.g. yolo11n.pt \
          rather than yolo11n{suffix}.pt)"
+    )
+}
+
+/// Refuses a file that selects boxes inside: NMS or top-k with the gathers that pick the kept
+/// rows (`nms=True` exports, the end-to-end heads of YOLOv10 / YOLO26, RT-DETR). Every op of such
+/// a file may run, but its output is a short list of chosen boxes, not the dense candidates the
+/// attack and the overlap rule work on; read as a dense head it would be misread in silence.
+fn selection_inside(model: &Model, src: &str) -> Result<()> {
+    let first = |ops: &[&str]| {
+        model
+            .nodes
+            .iter()
+            .find(|n| ops.contains(&n.op.as_str()))
+            .map(|n| format!("{} (node {:?})", n.op, n.name))
+    };
+    let (Some(select), Some(gather)) = (
+        first(&["NonMaxSuppression", "TopK"]),
+        first(&["GatherElements", "NonZero"]),
+    ) else {
+        return Ok(());
+    };
+    bail!(
+        "{src}: the file selects boxes inside ({select}, then {gather}): an `nms=True` export, \
+         or the end-to-end head of YOLOv10 / YOLO26 / RT-DETR. cac needs the dense head, every \
+         candidate box with its class scores, because the attack and the overlap rule work on \
+         the candidates before any selection. Export the dense head instead: ultralytics \
+         `model.export(format=\"onnx\")` with `nms` left at its default (`nms=True` embeds NMS, \
+         `nms=False` picks the NMS-free end-to-end head; both select boxes inside the file)"
     )
 }
 

@@ -1,6 +1,7 @@
 //! ONNX's elementwise ops: unary activations, Clip, the binary arithmetic ops with numpy
 //! broadcasting (host integers keep integer semantics: Div truncates, Mod takes the divisor's
-//! sign, as onnxruntime does), comparisons and logic, Where. Device values stay burn ops.
+//! sign, as onnxruntime does), comparisons and logic (And, Or, Xor), Where. Device values stay
+//! burn ops.
 
 use super::args::{broadcast, expand, Args};
 use super::value::{Dev, Host, Val, MAX_RANK};
@@ -92,6 +93,7 @@ pub fn compare(args: &Args) -> Result<Val> {
                 "GreaterOrEqual" => p >= q,
                 "LessOrEqual" => p <= q,
                 "And" => p != 0.0 && q != 0.0,
+                "Xor" => (p != 0.0) != (q != 0.0),
                 _ => p != 0.0 || q != 0.0,
             })
         });
@@ -107,6 +109,11 @@ pub fn compare(args: &Args) -> Result<Val> {
         "GreaterOrEqual" => xt.greater_equal(yt),
         "LessOrEqual" => xt.lower_equal(yt),
         "And" => xt.mul(yt).not_equal_elem(0.0),
+        "Xor" => xt
+            .not_equal_elem(0.0)
+            .float()
+            .sub(yt.not_equal_elem(0.0).float())
+            .not_equal_elem(0.0),
         _ => xt.abs().add(yt.abs()).not_equal_elem(0.0),
     };
     Ok(Val::D(Dev::new(m.float(), out)?))

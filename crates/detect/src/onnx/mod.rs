@@ -1,9 +1,9 @@
 //! Users' own detectors as ONNX files (YOLOv3/v5/v8/11 exports, torchvision's and mmdeploy's
 //! dense exports), run by cac's own differentiable executor: [`proto`] declares the ONNX protobuf
 //! schema for `prost`, [`model`] reads a file into plain values, [`value`] holds the edge values,
-//! [`args`] is what an op reads, [`ops`] dispatches to [`elementwise`], [`shape`] and [`nn`] (the
-//! op semantics as burn ops), [`graph`] plans and runs, [`config`] is the TOML config and the
-//! `onnx:` spec, and [`detector`] the [`crate::Detector`] with its heads.
+//! [`args`] is what an op reads, [`ops`] dispatches to [`elementwise`], [`shape`], [`nn`] and
+//! [`transformer`] (the op semantics as burn ops), [`graph`] plans and runs, [`config`] is the
+//! TOML config and the `onnx:` spec, and [`detector`] the [`crate::Detector`] with its heads.
 //!
 //! The TFJS importer ([`crate::tfjs`]) is the other executor, of the same design; both
 //! lower their graphs to burn tensor ops on the caller's device and share pre-processing, NMS,
@@ -21,6 +21,7 @@ pub mod nn;
 pub mod ops;
 pub mod proto;
 pub mod shape;
+pub mod transformer;
 pub mod value;
 
 pub use config::{parse_spec, OnnxConfig};

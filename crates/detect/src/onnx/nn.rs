@@ -1,7 +1,8 @@
 //! ONNX's network layers on device values: Conv (groups, dilations, asymmetric and `auto_pad`
-//! padding), BatchNormalization (inference), Max/Average/Global pooling, Resize/Upsample
-//! (nearest and linear, every coordinate transformation of opset 11–21 but `tf_crop_and_resize`),
-//! Softmax (both axis semantics), MatMul, Gemm, Reduce*, ArgMax, TopK, Pad (constant), and
+//! padding), ConvTranspose (the same, with `output_padding` and `output_shape`),
+//! BatchNormalization (inference), Max/Average/Global pooling, Resize/Upsample (nearest and
+//! linear, every coordinate transformation of opset 11–21 but `tf_crop_and_resize`), Softmax
+//! (both axis semantics), MatMul, Gemm, Reduce*, ArgMax, TopK, Pad (constant), and
 //! NonMaxSuppression on the host. Each follows the ONNX operator specification as onnxruntime
 //! implements it (tests/onnx_conformance.rs compares them).
 
@@ -11,8 +12,10 @@ use crate::conv::conv2d;
 use crate::kernels::{conv_im2col, IM2COL_MAX_CHANNELS};
 use crate::nms::non_max_suppression as nms;
 use anyhow::{anyhow, bail, ensure, Result};
-use burn::tensor::module::{avg_pool2d, max_pool2d};
-use burn::tensor::ops::{AvgPoolOptions, ConvOptions, MaxPoolOptions, PadMode};
+use burn::tensor::module::{avg_pool2d, conv_transpose2d, max_pool2d};
+use burn::tensor::ops::{
+    AvgPoolOptions, ConvOptions, ConvTransposeOptions, MaxPoolOptions, PadMode,
+};
 use burn::tensor::{activation, Int, Tensor, TensorData};
 use ndarray::{ArrayD, Axis, IxDyn};
 
@@ -121,6 +124,115 @@ pub fn conv(a: &Args) -> Result<Val> {
             ConvOptions::new_with_padding(win.stride, win.pads, win.dilation, group),
         ),
     };
+    Ok(Val::D(Dev::from(y)?))
+}
+
+/// ConvTranspose (2D): burn's transposed convolution without padding, then the ONNX output
+/// window cut from it: `pads` (explicit, or from `auto_pad` / `output_shape`) crop the begin
+/// and end, `output_padding` adds rows and columns at the end that no input reaches; the bias
+/// is added last, so it covers those too.
+pub(crate) fn conv_transpose(a: &Args) -> Result<Val> {
+    let x = a.dev_input(0)?;
+    let w = a.dev_input(1)?;
+    let (xt, s) = nchw(&x)?;
+    let (wt, ws) = nchw(&w)?;
+    let group = a.i("group").unwrap_or(1).max(1) as usize;
+    ensure!(
+        ws[0] == s[1] && s[1] % group == 0,
+        "weight {ws:?} with group {group} does not fit input {s:?} (ConvTranspose's weight is \
+         [C_in, C_out / group, kH, kW])"
+    );
+    let m = ws[1] * group;
+    let k = pair(a.ints("kernel_shape"), 0, "kernel_shape")?;
+    ensure!(
+        k == [0, 0] || k == [ws[2], ws[3]],
+        "kernel_shape {k:?} does not match weight {ws:?}"
+    );
+    let stride = pair(a.ints("strides"), 1, "strides")?;
+    let dilation = pair(a.ints("dilations"), 1, "dilations")?;
+    let out_pad = pair(a.ints("output_padding"), 0, "output_padding")?;
+    ensure!(
+        stride.iter().chain(&dilation).all(|&v| v > 0),
+        "strides {stride:?} and dilations {dilation:?} must be positive"
+    );
+    // The uncropped length per spatial axis: every input's kernel footprint, plus output_padding.
+    let full: [usize; 2] = std::array::from_fn(|i| {
+        stride[i] * (s[2 + i] - 1) + (ws[2 + i] - 1) * dilation[i] + 1 + out_pad[i]
+    });
+    let auto = a.s("auto_pad").unwrap_or("NOTSET");
+    // An explicit output shape (or SAME's input × stride) sets the total padding, split as
+    // SAME_UPPER / SAME_LOWER say (NOTSET and VALID as SAME_LOWER would, as onnxruntime does).
+    let target: Option<[usize; 2]> = match a.ints("output_shape").as_deref() {
+        Some(o) if o.len() >= 2 && o[o.len() - 2..].iter().all(|&v| v > 0) => {
+            Some([o[o.len() - 2] as usize, o[o.len() - 1] as usize])
+        }
+        Some(o) => bail!("output_shape {o:?}: two positive spatial sizes expected"),
+        None if auto.starts_with("SAME_") => Some([s[2] * stride[0], s[3] * stride[1]]),
+        None => None,
+    };
+    let pads: [(usize, usize); 2] = match (target, auto) {
+        (Some(t), _) => {
+            let mut p = [(0, 0); 2];
+            for i in 0..2 {
+                ensure!(
+                    t[i] <= full[i],
+                    "output_shape {t:?} is larger than the transposed convolution's {full:?}"
+                );
+                let total = full[i] - t[i];
+                p[i] = match auto {
+                    "SAME_UPPER" => (total / 2, total - total / 2),
+                    _ => (total - total / 2, total / 2),
+                };
+            }
+            p
+        }
+        (None, "VALID") => [(0, 0); 2],
+        (None, "NOTSET") => match a.ints("pads").as_deref() {
+            None => [(0, 0); 2],
+            Some([t, l, b, r]) if [t, l, b, r].iter().all(|v| **v >= 0) => {
+                [(*t as usize, *b as usize), (*l as usize, *r as usize)]
+            }
+            Some(p) => bail!("pads {p:?}: four non-negative values expected"),
+        },
+        (None, p) => bail!("auto_pad {p} is not supported"),
+    };
+    let out: [usize; 2] = std::array::from_fn(|i| full[i].saturating_sub(pads[i].0 + pads[i].1));
+    ensure!(
+        out[0] > 0 && out[1] > 0,
+        "pads {pads:?} leave nothing of the {full:?} output"
+    );
+    let y = conv_transpose2d(
+        xt,
+        wt,
+        None,
+        ConvTransposeOptions::new(stride, [0, 0], [0, 0], dilation, group),
+    );
+    // The window [begin, begin + out) per axis; burn's output stops short of the
+    // output_padding rows/columns, which no input reaches: they are zeros (before the bias).
+    let [_, _, yh, yw] = y.dims();
+    let keep = |i: usize, have: usize| {
+        let start = pads[i].0.min(have);
+        let end = (pads[i].0 + out[i]).min(have);
+        (start, end, out[i] - (end - start))
+    };
+    let (h0, h1, hpad) = keep(0, yh);
+    let (w0, w1, wpad) = keep(1, yw);
+    let mut y = y.slice([0..s[0], 0..m, h0..h1, w0..w1]);
+    if hpad > 0 || wpad > 0 {
+        y = y.pad(
+            [(0, 0), (0, 0), (0, hpad), (0, wpad)],
+            PadMode::Constant(0.0),
+        );
+    }
+    if let Some(b) = a.opt(2) {
+        let b = b.dev(a.dev)?;
+        ensure!(
+            b.shape.iter().product::<usize>() == m,
+            "bias of shape {:?} for {m} output channels",
+            b.shape
+        );
+        y = y + b.t.reshape([1, m, 1, 1]);
+    }
     Ok(Val::D(Dev::from(y)?))
 }
 

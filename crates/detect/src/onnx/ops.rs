@@ -1,6 +1,7 @@
 //! ONNX op semantics, dispatched by op type: the elementwise ops in [`super::elementwise`], the
-//! layout and shape ops in [`super::shape`], the network layers (convolution, pooling, resize, normalisation, matrix
-//! products, top-k, NMS) in [`super::nn`]. Float ops on device values are burn ops, so autodiff
+//! layout and shape ops in [`super::shape`], the network layers (convolution, pooling, resize,
+//! normalisation, matrix products, top-k, NMS) in [`super::nn`], LayerNormalization and
+//! GridSample in [`super::transformer`]. Float ops on device values are burn ops, so autodiff
 //! reaches the graph input; ops on host values (exported shape arithmetic) run on the host with
 //! ONNX's integer semantics. An op outside [`SUPPORTED`] is an error naming the op.
 
@@ -8,7 +9,7 @@ use super::args::{broadcast, expand, Args};
 use super::elementwise::{self as ew, unary};
 use super::model::NodeDef;
 use super::value::{Dev, Host, Val};
-use super::{nn, shape};
+use super::{nn, shape, transformer};
 use crate::activation as fast;
 use anyhow::{bail, Result};
 use burn::tensor::{activation, Device};
@@ -29,23 +30,28 @@ pub const SUPPORTED: &[&str] = &[
     "Constant",
     "ConstantOfShape",
     "Conv",
+    "ConvTranspose",
     "Div",
     "Dropout",
     "Elu",
     "Equal",
+    "Erf",
     "Exp",
     "Expand",
     "Flatten",
     "Floor",
     "Gather",
+    "GatherElements",
     "Gemm",
     "GlobalAveragePool",
     "GlobalMaxPool",
     "Greater",
     "GreaterOrEqual",
+    "GridSample",
     "HardSigmoid",
     "HardSwish",
     "Identity",
+    "LayerNormalization",
     "LeakyRelu",
     "Less",
     "LessOrEqual",
@@ -96,6 +102,7 @@ pub const SUPPORTED: &[&str] = &[
     "Unsqueeze",
     "Upsample",
     "Where",
+    "Xor",
 ];
 
 /// Evaluates `node` (opset `opset`) on its inputs (`None`: an omitted optional input) on `dev`.
@@ -138,6 +145,7 @@ pub fn eval(node: &NodeDef, opset: i64, dev: &Device, args: &[Option<&Val>]) -> 
         "Ceil" => unary(&a, |t| t.ceil()),
         "Round" => unary(&a, |t| t.round()),
         "Sign" => unary(&a, |t| t.sign()),
+        "Erf" => unary(&a, |t| t.erf()),
         "Neg" => match a.input(0)? {
             Val::H(Host::I(x)) => one(Val::H(Host::I(x.mapv(|v| -v)))),
             _ => unary(&a, |t| t.neg()),
@@ -163,7 +171,7 @@ pub fn eval(node: &NodeDef, opset: i64, dev: &Device, args: &[Option<&Val>]) -> 
         "Add" | "Sub" | "Mul" | "Div" | "Pow" | "Max" | "Min" | "Mod" | "Sum" | "Mean" => {
             one(ew::variadic(&a)?)
         }
-        "Equal" | "Greater" | "Less" | "GreaterOrEqual" | "LessOrEqual" | "And" | "Or" => {
+        "Equal" | "Greater" | "Less" | "GreaterOrEqual" | "LessOrEqual" | "And" | "Or" | "Xor" => {
             one(ew::compare(&a)?)
         }
         "Not" => {
@@ -182,6 +190,9 @@ pub fn eval(node: &NodeDef, opset: i64, dev: &Device, args: &[Option<&Val>]) -> 
             )?))
         }
         "Conv" => one(nn::conv(&a)?),
+        "ConvTranspose" => one(nn::conv_transpose(&a)?),
+        "LayerNormalization" => transformer::layer_norm(&a),
+        "GridSample" => one(transformer::grid_sample(&a)?),
         "BatchNormalization" => one(nn::batch_norm(&a)?),
         "MaxPool" | "AveragePool" => one(nn::pool(&a)?),
         "GlobalAveragePool" | "GlobalMaxPool" => one(nn::global_pool(&a)?),
@@ -204,6 +215,7 @@ pub fn eval(node: &NodeDef, opset: i64, dev: &Device, args: &[Option<&Val>]) -> 
         "Split" => shape::split(&a),
         "Slice" => one(shape::slice(&a)?),
         "Gather" => one(shape::gather(&a)?),
+        "GatherElements" => one(shape::gather_elements(&a)?),
         "Expand" => one(shape::expand_op(&a)?),
         "Tile" => one(shape::tile(&a)?),
         "Shape" | "Size" => one(shape::shape(&a)?),

@@ -1,12 +1,12 @@
 //! ONNX's layout and shape ops (Reshape, Flatten, Squeeze/Unsqueeze, Transpose, Concat, Split,
-//! Slice, Gather, Expand, Tile) on device values and on host values alike, and the ops that make
-//! host values (Shape, Size, Constant, ConstantOfShape, Range, Cast). Attribute forms and input
-//! forms are both read, by opset, where the op changed (Split 13/18, Squeeze/Unsqueeze 13,
-//! Slice 10).
+//! Slice, Gather, GatherElements, Expand, Tile) on device values and on host values alike, and
+//! the ops that make host values (Shape, Size, Constant, ConstantOfShape, Range, Cast). Attribute
+//! forms and input forms are both read, by opset, where the op changed (Split 13/18,
+//! Squeeze/Unsqueeze 13, Slice 10).
 
 use super::args::{axis, broadcast, expand, Args};
 use super::model::Attr;
-use super::value::{Dev, Host, Val, MAX_RANK};
+use super::value::{pad6, Dev, Host, Val, MAX_RANK};
 use anyhow::{anyhow, bail, ensure, Result};
 use burn::tensor::{Int, Tensor, TensorData};
 use ndarray::{ArrayD, Axis, IxDyn};
@@ -348,6 +348,80 @@ pub fn gather(a: &Args) -> Result<Val> {
         .copied()
         .collect();
     with_shape(&picked, shape)
+}
+
+/// GatherElements: `out[i][j][k] = data[index[i][j][k]][j][k]` (axis 0; likewise for the
+/// others), indices of any sign within the axis, the output shaped as the indices. Device data
+/// stays a burn `gather` (its gradient reaches the data); host data is gathered on the host.
+pub(crate) fn gather_elements(a: &Args) -> Result<Val> {
+    let x = a.input(0)?;
+    let ind = a.input(1)?.host()?;
+    let s = x.shape().to_vec();
+    let r = s.len();
+    ensure!(
+        r > 0 && ind.shape().len() == r,
+        "indices of shape {:?} for data of shape {s:?}: the same rank is expected",
+        ind.shape()
+    );
+    let ax = axis(a.i("axis").unwrap_or(0), r)?;
+    let out = ind.shape().to_vec();
+    ensure!(
+        (0..r).all(|k| k == ax || out[k] <= s[k]),
+        "indices of shape {out:?} exceed data of shape {s:?} off axis {ax}"
+    );
+    let dim = s[ax] as i64;
+    let idx: Vec<i64> = ind
+        .ints()
+        .iter()
+        .map(|&i| {
+            let j = if i < 0 { i + dim } else { i };
+            ensure!(
+                (0..dim).contains(&j),
+                "index {i} out of range for axis {ax} of length {dim}"
+            );
+            Ok(j)
+        })
+        .collect::<Result<_>>()?;
+    match x {
+        Val::D(d) => {
+            // Off the axis only the indices' extent of the data takes part: cut it to that, so
+            // data and indices agree there as burn's gather requires.
+            let mut cut = pad6(&out);
+            cut[d.axis(ax)] = s[ax];
+            let data = d.t.clone().slice(cut.map(|n| 0..n));
+            let it = Tensor::<MAX_RANK, Int>::from_data(TensorData::new(idx, pad6(&out)), a.dev);
+            Ok(Val::D(Dev::new(data.gather(d.axis(ax), it), out)?))
+        }
+        Val::H(h) => {
+            // Row-major walk over the output; the data's index is the output's with the axis
+            // coordinate replaced by the index read there.
+            let mut strides = vec![1usize; r];
+            for k in (0..r.saturating_sub(1)).rev() {
+                strides[k] = strides[k + 1] * s[k + 1];
+            }
+            let mut coord = vec![0usize; r];
+            let src: Vec<usize> = idx
+                .iter()
+                .map(|&j| {
+                    let at = (0..r)
+                        .map(|k| if k == ax { j as usize } else { coord[k] } * strides[k])
+                        .sum();
+                    for k in (0..r).rev() {
+                        coord[k] += 1;
+                        if coord[k] < out[k] {
+                            break;
+                        }
+                        coord[k] = 0;
+                    }
+                    at
+                })
+                .collect();
+            Ok(Val::H(each!(h, arr => {
+                let v: Vec<_> = arr.iter().copied().collect();
+                ArrayD::from_shape_vec(IxDyn(&out), src.iter().map(|&i| v[i]).collect())?
+            })))
+        }
+    }
 }
 
 pub(crate) fn expand_op(a: &Args) -> Result<Val> {
