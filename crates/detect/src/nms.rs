@@ -39,6 +39,38 @@ pub fn non_max_suppression(
     selected
 }
 
+/// [`non_max_suppression`] within each class: a box suppresses only boxes of its own class
+/// (`classes[i]`), ranked by score over all classes and cut at `max_output`, as ultralytics'
+/// class-offset NMS does but without moving the boxes (an offset of class × 1e5 rounds f32
+/// coordinates to a quarter pixel by class 28, enough to flip a decision near the threshold).
+pub fn class_aware_nms(
+    boxes: &[[f32; 4]],
+    scores: &[f32],
+    classes: &[usize],
+    max_output: usize,
+    iou_threshold: f64,
+    score_threshold: f64,
+) -> Vec<usize> {
+    assert_eq!(boxes.len(), scores.len(), "one score per box");
+    assert_eq!(boxes.len(), classes.len(), "one class per box");
+    let mut order: Vec<usize> = (0..scores.len())
+        .filter(|&i| scores[i] as f64 > score_threshold)
+        .collect();
+    order.sort_by(|&a, &b| scores[b].total_cmp(&scores[a]));
+    let mut selected: Vec<usize> = Vec::new();
+    for i in order {
+        if selected.len() >= max_output {
+            break;
+        }
+        let suppressed = (selected.iter().rev())
+            .any(|&j| classes[j] == classes[i] && iou(&boxes[i], &boxes[j]) >= iou_threshold);
+        if !suppressed {
+            selected.push(i);
+        }
+    }
+    selected
+}
+
 /// Intersection over union as tfjs computes it (f32 inputs, arithmetic in f64 like JS numbers).
 pub fn iou(a: &[f32; 4], b: &[f32; 4]) -> f64 {
     let a: [f64; 4] = a.map(f64::from);
@@ -111,5 +143,29 @@ mod tests {
             non_max_suppression(&boxes, &[0.9, 0.8], 10, 0.4, 0.0),
             vec![0, 1]
         );
+    }
+
+    #[test]
+    fn class_aware_nms_keeps_classes_apart_without_rounding_their_boxes() {
+        // Two boxes of class 28, 10 px wide and 3.82 px apart: IoU 6.18 / 13.82 = 0.447, kept at
+        // a 0.45 threshold. Offset by 28 × 1e5 in f32 (a quarter-pixel grid there) they would be
+        // 3.75 px apart (IoU 0.4545) and suppressed.
+        let a = [0.0, 0.13, 10.0, 10.13];
+        let b = [0.0, 3.95, 10.0, 13.95];
+        assert!(iou(&a, &b) < 0.45);
+        let shift = |x: [f32; 4]| x.map(|v| v + 28.0 * 1e5);
+        assert!(
+            iou(&shift(a), &shift(b)) >= 0.45,
+            "the hazard this guards against"
+        );
+        let keep = class_aware_nms(&[a, b], &[0.9, 0.8], &[28, 28], 10, 0.45, 0.0);
+        assert_eq!(keep, vec![0, 1]);
+        // The same box in two classes: both kept; a third of the first class suppressed; the
+        // score order across classes decides what max_output keeps.
+        let boxes = [a, a, a];
+        let keep = class_aware_nms(&boxes, &[0.7, 0.9, 0.6], &[1, 2, 1], 10, 0.45, 0.0);
+        assert_eq!(keep, vec![1, 0]);
+        let keep = class_aware_nms(&boxes, &[0.7, 0.9, 0.6], &[1, 2, 1], 1, 0.45, 0.0);
+        assert_eq!(keep, vec![1]);
     }
 }

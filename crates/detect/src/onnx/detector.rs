@@ -19,7 +19,7 @@ use super::graph::OnnxGraph;
 use super::model::{Dim, Model};
 use super::value::{Dev, Val};
 use crate::labels::COCO80;
-use crate::nms::non_max_suppression;
+use crate::nms::class_aware_nms;
 use crate::preprocess::resize_bilinear;
 use crate::raw::{RawDump, RawImage, RawTensor};
 use crate::{check_images, to_vec, Candidates, Detection, Detector};
@@ -626,19 +626,17 @@ impl Detector for OnnxDetector {
                     }
                 }
             }
-            // Class-aware NMS: boxes of different classes are moved apart (as ultralytics does).
-            let off = 1e5_f32;
-            let shifted: Vec<[f32; 4]> = cand
+            // Class-aware NMS (a box suppresses only its own class, as ultralytics' offsets do).
+            let yx: Vec<[f32; 4]> = cand
                 .iter()
-                .map(|(c, _, b)| {
-                    let o = *c as f32 * off;
-                    [b[1] + o, b[0] + o, b[3] + o, b[2] + o]
-                })
+                .map(|(_, _, b)| [b[1], b[0], b[3], b[2]])
                 .collect();
             let sc: Vec<f32> = cand.iter().map(|c| c.1).collect();
-            let keep = non_max_suppression(
-                &shifted,
+            let cls: Vec<usize> = cand.iter().map(|c| c.0).collect();
+            let keep = class_aware_nms(
+                &yx,
                 &sc,
+                &cls,
                 cfg.max_detections,
                 cfg.iou_threshold,
                 cfg.score_threshold,
