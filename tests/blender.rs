@@ -284,3 +284,83 @@ fn with_a_ground_the_box_still_matches_and_the_ground_is_opaque() {
         );
     }
 }
+
+/// A photographed HDR environment (one Blender ships) lights the scene and is the backdrop: the
+/// box still matches cac's, the sky is the environment's (not the flat magenta backdrop the
+/// condition names), twice the strength brightens the object, and an unknown name or an HDR
+/// environment with cac's image formation is refused naming what to do.
+#[test]
+fn an_hdr_environment_lights_the_scene_and_is_its_backdrop() {
+    let (w, h) = (64usize, 48usize);
+    let mut scene = generate::pickup();
+    scene.normalise(0.0, None);
+    let atlas = scene.initial_atlas(64);
+    let r = Renderer::new(
+        scene,
+        RenderSettings {
+            width: w,
+            height: h,
+            samples: 16,
+            vfov_deg: 50.0,
+            atlas_res: 64,
+        },
+    )
+    .unwrap();
+    let env = Environment::new(EnvConfig::default()).unwrap();
+    let mut c = Condition::plain(Viewpoint::new(40.0, 10.0, 2.0), Brightness::Bright);
+    c.background_color = Some([1.0, 0.0, 1.0]);
+    let with = |strength: f32| {
+        let s = BlenderSettings {
+            samples: 16,
+            mask_samples: 16,
+            threads: 2,
+            world: Some(blender::World::new("forest", strength, 30.0).unwrap()),
+            ..cycles()
+        };
+        blender::render_views(&r, &env, &[c.clone()], &atlas, &s, &device())
+            .unwrap()
+            .remove(0)
+    };
+    let (v1, v2) = (with(1.0), with(2.0));
+    let plan = cac::environment::plan(&r, &env, &c).unwrap();
+    let (ours, theirs) = (plan.object_box.unwrap(), v1.object_box.unwrap());
+    for k in 0..4 {
+        assert!((ours[k] - theirs[k]).abs() <= 1.0, "{ours:?} vs {theirs:?}");
+    }
+    // The top row is sky: the environment's, never the condition's magenta, and not one flat
+    // colour (a photographed sky varies across 50°).
+    let top: Vec<[u8; 3]> = (0..w as u32).map(|x| v1.image.get_pixel(x, 0).0).collect();
+    assert!(
+        top.iter().all(|p| !(p[0] > 200 && p[1] < 60 && p[2] > 200)),
+        "{top:?}"
+    );
+    let spread = |k: usize| {
+        let (lo, hi) = (top.iter().map(|p| p[k]).min(), top.iter().map(|p| p[k]).max());
+        hi.unwrap() - lo.unwrap()
+    };
+    assert!((0..3).any(|k| spread(k) >= 3), "a flat sky: {top:?}");
+    // The object's mean over its fully covered pixels rises with the strength.
+    let mean = |v: &blender::BlenderView| {
+        let (mut s, mut n) = (0.0f64, 0usize);
+        for (i, p) in v.image.pixels().enumerate() {
+            if v.coverage[i] > 0.99 {
+                s += p.0.iter().map(|&c| c as f64).sum::<f64>();
+                n += 1;
+            }
+        }
+        assert!(n > 50, "{n} covered pixels");
+        s / n as f64
+    };
+    let (m1, m2) = (mean(&v1), mean(&v2));
+    assert!(m2 > m1 * 1.15, "strength 1: {m1:.1}, strength 2: {m2:.1}");
+    // Refusals.
+    let e = format!("{:#}", blender::World::new("moonbase", 1.0, 0.0).unwrap_err());
+    assert!(e.contains("moonbase") && e.contains("forest"), "{e}");
+    let s = BlenderSettings {
+        shading: blender::Shading::Cac,
+        world: Some(blender::World::new("city", 1.0, 0.0).unwrap()),
+        ..cycles()
+    };
+    let e = format!("{:#}", blender::check(&s).unwrap_err());
+    assert!(e.contains("HDR environment") && e.contains("linear"), "{e}");
+}

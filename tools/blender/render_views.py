@@ -5,6 +5,8 @@
 # ambient (uniform world) level, the ground and the output paths. Per view two images are written:
 # the shaded view (RGBA PNG, transparent where the sky is: cac composites its own backdrop) and
 # the object's coverage mask (alpha of a second view layer in which the ground is a holdout).
+# With an HDR environment (job["world"]) it lights the scene instead of the ambient and sun, and
+# the shaded view is written opaque over it.
 import json
 import math
 import os
@@ -248,6 +250,31 @@ if cac_surfaces or job.get("sky_reflections", False):
     bg.inputs["Strength"].default_value = 1.0
     sky_nodes = (sky, pick)
 
+# A photographed HDR environment (job["world"]) replaces the uniform world and the sun: it lights
+# the scene (importance-sampled) and is the backdrop. Its up axis (Blender's Z in the image's
+# convention) is turned onto cac's +Y, then about +Y by rotation_deg.
+world_map = job.get("world")
+if world_map is not None:
+    name = world_map["image"]
+    # system_resource finds folders (a file path gives ''): the folder, then the file in it.
+    env_path = name if os.path.isabs(name) else os.path.join(bpy.utils.system_resource(
+        "DATAFILES", path=os.path.join("studiolights", "world")), name + ".exr")
+    if not env_path or not os.path.isfile(env_path):
+        raise SystemExit("cac: no HDR environment %r (looked for %r)" % (name, env_path))
+    world.cycles.sampling_method = "AUTOMATIC"
+    env = wnt.nodes.new("ShaderNodeTexEnvironment")
+    env.image = bpy.data.images.load(env_path, check_existing=True)
+    env.interpolation = "Linear"
+    coord = wnt.nodes.new("ShaderNodeTexCoord")
+    turn = wnt.nodes.new("ShaderNodeMapping")
+    turn.vector_type = "VECTOR"
+    turn.inputs["Rotation"].default_value = (math.radians(90.0), 0.0,
+                                             math.radians(world_map.get("rotation_deg", 0.0)))
+    wnt.links.new(coord.outputs["Generated"], turn.inputs["Vector"])
+    wnt.links.new(turn.outputs["Vector"], env.inputs["Vector"])
+    wnt.links.new(env.outputs["Color"], bg.inputs["Color"])
+    bg.inputs["Strength"].default_value = world_map.get("strength", 1.0)
+
 sun_data = bpy.data.lights.new("sun", "SUN")
 sun_data.angle = math.radians(0.53)
 sun = bpy.data.objects.new("sun", sun_data)
@@ -276,8 +303,17 @@ rl_mask = ct.nodes.new("CompositorNodeRLayers")
 rl_mask.layer = "mask"
 comp = ct.nodes.new("CompositorNodeComposite")
 comp.use_alpha = True
-ct.links.new(rl_image.outputs["Image"], comp.inputs["Image"])
-ct.links.new(rl_image.outputs["Alpha"], comp.inputs["Alpha"])
+if world_map is None:
+    ct.links.new(rl_image.outputs["Image"], comp.inputs["Image"])
+    ct.links.new(rl_image.outputs["Alpha"], comp.inputs["Alpha"])
+else:
+    # The environment is the backdrop: the camera rays' view of the world (its pass) under the
+    # object and ground, written opaque.
+    image_layer.use_pass_environment = True
+    over = ct.nodes.new("CompositorNodeAlphaOver")
+    ct.links.new(rl_image.outputs["Env"], over.inputs[1])
+    ct.links.new(rl_image.outputs["Image"], over.inputs[2])
+    ct.links.new(over.outputs["Image"], comp.inputs["Image"])
 fo = ct.nodes.new("CompositorNodeOutputFile")
 fo.base_path = root
 fo.format.file_format = "PNG"
@@ -300,7 +336,9 @@ for i, v in enumerate(job["views"]):
     from mathutils import Matrix
 
     cam.matrix_world = Matrix(c["matrix_world"])
-    if sky_nodes is None:
+    if world_map is not None:
+        pass  # the environment's light is the same in every view
+    elif sky_nodes is None:
         bg.inputs["Strength"].default_value = v["world_strength"]
     else:
         sky, pick = sky_nodes
@@ -312,7 +350,7 @@ for i, v in enumerate(job["views"]):
         sky.inputs["Color1"].default_value = tuple(horizon) + (1.0,)
         sky.inputs["Color2"].default_value = tuple(zenith) + (1.0,)
     s = v.get("sun")
-    if s is None:
+    if s is None or world_map is not None:
         sun.hide_render = True
     else:
         sun.hide_render = False

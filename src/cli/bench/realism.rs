@@ -77,7 +77,7 @@ pub fn run(a: Args) -> Result<()> {
         a.size, a.samples, a.blender_samples, a.blender_bounces, a.blender_shading, job.views, if job.photometric { "on" } else { "off" }
     );
     // The columns of `print_row`.
-    println!("mesh             renderer texture   set        light   nanodet       conf   target centernet       conf   target      s");
+    println!("mesh             renderer texture   set        light        nanodet       conf   target centernet       conf   target      s");
     let all = cac::detect::refs(&dets);
     let t = realism::run(&job, &all, &dev, &mut print_row)?;
     cac::io::write_atomic(&a.csv, t.rows.csv().as_bytes())?;
@@ -93,7 +93,7 @@ fn print_row(r: &Row) {
     let [short, wname, tname, sname, bname] = &r.key;
     let (n, c, secs) = (&r.nanodet, &r.centernet, r.seconds);
     println!(
-        "{short:<16} {wname:<8} {tname:<9} {sname:<10} {bname:<6} {:>8.3} {:>10.3} {:>8.3} {:>8.3} {:>10.3} {:>8.3} {secs:>6.0}",
+        "{short:<16} {wname:<8} {tname:<9} {sname:<10} {bname:<12} {:>8.3} {:>10.3} {:>8.3} {:>8.3} {:>10.3} {:>8.3} {secs:>6.0}",
         n.p_at_05,
         n.mean_best_true_conf,
         n.targeted_success,

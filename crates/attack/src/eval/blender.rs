@@ -21,6 +21,11 @@
 //!   colour or image (so both renderers show the same background; cac's aerial perspective on
 //!   the far ground is not reproduced).
 //!
+//! An HDR environment ([`World`]: one Blender ships, or any equirectangular image) can light the
+//! scene instead: Cycles' world, importance-sampled, replacing the ambient and the sun, and seen
+//! behind the object (the image is then written opaque, not composited over cac's backdrop).
+//! cac's own renderer has no image-based lighting yet: this is the judge under real light.
+//!
 //! Sampling: `samples` per pixel (box filter one pixel wide), no denoising by default, a fixed
 //! seed; `bounces` light bounces (0: direct light only). The object mask comes from a second
 //! view layer in which the ground is a holdout: its alpha is the object's coverage, from which
@@ -70,6 +75,71 @@ pub struct BlenderSettings {
     /// Keep the job folder here (default: a temporary folder that is removed afterwards; the
     /// command line takes `$CAC_BLENDER_WORK`).
     pub work_dir: Option<PathBuf>,
+    /// Light the scene with a photographed HDR environment instead of the condition's ambient and
+    /// sun (see [`World`]); `None`: the condition's light.
+    pub world: Option<World>,
+}
+
+/// A photographed environment as Cycles' world: it lights the object and the ground (image-based
+/// lighting, importance-sampled, with the ground's and the body's occlusion and bounce light) and
+/// is the backdrop seen behind them. The photographed scene's up is cac's +Y.
+#[derive(Clone, Debug, PartialEq)]
+pub struct World {
+    /// An equirectangular image Blender reads (EXR, HDR), or the name of one of the HDR
+    /// environments Blender ships (`city`, `courtyard`, `forest`, `interior`, `night`, `studio`,
+    /// `sunrise`, `sunset`: its `datafiles/studiolights/world/NAME.exr`, CC0).
+    pub image: String,
+    /// The environment's strength (1: as photographed).
+    pub strength: f32,
+    /// Turn of the environment about the vertical axis, degrees.
+    pub rotation_deg: f32,
+}
+
+/// The HDR environments Blender ships (`World::image` names).
+pub const BLENDER_WORLDS: [&str; 8] = [
+    "city",
+    "courtyard",
+    "forest",
+    "interior",
+    "night",
+    "studio",
+    "sunrise",
+    "sunset",
+];
+
+impl World {
+    /// `name` (one of [`BLENDER_WORLDS`]) or a path to an existing image file; else an error
+    /// naming the choices.
+    pub fn new(image: &str, strength: f32, rotation_deg: f32) -> Result<World> {
+        let known = BLENDER_WORLDS.contains(&image);
+        if !known && !Path::new(image).is_file() {
+            bail!(
+                "HDR environment {image:?} is neither one of Blender's ({}) nor an existing image file",
+                BLENDER_WORLDS.join(", ")
+            );
+        }
+        if !(strength.is_finite() && strength > 0.0) {
+            bail!("HDR environment strength {strength} must be positive");
+        }
+        let image = if known {
+            image.to_string()
+        } else {
+            std::fs::canonicalize(image)?.display().to_string()
+        };
+        Ok(World {
+            image,
+            strength,
+            rotation_deg,
+        })
+    }
+
+    /// The short name used in tables: the Blender name, or the file's stem.
+    pub fn name(&self) -> String {
+        Path::new(&self.image)
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| self.image.clone())
+    }
 }
 
 impl BlenderSettings {
@@ -111,6 +181,7 @@ impl Default for BlenderSettings {
             threads: 0,
             denoise: false,
             work_dir: None,
+            world: None,
         }
     }
 }
@@ -223,6 +294,11 @@ fn sun_matrix(dir: Vec3) -> [[f32; 4]; 4] {
 
 /// Is Blender there? Returns its version line, or a clear error.
 pub fn check(s: &BlenderSettings) -> Result<String> {
+    if s.world.is_some() && (s.shading != Shading::Linear || s.sky_reflections) {
+        bail!(
+            "an HDR environment lights Blender's scene physically: it goes with the linear shading and without sky reflections (the steps towards cac's image formation model cac's ambient and sun, which the environment replaces)"
+        );
+    }
     let out = Command::new(&s.executable)
         .args(["-b", "--factory-startup", "--version"])
         .output()
@@ -283,7 +359,10 @@ pub fn render_views(
     cams.iter()
         .zip(conds)
         .enumerate()
-        .map(|(i, ((cam, backdrop), c))| read_view(r, dir, i, cam, backdrop, c, device))
+        .map(|(i, ((cam, backdrop), c))| {
+            let backdrop = s.world.is_none().then_some(backdrop);
+            read_view(r, dir, i, cam, backdrop, c, device)
+        })
         .collect()
 }
 
@@ -401,6 +480,9 @@ impl<'a> Job<'a> {
             "cac_ambient": s.shading == Shading::Cac,
             "sky_reflections": s.sky_reflections,
             "denoise": s.denoise, "seed": 0, "ground_half_size": 1000.0,
+            "world": s.world.as_ref().map(|w| json!({
+                "image": w.image, "strength": w.strength, "rotation_deg": w.rotation_deg,
+            })),
             "materials": self.materials,
             "ground_textures": self.grounds.iter().map(|(_, n)| n.clone()).collect::<Vec<_>>(),
             "views": views,
@@ -483,14 +565,15 @@ fn run_blender(s: &BlenderSettings, dir: &Path, job: &serde_json::Value) -> Resu
     Ok(())
 }
 
-/// View `i` as Blender rendered it: composited over cac's own backdrop, with the condition's
-/// photometric transforms, and the object's coverage and box from the mask layer.
+/// View `i` as Blender rendered it: composited over cac's own backdrop (none: Blender's image is
+/// opaque, its own environment behind the object), with the condition's photometric transforms,
+/// and the object's coverage and box from the mask layer.
 fn read_view(
     r: &Renderer,
     dir: &Path,
     i: usize,
     cam: &Camera,
-    backdrop: &light::Backdrop,
+    backdrop: Option<&light::Backdrop>,
     cond: &Condition,
     device: &Device,
 ) -> Result<BlenderView> {
@@ -513,9 +596,13 @@ fn read_view(
     let mut data = vec![0.0f32; 3 * w * h];
     for (x, y, px) in rgba.enumerate_pixels() {
         let (xi, yi) = (x as usize, y as usize);
-        let dirv = cam.ray_dir(x as f32 + 0.5, y as f32 + 0.5);
-        let bg = light::background_colour(&backdrop.background, dirv, xi, yi, w, h);
-        let al = px[3];
+        let (bg, al) = match backdrop {
+            Some(b) => {
+                let dirv = cam.ray_dir(x as f32 + 0.5, y as f32 + 0.5);
+                (light::background_colour(&b.background, dirv, xi, yi, w, h), px[3])
+            }
+            None => ([0.0; 3], 1.0),
+        };
         for c in 0..3 {
             data[(c * h + yi) * w + xi] = px[c] * al + bg[c] * (1.0 - al);
         }

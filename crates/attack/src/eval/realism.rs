@@ -69,6 +69,17 @@ pub struct RealismJob {
     /// Apply the sampled photometric transforms (lighten/darken, print error, noise) too.
     #[arg(long)]
     pub photometric: bool,
+    /// Light Blender's scene with these HDR environments instead of the bright and dark levels
+    /// (one row per environment): Blender's own (city, courtyard, forest, interior, night, studio,
+    /// sunrise, sunset) or equirectangular image files. Blender renderer only.
+    #[arg(long, value_delimiter = ',')]
+    pub hdri: Vec<String>,
+    /// Strength of the HDR environments (1: as photographed).
+    #[arg(long, default_value_t = 1.0)]
+    pub hdri_strength: f32,
+    /// Turn of the HDR environments about the vertical axis, degrees.
+    #[arg(long, default_value_t = 0.0)]
+    pub hdri_rotation: f32,
     /// Seed of the sampled viewpoint sets.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -81,7 +92,7 @@ pub struct RealismJob {
 
 /// One combination's figures, per detector.
 pub struct Row {
-    /// Mesh stem, renderer, texture stem, set, brightness (lower case).
+    /// Mesh stem, renderer, texture stem, set, light ("bright", "dark" or "hdri:NAME").
     pub key: [String; 5],
     pub views: usize,
     pub nanodet: Summary,
@@ -122,7 +133,7 @@ pub fn run(
                 "renderer",
                 "texture",
                 "set",
-                "brightness",
+                "light",
                 "views",
                 "nanodet_p05",
                 "nanodet_mean_conf",
@@ -137,7 +148,7 @@ pub fn run(
                 "renderer",
                 "texture",
                 "set",
-                "brightness",
+                "light",
                 "view",
                 "azimuth",
                 "elevation",
@@ -151,6 +162,11 @@ pub fn run(
             ]),
         },
     };
+    if !job.hdri.is_empty() && job.renderers.contains(&Which::Cac) {
+        anyhow::bail!(
+            "--hdri lights Blender's scene only: cac's renderer has no image-based lighting yet (use --renderers blender)"
+        );
+    }
     for mesh in &job.meshes {
         b.mesh(mesh)?;
     }
@@ -232,20 +248,27 @@ impl Bench<'_> {
         for tname in &a.textures {
             let atlas = texture(tname, &original, &mask)?;
             for &set in &a.sets {
-                for b in [Brightness::Bright, Brightness::Dark] {
+                for (b, world) in self.lights()? {
                     let conds = views(set, cfg, a.views, b, a.seed, a.photometric)?;
+                    let light = match &world {
+                        Some(w) => format!("hdri:{}", w.name()),
+                        None => format!("{b:?}").to_lowercase(),
+                    };
+                    let mut blender = a.blender.clone();
+                    blender.world = world;
                     for &which in &a.renderers {
                         let t0 = Stopwatch::start();
-                        let (scores, images) = self.score(which, &r, &env, &conds, &atlas)?;
+                        let (scores, images) =
+                            self.score(which, &r, &env, &conds, &atlas, &blender)?;
                         let key = [
                             stem(mesh),
                             match which {
                                 Which::Cac => "cac".to_string(),
-                                Which::Blender => a.blender.label(),
+                                Which::Blender => blender.label(),
                             },
                             stem(tname),
                             format!("{set:?}").to_lowercase(),
-                            format!("{b:?}").to_lowercase(),
+                            light.clone(),
                         ];
                         self.record(key, &conds, &scores, &images, t0.secs())?;
                     }
@@ -253,6 +276,22 @@ impl Bench<'_> {
             }
         }
         Ok(())
+    }
+
+    /// The light levels of a row: bright and dark (the conditions' own light), or each HDR
+    /// environment (the viewpoints of the bright level, the environment's light in Blender).
+    fn lights(&self) -> Result<Vec<(Brightness, Option<blender::World>)>> {
+        let a = self.a;
+        if a.hdri.is_empty() {
+            return Ok(vec![(Brightness::Bright, None), (Brightness::Dark, None)]);
+        }
+        a.hdri
+            .iter()
+            .map(|h| {
+                let w = blender::World::new(h, a.hdri_strength, a.hdri_rotation)?;
+                Ok((Brightness::Bright, Some(w)))
+            })
+            .collect()
     }
 
     /// Renders `atlas` in `conds` with `which` and scores both detectors: per detector, per view
@@ -264,6 +303,7 @@ impl Bench<'_> {
         env: &Environment,
         conds: &[Condition],
         atlas: &Texture,
+        blender: &blender::BlenderSettings,
     ) -> Result<(Vec<Vec<super::ImageScore>>, Vec<image::RgbImage>)> {
         let (all, proto, dev) = (self.all, &self.a.protocol, self.dev);
         Ok(match which {
@@ -272,7 +312,7 @@ impl Bench<'_> {
                 (o.scores, o.images)
             }
             Which::Blender => {
-                let views = blender::render_views(r, env, conds, atlas, &self.a.blender, dev)?;
+                let views = blender::render_views(r, env, conds, atlas, blender, dev)?;
                 let s = blender::score_views(&views, all, proto, dev)?;
                 (s, views.into_iter().map(|v| v.image).collect())
             }
