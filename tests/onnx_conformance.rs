@@ -53,6 +53,9 @@ struct Entry {
     /// How far onnxruntime's own output moves with float rounding (the ultralytics exports).
     #[serde(default)]
     noise: f64,
+    /// How a file that selects its boxes inside selects them (`topk`, `nms`).
+    #[serde(default)]
+    selects: String,
 }
 
 #[derive(Deserialize)]
@@ -758,6 +761,125 @@ fn grad_cam_reads_a_rank_5_yolov5_head_and_names_why_a_softmax_head_has_none() {
         let x = Tensor::<4>::zeros([1, 3, 64, 64], &dev);
         let e = format!("{:#}", ssd.cam_io(x).err().expect("refused"));
         assert!(e.contains("ssdlite.onnx") && e.contains("softmax"), "{e}");
+    }
+}
+
+/// Files that select their boxes inside with top-k (RT-DETR-l; YOLOv10n and YOLO26n exported with
+/// `nms=False`) run up to the dense head before the selection. Checked against onnxruntime: the
+/// candidates put through the exporter's own top-k (the best 300 of every row × class score)
+/// are its output0 — the same scores in order, and, where a score stands apart from its
+/// neighbours, the same class and box. Checked against PyTorch: the mean class-0 logit over the
+/// rows and its input gradient. An `nms=True` export is refused saying what to export instead.
+#[test]
+fn files_that_select_inside_run_up_to_their_dense_head() {
+    let Some(dir) = fixtures() else { return };
+    if !has_ultralytics(dir) {
+        return;
+    }
+    let entries: Vec<Entry> = manifest(dir)
+        .models
+        .into_iter()
+        .filter(|e| e.kind == "selecting")
+        .collect();
+    let names: Vec<&str> = entries.iter().map(|e| e.name.as_str()).collect();
+    assert_eq!(
+        names,
+        ["rtdetr_l", "yolov10n_e2e", "yolo26n_e2e", "yolov8n_nms"],
+        "the selecting exports"
+    );
+    let train = support::training();
+    for e in &entries {
+        let path = dir.join(&e.file);
+        if e.selects == "nms" {
+            let err = format!("{:#}", OnnxDetector::load(&path, None, &train).err().unwrap());
+            assert!(
+                err.contains(&e.file)
+                    && err.contains("selects boxes inside")
+                    && err.contains("NonMaxSuppression")
+                    && err.contains("`nms` left at its default"),
+                "{err}"
+            );
+            continue;
+        }
+        let det = OnnxDetector::load(&path, None, &train).unwrap();
+        let input = &read(&dir.join(format!("{}.input.json", e.name)))["images"];
+        let want = &read(&dir.join(format!("{}.expected.json", e.name)))["output0"];
+        assert_eq!(want.shape, [1, 300, 6], "{}", e.name);
+        let x0: Vec<f32> = input.data.iter().map(|&v| v as f32).collect();
+        let x = Tensor::<4>::from_data(TensorData::new(x0, [1, 3, 320, 320]), &train).require_grad();
+        let c = det.candidates(x.clone()).unwrap();
+        let [_, n, k] = c.scores.dims();
+        let scores = cac::detect::to_vec(&c.scores).unwrap();
+        let boxes = cac::detect::to_vec(&c.boxes).unwrap();
+        // The exporter's selection: the best 300 (row, class) scores.
+        let mut order: Vec<usize> = (0..n * k).collect();
+        order.sort_by(|&a, &b| scores[b].total_cmp(&scores[a]).then(a.cmp(&b)));
+        let rtdetr = e.name.starts_with("rtdetr");
+        let (mut worst_score, mut worst_box, mut compared) = (0.0f64, 0.0f64, 0);
+        for (i, &flat) in order.iter().take(300).enumerate() {
+            let row = &want.data[i * 6..(i + 1) * 6];
+            let s = scores[flat] as f64;
+            worst_score = worst_score.max((s - row[4]).abs());
+            let apart = |j: usize| (want.data[j * 6 + 4] - row[4]).abs() > 1e-3;
+            if !(i == 0 || apart(i - 1)) || !(i == 299 || apart(i + 1)) {
+                continue;
+            }
+            let (q, class) = (flat / k, flat % k);
+            assert_eq!(class as f64, row[5], "{}: class of selected row {i}", e.name);
+            // onnxruntime's box as cac states it: x1, y1, x2, y2 in input pixels.
+            let theirs: [f64; 4] = if rtdetr {
+                let (cx, cy, w, h) = (row[0] * 320.0, row[1] * 320.0, row[2] * 320.0, row[3] * 320.0);
+                [cx - w / 2.0, cy - h / 2.0, cx + w / 2.0, cy + h / 2.0]
+            } else {
+                [row[0], row[1], row[2], row[3]]
+            };
+            for (j, t) in theirs.iter().enumerate() {
+                worst_box = worst_box.max((boxes[q * 4 + j] as f64 - t).abs());
+            }
+            compared += 1;
+        }
+        eprintln!(
+            "{}: top-300 scores within {worst_score:.2e} of onnxruntime's, {compared} boxes within {worst_box:.2e} px",
+            e.name
+        );
+        assert!(worst_score <= 1e-4, "{}: scores {worst_score}", e.name);
+        assert!(compared >= 20, "{}: only {compared} rows stand apart", e.name);
+        assert!(worst_box <= 1e-2, "{}: boxes {worst_box} px", e.name);
+        // PyTorch's loss and input gradient.
+        let torch = read(&dir.join(format!("{}.grad.json", e.name)));
+        let loss = c.logits.narrow(2, 0, 1).mean();
+        let ours = loss.clone().into_scalar::<f32>() as f64;
+        let theirs = torch["loss"].data[0];
+        assert!((ours - theirs).abs() <= 1e-4 * theirs.abs().max(1.0), "{}: loss {ours} vs PyTorch {theirs}", e.name);
+        let grads = loss.backward();
+        let g: Vec<f32> = x.grad(&grads).unwrap().to_data().convert::<f32>().try_into_vec::<f32>().unwrap();
+        let t = &torch["images"].data;
+        let dot: f64 = g.iter().zip(t).map(|(a, b)| *a as f64 * b).sum();
+        let (na, nb) = (
+            g.iter().map(|a| (*a as f64).powi(2)).sum::<f64>().sqrt(),
+            t.iter().map(|b| b * b).sum::<f64>().sqrt(),
+        );
+        let diff = g.iter().zip(t).map(|(a, b)| (*a as f64 - b).powi(2)).sum::<f64>().sqrt() / nb;
+        eprintln!(
+            "{}: loss {ours:.6} (PyTorch {theirs:.6}), input gradient relative error {diff:.2e}, cosine {:.6}",
+            e.name,
+            dot / (na * nb)
+        );
+        assert!(diff <= 1e-3, "{}: input gradient relative error {diff}", e.name);
+    }
+    // Each trains through the command line: the overlap rule over the queries / one-to-one rows.
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = small_scene(tmp.path());
+    for stem in ["rtdetr_l", "yolov10n_e2e"] {
+        let run = tmp.path().join(stem);
+        let spec = format!("onnx:{}", dir.join(format!("{stem}.onnx")).display());
+        support::cac_ok(&[
+            "train", "--config", scene.to_str().unwrap(), "--models", &spec,
+            "--iterations", "2", "--batch", "1", "--out", run.to_str().unwrap(),
+        ]);
+        let json: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(run.join("run.json")).unwrap()).unwrap();
+        assert_eq!(json["finished"], true, "{stem}: {json}");
     }
 }
 

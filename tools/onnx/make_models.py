@@ -15,6 +15,10 @@ Writes, all deterministic (fixed numpy / torch seeds):
                                   ultralytics writes its nodes out of topological order), with
                                   onnxruntime's output optimised and not (its own fp16 spread),
                                   and on the file widened to f32 (yolov8n_half.widened.*)
+  OUTDIR/rtdetr_l.onnx, yolov10n_e2e.onnx, yolo26n_e2e.onnx
+                                  files that select their boxes inside with top-k (RT-DETR-l;
+                                  YOLOv10n / YOLO26n with nms=False), random weights (idem)
+  OUTDIR/yolov8n_nms.onnx         YOLOv8n exported with nms=True (NMS inside; cac refuses it)
 and next to every model <stem>.input.json (the seeded feeds) and <stem>.expected.json
 (onnxruntime's CPU outputs for all graph outputs), plus OUTDIR/manifest.json.
 
@@ -725,15 +729,23 @@ def calibrate_ultralytics(net, torch, image):
                 m.reset_running_stats()
                 m.momentum = 1.0  # running stats := this batch's stats
         net.train()
-        net(calib)
+        net.predict(calib) if hasattr(net.model[-1], "dec_score_head") else net(calib)
         net.eval()
         for m in net.modules():
             if isinstance(m, nn.BatchNorm2d):
                 m.momentum = 0.03
 
         detect = net.model[-1]
-        heads = [(seq[-1], BOX_LOGIT_STD, None) for seq in detect.cv2]
-        heads += [(seq[-1], CLS_LOGIT_STD, CLS_LOGIT_BIAS) for seq in detect.cv3]
+        if hasattr(detect, "dec_score_head"):
+            # RT-DETR: the class logits of the encoder's query selection and of the decoder.
+            heads = [(detect.enc_score_head, CLS_LOGIT_STD, CLS_LOGIT_BIAS)]
+            heads += [(lin, CLS_LOGIT_STD, CLS_LOGIT_BIAS) for lin in detect.dec_score_head]
+        else:
+            # The one-to-many head, and the one-to-one head of the end-to-end models.
+            box = [*detect.cv2, *(getattr(detect, "one2one_cv2", None) or [])]
+            cls = [*detect.cv3, *(getattr(detect, "one2one_cv3", None) or [])]
+            heads = [(seq[-1], BOX_LOGIT_STD, None) for seq in box]
+            heads += [(seq[-1], CLS_LOGIT_STD, CLS_LOGIT_BIAS) for seq in cls]
         stds = {}
         hooks = [conv.register_forward_hook(lambda mod, i, o: stds.__setitem__(mod, float(o.std())))
                  for conv, _, _ in heads]
@@ -741,6 +753,8 @@ def calibrate_ultralytics(net, torch, image):
         for h in hooks:
             h.remove()
         for conv, target, bias in heads:
+            if conv not in stds:
+                continue  # not run at inference (RT-DETR's decoder scores its last layer only)
             conv.weight.mul_(target / stds[conv])
             if bias is not None:
                 conv.bias.fill_(bias)
@@ -807,6 +821,59 @@ def export_half(outdir, image, torch, YOLO):
     write_tensors(str(outdir / "yolov8n_half.widened.json"), run_session(session(str(wide_path), threads=1), feeds))
 
 
+# Exports that select their boxes inside: (stem, yaml, export options, what selects). RT-DETR's
+# ultralytics export always ends in its top-k post-processing; nms=False picks YOLOv10's and
+# YOLO26's end-to-end (one-to-one) head with the same post-processing; nms=True embeds NMS.
+SELECTING = [
+    ("rtdetr_l", "rtdetr-l.yaml", {}, "topk"),
+    ("yolov10n_e2e", "yolov10n.yaml", {"nms": False}, "topk"),
+    ("yolo26n_e2e", "yolo26n.yaml", {"nms": False}, "topk"),
+    ("yolov8n_nms", "yolov8n.yaml", {"nms": True}, "nms"),
+]
+
+
+def class0_logit_gradient(net, torch, image):
+    """PyTorch's gradient, w.r.t. the input, of the mean class-0 logit over the dense rows a
+    selecting export picks from (RT-DETR's decoder queries; the one-to-one head's anchors)."""
+    net.eval()
+    x = torch.from_numpy(image.copy()).requires_grad_(True)
+    _, raw = net(x)
+    if isinstance(raw, dict):  # Detect: {"one2many": ..., "one2one": {"scores": [B, C, N], ...}}
+        logits = raw["one2one"]["scores"][:, 0, :]
+    else:  # RTDETRDecoder: (dec_bboxes, dec_scores [1, B, Q, C], enc_bboxes, enc_scores, dn_meta)
+        logits = raw[1].squeeze(0)[..., 0]
+    loss = logits.mean()
+    loss.backward()
+    return float(loss), x.grad.numpy().astype(np.float32)
+
+
+def export_selecting(outdir, image, torch, YOLO, RTDETR):
+    """The SELECTING exports with onnxruntime's output0 ([1, 300, 6]: box, score, class) on
+    `image`; returns their manifest entries."""
+    entries = []
+    for stem, yaml, options, selects in SELECTING:
+        torch.manual_seed(0)
+        model = RTDETR(yaml) if yaml.startswith("rtdetr") else YOLO(yaml)
+        calibrate_ultralytics(model.model, torch, image)
+        if selects == "topk":
+            loss, grad = class0_logit_gradient(model.model, torch, image)
+            write_tensors(str(outdir / f"{stem}.grad.json"),
+                          {"loss": np.array([loss], np.float32), "images": grad})
+        path = model.export(format="onnx", imgsz=320, opset=17, simplify=ULTRALYTICS_SIMPLIFY,
+                            dynamic=False, batch=1, device="cpu", **options)
+        exported = onnx.load(str(path))
+        keep = [p for p in exported.metadata_props if p.key != "date"]
+        del exported.metadata_props[:]
+        exported.metadata_props.extend(keep)
+        out = outdir / f"{stem}.onnx"
+        onnx.save(exported, str(out))
+        outs = write_oracle(out, {"images": image}, outdir / stem)
+        entries.append({"name": stem, "file": f"{stem}.onnx", "opset": model_opset(exported),
+                        "inputs": ["images"], "outputs": outs, "kind": "selecting", "selects": selects,
+                        "export": {"yaml": yaml, "imgsz": 320, **options}})
+    return entries
+
+
 def export_ultralytics(outdir, image):
     """Exports the ultralytics models to outdir; returns their stems ([] when unavailable)."""
     workdir = Path(tempfile.mkdtemp(prefix="cac-ultralytics-"))
@@ -814,11 +881,11 @@ def export_ultralytics(outdir, image):
     try:
         import torch
         import ultralytics
-        from ultralytics import YOLO, settings
+        from ultralytics import RTDETR, YOLO, settings
     except ImportError as e:
         shutil.rmtree(workdir, ignore_errors=True)
         print(f"make_models: ultralytics not importable ({e}); skipping yolov8n / yolov5su / yolov6n")
-        return [], {}
+        return [], {}, []
     # No analytics / integrations, and every directory ultralytics might write to inside workdir.
     wanted = {"sync": False, "clearml": False, "comet": False, "dvc": False, "mlflow": False, "raytune": False,
               "tensorboard": False, "wandb": False, "vscode_msg": False, "openvino_msg": False,
@@ -845,10 +912,11 @@ def export_ultralytics(outdir, image):
             stems.append(stem)
         export_own_classes(outdir, image, torch, YOLO)
         export_half(outdir, image, torch, YOLO)
+        selecting = export_selecting(outdir, image, torch, YOLO, RTDETR)
     finally:
         os.chdir(cwd)
         shutil.rmtree(workdir, ignore_errors=True)
-    return stems, {"torch": torch.__version__, "ultralytics": ultralytics.__version__}
+    return stems, {"torch": torch.__version__, "ultralytics": ultralytics.__version__}, selecting
 
 
 # ----------------------------------------------------------------------------------------------
@@ -927,7 +995,8 @@ def main():
     manifest.append({"name": "split_head", "file": "split_head.onnx", "opset": model_opset(model),
                      "inputs": ["images"], "outputs": outs, "kind": "split_detector"})
 
-    stems, extra_versions = ([], {}) if args.skip_ultralytics else export_ultralytics(outdir, detector_feed["images"])
+    stems, extra_versions, selecting = (([], {}, []) if args.skip_ultralytics
+                                        else export_ultralytics(outdir, detector_feed["images"]))
     for stem in stems:
         path = outdir / f"{stem}.onnx"
         model = onnx.load(str(path))
@@ -941,6 +1010,7 @@ def main():
                          "layout": "anchor_free", "export": {"imgsz": 320, "simplify": ULTRALYTICS_SIMPLIFY,
                                                              "dynamic": False}})
 
+    manifest.extend(selecting)
     versions = {"onnx": onnx.__version__, "onnxruntime": ort.__version__, "numpy": np.__version__, **extra_versions}
     with open(outdir / "manifest.json", "w") as f:
         json.dump({"models": manifest, "versions": versions}, f, indent=1)

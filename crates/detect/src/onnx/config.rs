@@ -43,6 +43,9 @@ pub struct OnnxConfig {
     pub scores: String,
     /// `cxcywh` (default) or `xyxy`, in network-input pixels.
     pub box_format: String,
+    /// `pixels` (default: boxes in network-input pixels) or `normalized` (fractions of the
+    /// network input's width and height, as RT-DETR writes them).
+    pub box_scale: String,
     /// Class names in output order (default: the model's `names` metadata as ultralytics
     /// writes it, else COCO-80 when there are 80 classes, else `class0`, `class1`, ...).
     pub classes: Option<Vec<String>>,
@@ -50,6 +53,10 @@ pub struct OnnxConfig {
     pub score_threshold: f64,
     pub iou_threshold: f64,
     pub max_detections: usize,
+    /// The keys the file set (the others are defaults, which a head found inside a file that
+    /// selects boxes may replace with its exporter's conventions).
+    #[serde(skip)]
+    pub(crate) given: Vec<String>,
 }
 
 impl Default for OnnxConfig {
@@ -67,10 +74,12 @@ impl Default for OnnxConfig {
             std: [1.0; 3],
             scores: "sigmoid".into(),
             box_format: "cxcywh".into(),
+            box_scale: "pixels".into(),
             classes: None,
             score_threshold: 0.25,
             iou_threshold: 0.45,
             max_detections: 100,
+            given: Vec::new(),
         }
     }
 }
@@ -80,10 +89,18 @@ impl OnnxConfig {
     pub fn load(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read {}", path.display()))?;
-        let c: OnnxConfig = toml::from_str(&text)
+        let mut c: OnnxConfig = toml::from_str(&text)
             .with_context(|| format!("{}: invalid ONNX detector config", path.display()))?;
+        let table: toml::Table = toml::from_str(&text)
+            .with_context(|| format!("{}: invalid ONNX detector config", path.display()))?;
+        c.given = table.keys().cloned().collect();
         c.check().with_context(|| format!("{}", path.display()))?;
         Ok(c)
+    }
+
+    /// Whether the config file set `key`.
+    pub(crate) fn given(&self, key: &str) -> bool {
+        self.given.iter().any(|k| k == key)
     }
 
     pub(crate) fn check(&self) -> Result<()> {
@@ -104,6 +121,7 @@ impl OnnxConfig {
             &["sigmoid", "probabilities", "logits"],
         )?;
         one_of(&self.box_format, "box_format", &["cxcywh", "xyxy"])?;
+        one_of(&self.box_scale, "box_scale", &["pixels", "normalized"])?;
         ensure!(
             self.std.iter().all(|&s| s != 0.0),
             "std {:?} has a zero",

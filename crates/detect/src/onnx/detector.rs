@@ -70,7 +70,7 @@ impl OnnxDetector {
     pub fn load(path: &Path, config: Option<&Path>, device: &Device) -> Result<Self> {
         let src = path.display().to_string();
         let beside = path.with_extension("toml");
-        let config = match config {
+        let mut config = match config {
             Some(c) => OnnxConfig::load(c)?,
             None if beside.is_file() => OnnxConfig::load(&beside)?,
             None => OnnxConfig::default(),
@@ -78,7 +78,16 @@ impl OnnxDetector {
         let model = Model::load(path)?;
         not_a_detector(&model, &src)?;
         let graph = OnnxGraph::new(model, device)?;
-        selection_inside(&graph.model, &src)?;
+        // A file that selects its boxes inside runs up to the dense head before the selection
+        // (named by the config, or found); the rest of the graph is never run.
+        let named = config.output.is_some() && config.boxes.is_some();
+        if !named {
+            if let Some(select) = selection_inside(&graph.model) {
+                let found = head_before_selection(&graph.model)
+                    .ok_or_else(|| anyhow!("{src}: {}", refuse_selection(&select)))?;
+                found.apply(&graph.model, &mut config, &src)?;
+            }
+        }
         let input_io = match &config.input {
             Some(n) => graph
                 .graph_inputs()
@@ -310,6 +319,13 @@ impl OnnxDetector {
                 c1 + hh,
             )
         };
+        let (x1, y1, x2, y2) = if self.config.box_scale == "normalized" {
+            let (nw, nh) = (self.size.0 as f32, self.size.1 as f32);
+            let (sx, sy) = (|v: Tensor<3>| v.mul_scalar(nw), |v: Tensor<3>| v.mul_scalar(nh));
+            (sx(x1), sy(y1), sx(x2), sy(y2))
+        } else {
+            (x1, y1, x2, y2)
+        };
         let ux = |v: Tensor<3>| v.sub_scalar(geo.pad[0]).div_scalar(geo.scale[0]);
         let uy = |v: Tensor<3>| v.sub_scalar(geo.pad[1]).div_scalar(geo.scale[1]);
         let boxes = Tensor::cat(vec![ux(x1), uy(y1), ux(x2), uy(y2)], 2);
@@ -380,11 +396,12 @@ fn not_a_detector(model: &Model, src: &str) -> Result<()> {
     )
 }
 
-/// Refuses a file that selects boxes inside: NMS or top-k with the gathers that pick the kept
-/// rows (`nms=True` exports, the end-to-end heads of YOLOv10 / YOLO26, RT-DETR). Every op of such
-/// a file may run, but its output is a short list of chosen boxes, not the dense candidates the
-/// attack and the overlap rule work on; read as a dense head it would be misread in silence.
-fn selection_inside(model: &Model, src: &str) -> Result<()> {
+/// The first node that selects boxes inside the file, when the file also gathers the kept rows:
+/// NMS or top-k, then GatherElements or NonZero (`nms=True` exports, the end-to-end heads of
+/// YOLOv10 / YOLO26, RT-DETR). Its output is a short list of chosen boxes, not the dense
+/// candidates the attack and the overlap rule work on; read as a dense head it would be
+/// misread in silence.
+fn selection_inside(model: &Model) -> Option<String> {
     let first = |ops: &[&str]| {
         model
             .nodes
@@ -392,20 +409,137 @@ fn selection_inside(model: &Model, src: &str) -> Result<()> {
             .find(|n| ops.contains(&n.op.as_str()))
             .map(|n| format!("{} (node {:?})", n.op, n.name))
     };
-    let (Some(select), Some(gather)) = (
-        first(&["NonMaxSuppression", "TopK"]),
-        first(&["GatherElements", "NonZero"]),
-    ) else {
-        return Ok(());
-    };
-    bail!(
-        "{src}: the file selects boxes inside ({select}, then {gather}): an `nms=True` export, \
-         or the end-to-end head of YOLOv10 / YOLO26 / RT-DETR. cac needs the dense head, every \
-         candidate box with its class scores, because the attack and the overlap rule work on \
-         the candidates before any selection. Export the dense head instead: ultralytics \
-         `model.export(format=\"onnx\")` with `nms` left at its default (`nms=True` embeds NMS, \
-         `nms=False` picks the NMS-free end-to-end head; both select boxes inside the file)"
+    let select = first(&["NonMaxSuppression", "TopK"])?;
+    let gather = first(&["GatherElements", "NonZero"])?;
+    Some(format!("{select}, then {gather}"))
+}
+
+/// Why a file that selects inside, with no dense head cac can find before the selection, is
+/// refused, and what to do.
+fn refuse_selection(select: &str) -> String {
+    format!(
+        "the file selects boxes inside ({select}) and cac finds no dense head before the \
+         selection: an `nms=True` export, or a selection cac does not know. cac needs the dense \
+         head, every candidate box with its class scores, because the attack and the overlap \
+         rule work on the candidates before any selection. Export the dense head instead: \
+         ultralytics `model.export(format=\"onnx\")` with `nms` left at its default (or name \
+         the dense values in a config: `output = \"SCORES\"`, `boxes = \"BOXES\"`, with \
+         `box_format` and `box_scale`)"
     )
+}
+
+/// The dense head a top-k selection reads, found in the graph: the values an end-to-end
+/// export (ultralytics' top-k post-processing of YOLOv10 / YOLO26 with `nms=False`, and of
+/// RT-DETR) selects its rows from.
+struct InsideHead {
+    /// Class scores `[B, N, C]` (probabilities).
+    scores: String,
+    /// Boxes `[B, N, 4]`.
+    boxes: String,
+}
+
+/// Finds [`InsideHead`] from the graph output back: the output concatenates the gathered
+/// boxes (GatherElements of the dense boxes), the top-k scores (TopK of the flattened dense
+/// scores, or of their gathered rows) and the class index. `None` for any other shape of
+/// selection (NMS exports among them).
+fn head_before_selection(model: &Model) -> Option<InsideHead> {
+    use super::model::NodeDef;
+    use std::collections::HashMap;
+    let mut producer: HashMap<&str, &NodeDef> = HashMap::new();
+    for n in &model.nodes {
+        for o in &n.outputs {
+            producer.insert(o.as_str(), n);
+        }
+    }
+    // Follows the data input (0) back through the ops in `through`.
+    fn follow<'a>(
+        producer: &HashMap<&'a str, &'a NodeDef>,
+        mut v: &'a str,
+        through: &[&str],
+    ) -> Option<&'a str> {
+        while let Some(n) = producer.get(v).filter(|n| through.contains(&n.op.as_str())) {
+            v = n.inputs.first()?.as_str();
+        }
+        Some(v)
+    }
+    let back = |v, through| follow(&producer, v, through);
+    const LAYOUT: &[&str] = &["Reshape", "Squeeze", "Unsqueeze", "Identity", "Cast", "Flatten"];
+    let out = back(&model.outputs.first()?.name, LAYOUT)?;
+    let cat = producer.get(out).filter(|n| n.op == "Concat" && n.inputs.len() >= 3)?;
+    let gather = producer.get(back(&cat.inputs[0], LAYOUT)?)?;
+    (gather.op == "GatherElements").then_some(())?;
+    let boxes = gather.inputs.first()?.clone();
+    let topk_out = back(&cat.inputs[1], LAYOUT)?;
+    let topk = producer.get(topk_out).filter(|n| n.op == "TopK")?;
+    (topk.outputs.first()? == topk_out).then_some(())?;
+    let mut scores = back(topk.inputs.first()?, LAYOUT)?;
+    if let Some(g) = producer.get(scores).filter(|n| n.op == "GatherElements") {
+        scores = back(g.inputs.first()?, LAYOUT)?;
+    }
+    // The dense values must not come out of a selection themselves.
+    let selected = |v: &str| {
+        producer
+            .get(v)
+            .is_some_and(|n| ["TopK", "GatherElements", "NonMaxSuppression", "NonZero"].contains(&n.op.as_str()))
+    };
+    (!selected(scores) && !selected(&boxes)).then_some(())?;
+    Some(InsideHead {
+        scores: scores.to_string(),
+        boxes,
+    })
+}
+
+impl InsideHead {
+    /// Reads the found head as a `split` head with its exporter's conventions, where the config
+    /// does not set them: RT-DETR (ultralytics' `head` metadata `RTDETRDecoder`) writes
+    /// `cx, cy, w, h` as fractions of a stretched input; the end-to-end YOLO heads (`end2end`
+    /// metadata) `x1, y1, x2, y2` in pixels of a letterboxed input. The rows are one-to-one
+    /// predictions (a query or an anchor of the one-to-one head), which their exporter does not
+    /// put through NMS: neither does cac (IoU threshold 1) unless the config asks.
+    fn apply(self, model: &Model, config: &mut OnnxConfig, src: &str) -> Result<()> {
+        let rtdetr = model.meta("head").map(str::trim) == Some("RTDETRDecoder");
+        let end2end = model
+            .meta("end2end")
+            .is_some_and(|v| v.trim().eq_ignore_ascii_case("true"));
+        let conventions = if rtdetr {
+            [("resize", "stretch"), ("box_format", "cxcywh"), ("box_scale", "normalized")]
+        } else if end2end {
+            [("resize", "letterbox"), ("box_format", "xyxy"), ("box_scale", "pixels")]
+        } else {
+            ensure!(
+                ["box_format", "box_scale", "resize"].iter().all(|k| config.given(k)),
+                "{src}: the file selects boxes inside with top-k; cac found the dense head \
+                 before it (scores {:?}, boxes {:?}) but the file does not say how its boxes are \
+                 written (no ultralytics `head` / `end2end` metadata): set box_format, box_scale \
+                 and resize in a config",
+                self.scores,
+                self.boxes
+            );
+            return self.name_in(config);
+        };
+        for (key, value) in conventions {
+            if !config.given(key) {
+                match key {
+                    "resize" => config.resize = value.into(),
+                    "box_format" => config.box_format = value.into(),
+                    _ => config.box_scale = value.into(),
+                }
+            }
+        }
+        if !config.given("iou_threshold") {
+            config.iou_threshold = 1.0;
+        }
+        self.name_in(config)
+    }
+
+    fn name_in(self, config: &mut OnnxConfig) -> Result<()> {
+        config.output = Some(self.scores);
+        config.boxes = Some(self.boxes);
+        if config.head == "auto" {
+            config.head = "split".into();
+        }
+        Ok(())
+    }
 }
 
 /// Class names: the config's list, ultralytics' `names` metadata, COCO-80, or numbered.

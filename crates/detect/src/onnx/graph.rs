@@ -70,7 +70,23 @@ fn unsupported(model: &Model) -> Result<()> {
         && missing
             .iter()
             .any(|m| WITH_SELECTION.contains(&m.0.as_str()));
-    let hint = if selects {
+    // Quantized files (onnxruntime's quantizer, QDQ exports): cac runs float graphs.
+    const QUANTIZED: [&str; 8] = [
+        "DynamicQuantizeLinear",
+        "QuantizeLinear",
+        "DequantizeLinear",
+        "ConvInteger",
+        "MatMulInteger",
+        "QLinearConv",
+        "QLinearMatMul",
+        "QLinearAdd",
+    ];
+    let quantized = missing.iter().any(|m| QUANTIZED.contains(&m.0.as_str()));
+    let hint = if quantized {
+        "\n  The file is quantized (int8 weights or activations, as onnxruntime's quantizer or a \
+         QDQ export writes them): cac attacks and differentiates in float. Give it the float \
+         model, the file before quantization."
+    } else if selects {
         "\n  The file has NMS or top-k selection inside (an `nms=True` export, or the end-to-end head \
          of YOLOv10 / YOLO26): cac needs the dense head, every candidate box with its class \
          scores, because the attack and the overlap rule work on the candidates before any \
