@@ -70,23 +70,25 @@ fn conformance(arch: Arch, images: &[&str]) -> [f64; 5] {
         worst[1] = worst[1].max(e);
 
         let d = &meta["detections"];
-        let labels: Vec<usize> = d["labels"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|v| v.as_u64().unwrap() as usize)
+        let want: Vec<(usize, f32, [f32; 4])> = (0..d["labels"].as_array().unwrap().len())
+            .map(|k| {
+                let b = d["boxes"][k].as_array().unwrap();
+                let b: Vec<f32> = b.iter().map(|v| v.as_f64().unwrap() as f32).collect();
+                (
+                    d["labels"][k].as_u64().unwrap() as usize,
+                    d["scores"][k].as_f64().unwrap() as f32,
+                    [b[0], b[1], b[2], b[3]],
+                )
+            })
             .collect();
-        let mine: Vec<usize> = out.detections.iter().map(|d| d.label).collect();
-        assert_eq!(mine, labels, "{name} {stem}: detection labels/order");
-        for (k, det) in out.detections.iter().enumerate() {
-            let b = d["boxes"][k].as_array().unwrap();
-            for (mine, want) in det.bbox.iter().zip(b) {
-                let e = (*mine as f64 - want.as_f64().unwrap()).abs();
-                worst[3] = worst[3].max(e);
-            }
-            let e = (det.score as f64 - d["scores"][k].as_f64().unwrap()).abs();
-            worst[4] = worst[4].max(e);
-        }
+        let mine: Vec<(usize, f32, [f32; 4])> = out
+            .detections
+            .iter()
+            .map(|d| (d.label, d.score, d.bbox))
+            .collect();
+        let (dbox, dscore) = same_detections(&mine, &want, &format!("{name} {stem}"));
+        worst[3] = worst[3].max(dbox);
+        worst[4] = worst[4].max(dscore);
         assert!(
             worst[3] <= 1e-3 && worst[4] <= 1e-4,
             "{name} {stem}: detections differ {worst:?}"
@@ -97,6 +99,47 @@ fn conformance(arch: Arch, images: &[&str]) -> [f64; 5] {
         );
     }
     worst
+}
+
+/// The same detections as torchvision's, in torchvision's order except where two scores lie
+/// within the score bound of each other (there the summation order of the kernels decides, as it
+/// does between PyTorch builds): each of torchvision's detections has one of ours with its label,
+/// its box within 1e-3 px and its score within 1e-4, and ours are sorted by decreasing score.
+/// Returns the worst box (px) and score differences.
+fn same_detections(
+    mine: &[(usize, f32, [f32; 4])],
+    want: &[(usize, f32, [f32; 4])],
+    what: &str,
+) -> (f64, f64) {
+    assert_eq!(mine.len(), want.len(), "{what}: detection count");
+    assert!(
+        mine.windows(2).all(|p| p[0].1 >= p[1].1),
+        "{what}: detections not sorted by score"
+    );
+    let (mut dbox, mut dscore) = (0f64, 0f64);
+    let mut used = vec![false; mine.len()];
+    for (k, (label, score, bbox)) in want.iter().enumerate() {
+        let gap = |(_, s, b): &(usize, f32, [f32; 4])| {
+            let db = b.iter().zip(bbox).fold(0f64, |m, (a, b)| m.max((a - b).abs() as f64));
+            (db, (s - score).abs() as f64)
+        };
+        let found = (0..mine.len()).find(|&j| {
+            let (b, s) = gap(&mine[j]);
+            !used[j] && mine[j].0 == *label && b <= 1e-3 && s <= 1e-4
+        });
+        let Some(j) = found else {
+            panic!(
+                "{what}: torchvision's detection {k} (label {label}, score {score}, box {bbox:?}) \
+                 has no match; ours at {k}: {:?}",
+                mine.get(k)
+            );
+        };
+        used[j] = true;
+        let (b, s) = gap(&mine[j]);
+        dbox = dbox.max(b);
+        dscore = dscore.max(s);
+    }
+    (dbox, dscore)
 }
 
 #[test]
@@ -216,9 +259,17 @@ fn class_logit_gradient_matches_torch_and_finite_differences() {
     let g: Vec<f32> = grad.into_data().convert::<f32>().try_to_vec().unwrap();
     let (_, tg) = npy(&data("grad-image-grad.npy"));
     let e = rel(&g, &tg);
-    eprintln!("image gradient vs torch autograd: max relative error {e:.2e}");
-    // Looser than the forward bound: a ReLU whose input is within rounding of 0 switches paths.
-    assert!(e <= 2e-3, "gradient relative error {e}");
+    let norm = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>().sqrt();
+    let e2 = norm(&mut g.iter().zip(&tg).map(|(a, b)| (a - b) as f64))
+        / norm(&mut tg.iter().map(|&b| b as f64));
+    eprintln!("image gradient vs torch autograd: max relative error {e:.2e}, L2 relative {e2:.2e}");
+    // Looser than the forward bound: the random network has units within rounding of a ReLU or
+    // hard-swish kink, which switch paths with the summation order. Measured: adding 1e-7 times
+    // a seeded direction to the image (below its f32 resolution) moves the gradient from 5.9e-4
+    // to 3.05e-3 of torch's (max) and 3.4e-4 to 2.9e-3 (L2) with burn's convolutions; this
+    // crate's stem kernel (another order of the same sums, 1e-7 from burn's on this layer)
+    // lands on 3.05e-3 too. A wrong backward is off by O(1).
+    assert!(e <= 6e-3 && e2 <= 6e-3, "gradient relative error {e} (max), {e2} (L2)");
 
     // Finite differences (the random network is strongly non-linear: small step, loose bound).
     let dir: Vec<f32> = uniform("direction", 3 * h * w)

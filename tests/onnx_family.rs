@@ -95,7 +95,7 @@ fn expect(row: &str) -> Expect {
     match row {
         "yolov8n-seg" | "yolov8n-pose" => Expect::Refused(NOT_A_DETECTOR),
         "yolov8n nms=True" => {
-            Expect::Refused(&["selects boxes inside", "NonMaxSuppression", "`nms` left at its default"])
+            Expect::Refused(&["NMS or top-k selection inside", "`nms` left at its default"])
         }
         "yolov8n int8" => Expect::Refused(&["quantized", "the float model"]),
         "yolov8n dynamic" => {

@@ -834,17 +834,54 @@ SELECTING = [
 
 def class0_logit_gradient(net, torch, image):
     """PyTorch's gradient, w.r.t. the input, of the mean class-0 logit over the dense rows a
-    selecting export picks from (RT-DETR's decoder queries; the one-to-one head's anchors)."""
-    net.eval()
-    x = torch.from_numpy(image.copy()).requires_grad_(True)
-    _, raw = net(x)
-    if isinstance(raw, dict):  # Detect: {"one2many": ..., "one2one": {"scores": [B, C, N], ...}}
-        logits = raw["one2one"]["scores"][:, 0, :]
-    else:  # RTDETRDecoder: (dec_bboxes, dec_scores [1, B, Q, C], enc_bboxes, enc_scores, dn_meta)
-        logits = raw[1].squeeze(0)[..., 0]
-    loss = logits.mean()
-    loss.backward()
-    return float(loss), x.grad.numpy().astype(np.float32)
+    selecting export picks from (RT-DETR's decoder queries; the one-to-one head's anchors).
+
+    Every submodule's output gradient is made contiguous on its way back. Measured with torch
+    2.15 on the random RT-DETR-l: the gradient of `sum(r * y.flatten(2).permute(0, 2, 1))` and of
+    `sum(r^T * y.flatten(2))` (the same function; equal values and equal gradients w.r.t. `y`) at
+    the AIFI input `y` reach the image with cosine 0.013 to each other, in float64 too and with
+    oneDNN off, though a BatchNorm2d, a Conv2d or the two alone agree between layouts. The
+    second agrees with cac's gradient (cosine 0.9997). The loss's gradient, which reaches the
+    backbone through permutes, agrees with cac's (cosine 0.9997, norms 207.09 and 207.06) once
+    the gradients at BatchNorm2d outputs are made contiguous (0.016 without).
+
+    Returns the loss, the gradient and the gradient's own float spread: how far it moves,
+    relative to its norm, when the input moves by about two ulps (the random transformer
+    amplifies rounding: its 300-of-2,100 query selection and ReLUs switch).
+    """
+    class Contiguous(torch.autograd.Function):
+        @staticmethod
+        def forward(ctx, t):
+            return t.clone()
+
+        @staticmethod
+        def backward(ctx, g):
+            return g.contiguous()
+
+    def gradient(x0):
+        x = torch.from_numpy(x0.copy()).requires_grad_(True)
+        _, raw = net(x)
+        if isinstance(raw, dict):  # Detect: {"one2many": ..., "one2one": {"scores": [B, C, N], ...}}
+            logits = raw["one2one"]["scores"][:, 0, :]
+        else:  # RTDETRDecoder: (dec_bboxes, dec_scores [1, B, Q, C], enc_bboxes, enc_scores, dn_meta)
+            logits = raw[1].squeeze(0)[..., 0]
+        loss = logits.mean()
+        loss.backward()
+        return float(loss.detach()), x.grad.numpy().astype(np.float64)
+
+    hooks = [m.register_forward_hook(lambda m, i, o: Contiguous.apply(o) if torch.is_tensor(o) else None)
+             for m in net.modules()]
+    try:
+        net.eval()
+        loss, grad = gradient(image)
+        # The gradient's own float spread: the input moved by about two ulps (as float_noise).
+        sign = np.where(np.random.default_rng(4321).random(image.shape) < 0.5, 1.0, -1.0)
+        _, moved = gradient((image * (1 + sign * 2.0 ** -22)).astype(np.float32))
+    finally:
+        for h in hooks:
+            h.remove()
+    noise = float(np.linalg.norm(moved - grad) / np.linalg.norm(grad))
+    return loss, grad.astype(np.float32), noise
 
 
 def export_selecting(outdir, image, torch, YOLO, RTDETR):
@@ -856,9 +893,10 @@ def export_selecting(outdir, image, torch, YOLO, RTDETR):
         model = RTDETR(yaml) if yaml.startswith("rtdetr") else YOLO(yaml)
         calibrate_ultralytics(model.model, torch, image)
         if selects == "topk":
-            loss, grad = class0_logit_gradient(model.model, torch, image)
+            loss, grad, noise = class0_logit_gradient(model.model, torch, image)
             write_tensors(str(outdir / f"{stem}.grad.json"),
-                          {"loss": np.array([loss], np.float32), "images": grad})
+                          {"loss": np.array([loss], np.float32), "images": grad,
+                           "noise": np.array([noise], np.float32)})
         path = model.export(format="onnx", imgsz=320, opset=17, simplify=ULTRALYTICS_SIMPLIFY,
                             dynamic=False, batch=1, device="cpu", **options)
         exported = onnx.load(str(path))
