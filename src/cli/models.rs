@@ -27,7 +27,14 @@ pub fn run(cmd: ModelsCmd) -> Result<()> {
     match cmd {
         ModelsCmd::Fetch { force } => {
             let dir = fetch::models_dir()?;
-            if force || fetch::verify(&dir).is_err() {
+            // A missing or corrupt file is fetched again; an unreadable one is the error.
+            let repair = force
+                || match fetch::verify(&dir) {
+                    Ok(()) => false,
+                    Err(e) if e.refetch_repairs() => true,
+                    Err(e) => return Err(e.into()),
+                };
+            if repair {
                 eprintln!("fetching {} into {}", fetch::PACKAGE, dir.display());
                 fetch::fetch(&dir)?;
             }

