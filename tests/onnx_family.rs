@@ -182,7 +182,9 @@ fn every_export_of_the_family_is_matched_and_trainable_or_refused_saying_what_to
                 if !words.iter().all(|w| msg.contains(w)) {
                     failures.push(format!("{}: refused, but not saying {words:?}: {msg}", row.name));
                 }
-                let cfg = dir.join(format!("{}.toml", row.file.trim_end_matches(".onnx")));
+                // Not `MODEL.toml` beside the file: that one is read without being named, and
+                // a rerun on the cached family would then load the row with no refusal.
+                let cfg = dir.join(format!("{}.given.toml", row.file.trim_end_matches(".onnx")));
                 std::fs::write(&cfg, config).unwrap();
                 match run_row(&dir, row, Some(&cfg)) {
                     Ok((err, bound, norm)) if err <= bound && norm > 0.0 => format!(
