@@ -325,3 +325,91 @@ fn study_methods_trains_each_method_and_tables_the_protocols_records() {
     assert!(e.contains("has no class \"tank\""), "{e}");
     assert!(!dir.path().join("bad").exists());
 }
+
+/// The HDRI protocol (`cac eval --hdri`): every view lit by the given environment, the report
+/// says so, the figures are not those of the sun-and-ambient protocol on the same views, and an
+/// unknown environment is refused naming the choices.
+#[test]
+fn eval_hdri_protocol_lights_every_view_and_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (64usize, 32usize);
+    let px: Vec<image::Rgb<f32>> = (0..w * h)
+        .map(|i| {
+            let t = (i / w) as f32 / h as f32;
+            image::Rgb(if t < 0.5 {
+                [0.9, 0.6, 0.3]
+            } else {
+                [0.05, 0.04, 0.03]
+            })
+        })
+        .collect();
+    let map = dir.path().join("amber.hdr");
+    let f = std::io::BufWriter::new(std::fs::File::create(&map).unwrap());
+    image::codecs::hdr::HdrEncoder::new(f)
+        .encode(&px, w, h)
+        .unwrap();
+    let cfg = dir.path().join("small.toml");
+    std::fs::write(
+        &cfg,
+        "[render]\nwidth = 128\nheight = 128\nsamples = 1\natlas_res = 64\n",
+    )
+    .unwrap();
+    let run = |hdri: Option<&str>, out: &str| -> serde_json::Value {
+        let out = dir.path().join(out);
+        let mut args = vec![
+            "eval",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--views",
+            "2",
+            "--sets",
+            "fv",
+            "--texture",
+            "original",
+            "--models",
+            "nanodet",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        if let Some(h) = hdri {
+            args.extend(["--hdri", h]);
+        }
+        support::cac_ok(&args);
+        let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+        assert_eq!(
+            md.contains("lit by the HDR environments"),
+            hdri.is_some(),
+            "{md}"
+        );
+        serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap()
+    };
+    let (plain, lit) = (run(None, "plain"), run(Some(map.to_str().unwrap()), "lit"));
+    assert!(lit["info"]["light"].as_str().unwrap().contains("amber.hdr"));
+    let confs = |j: &serde_json::Value| -> Vec<String> {
+        j["records"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| r.to_string())
+            .collect()
+    };
+    assert_ne!(
+        confs(&plain),
+        confs(&lit),
+        "the environment changed nothing"
+    );
+    let o = support::cac(&[
+        "eval",
+        "--hdri",
+        "moonbase",
+        "--views",
+        "1",
+        "--out",
+        dir.path().join("x").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("moonbase") && err.contains("interior"),
+        "{err}"
+    );
+}

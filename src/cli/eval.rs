@@ -55,6 +55,12 @@ pub struct Args {
     /// Samples per pixel (overrides the config).
     #[arg(long)]
     pub samples: Option<usize>,
+    /// The HDRI protocol: every view lit by one of these photographed environments (drawn per
+    /// view, turned at random about the vertical; Blender's city, courtyard, forest, interior,
+    /// night, studio, sunrise, sunset, or EXR/HDR files) instead of the sun and ambient
+    /// (Cycles under the same maps: `cac bench realism --hdri`). Overrides the config's `hdri`.
+    #[arg(long, value_delimiter = ',')]
+    pub hdri: Vec<String>,
     /// Example views per group kept for the HTML report.
     #[arg(long, default_value_t = 1)]
     pub examples: usize,
@@ -85,6 +91,10 @@ pub fn job(a: &Args) -> Result<EvalJob> {
     }
     if let Some(s) = a.samples {
         scene.render.samples = s;
+    }
+    if !a.hdri.is_empty() {
+        scene.environment.hdri = a.hdri.clone();
+        scene.environment.hdri_share = 1.0;
     }
     scene.render.validate()?;
     if a.views == 0 {

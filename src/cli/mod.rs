@@ -102,6 +102,8 @@ pub enum BenchCmd {
     Eval(bench::eval::Args),
     /// Is the original vehicle recognised? P@0.5 per mesh, viewpoint set, light and renderer.
     Realism(bench::realism::Args),
+    /// Image-based lighting: error against Cycles and time per knob (SH order, occlusion rays).
+    Ibl(bench::ibl::Args),
 }
 
 pub fn run(cli: Cli) -> Result<()> {
@@ -132,6 +134,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Bench(BenchCmd::Video(a)) => bench::video::run(a),
         Command::Bench(BenchCmd::Eval(a)) => bench::eval::run(a),
         Command::Bench(BenchCmd::Realism(a)) => bench::realism::run(a),
+        Command::Bench(BenchCmd::Ibl(a)) => bench::ibl::run(a),
     }
 }
 

@@ -73,6 +73,7 @@ impl DigitalTwin {
             sun: t.lamp,
             sun_dir: rig.lamp_dir(pose.angle_deg),
             sky_occlusion: None,
+            image: None,
         };
         let backdrop = Backdrop {
             background: Background::Color(t.background),

@@ -1,6 +1,7 @@
 //! The differentiable step: render plans + camouflage atlas → image batch, as burn tensor ops.
 //!
-//! `image[v, p] = base[v, p] + Σ_k weight_k · atlas[v, texel_k]` over the taps of pixel `p`: one
+//! `image[v, p] = base[v, p] + Σ_k weight_k · atlas[v, texel_k]` over the taps of pixel `p` (a
+//! weight per channel when the light is coloured, [`RenderPlan::tap_colour`]): one
 //! gather from the atlas, one multiply, one scatter-add into the pixels. Geometry is fixed, so this
 //! is the exact image as a function of the atlas, and autodiff gives exact gradients with respect
 //! to every texel; no soft rasteriser is needed.
@@ -36,17 +37,27 @@ pub fn composite(plans: &[RenderPlan], atlas: Tensor<4>) -> Tensor<4> {
     let px = w * h;
     let mut base: Vec<f32> = Vec::with_capacity(v * px * 3);
     let taps: usize = plans.iter().map(|p| p.tap_pixel.len()).sum();
+    // One weight per tap, or three when any plan's light is coloured.
+    let ch = if plans.iter().any(|p| !p.tap_colour.is_empty()) {
+        3
+    } else {
+        1
+    };
     let (mut ip, mut it, mut wt): (Vec<i64>, Vec<i64>, Vec<f32>) = (
         Vec::with_capacity(taps),
         Vec::with_capacity(taps),
-        Vec::with_capacity(taps),
+        Vec::with_capacity(taps * ch),
     );
     for (k, p) in plans.iter().enumerate() {
         base.extend(p.base.iter().flatten());
         let atlas_off = if va == 1 { 0 } else { k * r * r };
         ip.extend(p.tap_pixel.iter().map(|&i| (i as usize + k * px) as i64));
         it.extend(p.tap_texel.iter().map(|&i| (i as usize + atlas_off) as i64));
-        wt.extend(&p.tap_weight);
+        if ch == 1 {
+            wt.extend(&p.tap_weight);
+        } else {
+            wt.extend((0..p.tap_weight.len()).flat_map(|t| (0..3).map(move |c| p.weight(t, c))));
+        }
     }
     let base = Tensor::<2>::from_data(TensorData::new(base, [v * px, 3]), (&device, dtype));
     let img = if taps == 0 {
@@ -56,7 +67,7 @@ pub fn composite(plans: &[RenderPlan], atlas: Tensor<4>) -> Tensor<4> {
     } else {
         let ip = Tensor::<1, Int>::from_data(TensorData::new(ip, [taps]), &device);
         let it = Tensor::<1, Int>::from_data(TensorData::new(it, [taps]), &device);
-        let wt = Tensor::<2>::from_data(TensorData::new(wt, [taps, 1]), (&device, dtype));
+        let wt = Tensor::<2>::from_data(TensorData::new(wt, [taps, ch]), (&device, dtype));
         let flat = atlas.reshape([va * r * r, 3]);
         let gathered = flat.select(0, it) * wt;
         base.select_assign(0, ip, gathered, IndexingUpdateOp::Add)

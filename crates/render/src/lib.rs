@@ -22,6 +22,7 @@ pub mod bench;
 pub mod camera;
 pub mod composite;
 pub mod gbuffer;
+pub mod ibl;
 pub mod light;
 pub mod shade;
 mod sheet;

@@ -21,6 +21,9 @@ pub struct Lighting {
     /// light is `albedo × (ambient + sun × sun_y)`, with weight `(1 − n_y) / 2`, as a physical
     /// renderer finds it (the body's occlusion of itself is not modelled).
     pub sky_occlusion: Option<f32>,
+    /// A photographed environment that lights the view instead of the ambient and the sun
+    /// (which are then 0), and is its backdrop ([`crate::ibl`]).
+    pub image: Option<crate::ibl::ImageLight>,
 }
 
 impl Lighting {
@@ -32,6 +35,7 @@ impl Lighting {
             sun,
             sun_dir: Vec3::new(e.cos() * a.cos(), e.sin(), e.cos() * a.sin()),
             sky_occlusion: None,
+            image: None,
         }
     }
 }

@@ -4,11 +4,14 @@
 //! paintable surface: bilinear texel weights times diffuse shading, averaged over samples.
 //!
 //! Lighting ([`super::light`]) is ambient plus one directional sun with shadow rays (none are
-//! cast when the sun is off). Shading is applied to display-encoded values, as in the neural renderers used by
-//! published camouflage attacks; paint replaces the paintable parts' colour entirely.
+//! cast when the sun is off), or a photographed environment ([`super::ibl`]): its sun with
+//! shadow rays, its residual's irradiance occluded by the body, in colour, so the taps then
+//! carry a colour each. Shading is applied to display-encoded values, as in the neural renderers
+//! used by published camouflage attacks; paint replaces the paintable parts' colour entirely.
 
 use super::accel::Accel;
 use super::gbuffer::{GBuffer, Sample, Surface};
+use super::ibl::{self, ImageLight, Sh9};
 use super::light::{background_colour, environment_colour, mean_colour};
 use super::light::{Backdrop, Background, Lighting};
 use cac_scene::bilinear::{self, Wrap};
@@ -28,6 +31,9 @@ pub struct RenderPlan {
     pub tap_pixel: Vec<u32>,
     pub tap_texel: Vec<u32>,
     pub tap_weight: Vec<f32>,
+    /// Empty under a grey light; under a coloured one (an environment), the light's colour per
+    /// tap, multiplying its weight channel by channel.
+    pub tap_colour: Vec<[f32; 3]>,
     /// Fraction of each pixel covered by the object.
     pub coverage: Vec<f32>,
     /// Ground-truth box of the visible object, pixels `[x1, y1, x2, y2]`.
@@ -45,6 +51,12 @@ pub fn plan(
     atlas_res: usize,
 ) -> RenderPlan {
     let s = g.samples;
+    let ibl = light.image.as_ref().map(|l| Ibl {
+        light: l,
+        sh: l.residual_sh(),
+        ground_sh: l.map.sh_upper.map(|k| k.map(|v| v * l.strength)),
+        sun: l.sun(),
+    });
     let sh = Shader {
         scene,
         accel,
@@ -52,23 +64,31 @@ pub fn plan(
         backdrop,
         atlas_res,
         inv_s: 1.0 / s as f32,
-        shadows: light.sun > 0.0,
+        shadows: light.sun > 0.0 || ibl.as_ref().is_some_and(|i| i.sun.is_some()),
+        ibl,
         eps: 1e-3 * (g.camera.eye.length() + 1.0),
         image_mean: match &backdrop.background {
             Background::Image(img) => mean_colour(img),
             _ => [0.0; 3],
         },
     };
-    // Per pixel: the constant colour and the atlas taps of its samples.
-    let pixels: Vec<([f32; 3], Vec<(u32, f32)>)> = g
+    // Per pixel: the constant colour, the atlas taps of its samples and their colours.
+    type Pixel = ([f32; 3], Vec<(u32, f32)>, Vec<[f32; 3]>);
+    let pixels: Vec<Pixel> = g
         .data
         .par_chunks_exact(s)
         .enumerate()
         .map(|(pi, samples)| {
             let mut base = [0.0f32; 3];
-            let mut taps = Vec::new();
-            for sm in samples {
+            let (mut taps, mut colours) = (Vec::new(), Vec::new());
+            let global = (g.rows.start * g.width + pi) as u64;
+            for (k, sm) in samples.iter().enumerate() {
+                let phase = sample_phase(global, k);
                 match sm.surface {
+                    Surface::Sky if sh.ibl.is_some() => {
+                        let i = sh.ibl.as_ref().expect("checked");
+                        add(&mut base, i.light.backdrop(sm.dir), sh.inv_s);
+                    }
                     Surface::Sky => {
                         let c = background_colour(
                             &backdrop.background,
@@ -80,11 +100,11 @@ pub fn plan(
                         );
                         add(&mut base, c, sh.inv_s);
                     }
-                    Surface::Ground => add(&mut base, sh.ground(sm), sh.inv_s),
-                    Surface::Object => sh.object(sm, &mut base, &mut taps),
+                    Surface::Ground => add(&mut base, sh.ground(sm, phase), sh.inv_s),
+                    Surface::Object => sh.object(sm, phase, &mut base, &mut taps, &mut colours),
                 }
             }
-            (base, taps)
+            (base, taps, colours)
         })
         .collect();
     let mut out = RenderPlan {
@@ -95,11 +115,13 @@ pub fn plan(
         tap_pixel: vec![],
         tap_texel: vec![],
         tap_weight: vec![],
+        tap_colour: vec![],
         coverage: g.coverage(),
         object_box: g.object_box(),
     };
-    for (i, (base, taps)) in pixels.into_iter().enumerate() {
+    for (i, (base, taps, colours)) in pixels.into_iter().enumerate() {
         out.base.push(base);
+        out.tap_colour.extend(colours);
         for (t, w) in taps {
             out.tap_pixel.push(i as u32);
             out.tap_texel.push(t);
@@ -116,6 +138,26 @@ fn add(base: &mut [f32; 3], c: [f32; 3], k: f32) {
     }
 }
 
+/// A per-sample phase in [0, 1) for the occlusion rays' pattern, from the sample's place in the
+/// whole view (so a band of rows shades exactly as the whole view does).
+fn sample_phase(pixel: u64, sample: usize) -> f32 {
+    let mut x = pixel.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ (sample as u64).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    x ^= x >> 31;
+    x = x.wrapping_mul(0x94D0_49BB_1331_11EB);
+    x ^= x >> 29;
+    (x >> 40) as f32 / (1u64 << 24) as f32
+}
+
+/// An environment's light prepared for one view: the residual's coefficients as the object
+/// sees them (ground below) and as the ground sees them (the sky above), and its sun.
+struct Ibl<'a> {
+    light: &'a ImageLight,
+    sh: Sh9,
+    ground_sh: Sh9,
+    sun: Option<(Vec3, [f32; 3])>,
+}
+
 /// What shading one G-buffer sample needs: the scene and its BVH (shadow rays), the light, the
 /// backdrop, the atlas size, the sample weight, the shadow-ray offset and the backdrop image's
 /// mean colour (what glossy parts reflect of an image backdrop).
@@ -129,18 +171,76 @@ struct Shader<'a> {
     shadows: bool,
     eps: f32,
     image_mean: [f32; 3],
+    ibl: Option<Ibl<'a>>,
 }
 
 impl Shader<'_> {
+    /// The display light (per channel) an environment gives a surface at `p` with normal `n`:
+    /// the residual's irradiance from `sh` times the share of it the body lets through (from
+    /// `occlusion_rays` rays weighted by the residual's luminance in their direction), plus the
+    /// shadowed sun; `srgb(E / π)`. Also the sun's display level for highlights, and whether
+    /// the sun is seen.
+    fn ibl_light(
+        &self,
+        i: &Ibl,
+        sh: &Sh9,
+        p: Vec3,
+        n: Vec3,
+        phase: f32,
+    ) -> ([f32; 3], [f32; 3], f32) {
+        let mut e = i.light.irradiance(sh, n);
+        let rays = i.light.settings.occlusion_rays;
+        if rays > 0 {
+            let (mut open, mut all) = (0.0f32, 0.0f32);
+            for d in ibl::cosine_directions(n, rays, phase) {
+                let wgt = i.light.residual_luminance(sh, d) + 1e-6;
+                all += wgt;
+                if !self.accel.occluded(p + n * self.eps, d, 0.0, f32::INFINITY) {
+                    open += wgt;
+                }
+            }
+            let share = open / all;
+            e = e.map(|v| v * share);
+        }
+        let (mut sun_disp, mut vis) = ([0.0f32; 3], 0.0);
+        if let Some((dir, s)) = i.sun {
+            let ndl = n.dot(dir);
+            if ndl > 0.0
+                && !self
+                    .accel
+                    .occluded(p + n * self.eps, dir, 0.0, f32::INFINITY)
+            {
+                vis = 1.0;
+                for c in 0..3 {
+                    e[c] += s[c] * ndl;
+                }
+            }
+            sun_disp = s.map(|v| ibl::srgb_encode(v / std::f32::consts::PI));
+        }
+        (
+            e.map(|v| ibl::srgb_encode(v / std::f32::consts::PI)),
+            sun_disp,
+            vis,
+        )
+    }
+
     /// A ground sample's colour: its texture lit by the ambient and the (shadowed) sun, fading
     /// into the horizon with distance.
-    fn ground(&self, sm: &Sample) -> [f32; 3] {
+    fn ground(&self, sm: &Sample, phase: f32) -> [f32; 3] {
         let gr = self
             .backdrop
             .ground
             .as_ref()
             .expect("ground hit without a ground");
         let p = sm.position;
+        if let Some(i) = &self.ibl {
+            // Lit by the environment's sky and sun, shadowed by the body; no aerial
+            // perspective (the photographed horizon is the map's own).
+            let (k, _, _) = self.ibl_light(i, &i.ground_sh, p, Vec3::Y, phase);
+            let uv = (Vec2::new(p.x, p.z) + gr.offset) / gr.tile_m;
+            let c = gr.texture.sample(uv);
+            return [0, 1, 2].map(|j| c[j] * k[j]);
+        }
         let vis = if self.shadows
             && self.accel.occluded(
                 p + Vec3::Y * self.eps,
@@ -167,7 +267,17 @@ impl Shader<'_> {
 
     /// An object sample: the sun's highlight and the reflected environment into `base`; the
     /// lit albedo into `base`, or, on paintable parts, the lit atlas texels into `taps`.
-    fn object(&self, sm: &Sample, base: &mut [f32; 3], taps: &mut Vec<(u32, f32)>) {
+    fn object(
+        &self,
+        sm: &Sample,
+        phase: f32,
+        base: &mut [f32; 3],
+        taps: &mut Vec<(u32, f32)>,
+        colours: &mut Vec<[f32; 3]>,
+    ) {
+        if let Some(i) = &self.ibl {
+            return self.object_ibl(i, sm, phase, base, taps, colours);
+        }
         let tri = &self.scene.triangles[sm.tri as usize];
         let mat = &self.scene.materials[tri.material as usize];
         let n = sm.normal;
@@ -230,7 +340,62 @@ impl Shader<'_> {
     }
 }
 
+impl Shader<'_> {
+    /// An object sample under an environment: as [`Shader::object`], with coloured light.
+    fn object_ibl(
+        &self,
+        i: &Ibl,
+        sm: &Sample,
+        phase: f32,
+        base: &mut [f32; 3],
+        taps: &mut Vec<(u32, f32)>,
+        colours: &mut Vec<[f32; 3]>,
+    ) {
+        let tri = &self.scene.triangles[sm.tri as usize];
+        let mat = &self.scene.materials[tri.material as usize];
+        let n = sm.normal;
+        let (k, sun_disp, vis) = self.ibl_light(i, &i.sh, sm.position, n, phase);
+        if let Some((dir, _)) = i.sun {
+            let h = (dir - sm.dir).normalize_or_zero();
+            let s = mat.specular * vis * n.dot(h).max(0.0).powf(mat.shininess);
+            add(base, sun_disp, s * self.inv_s);
+        }
+        let gloss = (mat.specular * 1.5).min(1.0);
+        if gloss > 0.05 {
+            let cos = (-sm.dir).dot(n).clamp(0.0, 1.0);
+            let fresnel = 0.04 + 0.96 * (1.0 - cos).powi(5);
+            let r = sm.dir - n * 2.0 * sm.dir.dot(n);
+            add(base, i.light.reflected(r), gloss * fresnel * self.inv_s);
+        }
+        if self.scene.is_paintable(tri) {
+            for (texel, w) in bilinear::taps(sm.uv, self.atlas_res, self.atlas_res, Wrap::Repeat) {
+                if w > 0.0 {
+                    taps.push((texel, w * self.inv_s));
+                    colours.push(k);
+                }
+            }
+        } else {
+            let albedo = match (mat.texture, tri.uv) {
+                (Some(t), Some(_)) => {
+                    let c = self.scene.textures[t].sample(sm.uv);
+                    [0, 1, 2].map(|j| c[j] * mat.base_color[j])
+                }
+                _ => mat.base_color,
+            };
+            add(base, [0, 1, 2].map(|j| albedo[j] * k[j]), self.inv_s);
+        }
+    }
+}
+
 impl RenderPlan {
+    /// The weight of tap `k` in channel `c`.
+    pub fn weight(&self, k: usize, c: usize) -> f32 {
+        match self.tap_colour.get(k) {
+            Some(col) => self.tap_weight[k] * col[c],
+            None => self.tap_weight[k],
+        }
+    }
+
     /// The plan of a whole view from the plans of its bands of rows, top to bottom (all of one
     /// width and atlas): the same plan, bit for bit, as shading the view at once.
     pub fn stack(bands: Vec<RenderPlan>) -> RenderPlan {
@@ -248,6 +413,7 @@ impl RenderPlan {
                 .extend(b.tap_pixel.iter().map(|&p| p + offset));
             out.tap_texel.extend(b.tap_texel);
             out.tap_weight.extend(b.tap_weight);
+            out.tap_colour.extend(b.tap_colour);
             out.coverage.extend(b.coverage);
             out.object_box = match (out.object_box, b.object_box) {
                 (Some(a), Some(c)) => Some([
@@ -273,7 +439,7 @@ impl RenderPlan {
             let t = atlas.texels[self.tap_texel[k] as usize];
             let p = &mut img[self.tap_pixel[k] as usize];
             for c in 0..3 {
-                p[c] += self.tap_weight[k] * t[c];
+                p[c] += self.weight(k, c) * t[c];
             }
         }
         img

@@ -7,6 +7,7 @@ pub mod attack;
 pub mod detect;
 pub mod eval;
 pub mod frcnn;
+pub mod ibl;
 pub mod kernels;
 pub mod realism;
 pub mod render;

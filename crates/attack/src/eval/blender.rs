@@ -96,16 +96,7 @@ pub struct World {
 }
 
 /// The HDR environments Blender ships (`World::image` names).
-pub const BLENDER_WORLDS: [&str; 8] = [
-    "city",
-    "courtyard",
-    "forest",
-    "interior",
-    "night",
-    "studio",
-    "sunrise",
-    "sunset",
-];
+pub use cac_render::ibl::BLENDER_WORLDS;
 
 impl World {
     /// `name` (one of [`BLENDER_WORLDS`]) or a path to an existing image file; else an error
@@ -331,7 +322,54 @@ fn tail(s: &str, n: usize) -> &str {
 /// Renders `atlas` on the renderer's object in every condition with Blender: same cameras (with
 /// the conditions' shifts), lighting levels, sun, ground and backdrop; print error is applied
 /// to the atlas and the photometric transforms to the images exactly as in cac's pipeline.
+/// Conditions lit by one of the environment's HDR maps (`Condition::hdri`) are rendered with
+/// that map as the world, turned and exposed as drawn (one Blender run per distinct draw);
+/// `s.world` lights the others.
 pub fn render_views(
+    r: &Renderer,
+    env: &Environment,
+    conds: &[Condition],
+    atlas: &Texture,
+    s: &BlenderSettings,
+    device: &Device,
+) -> Result<Vec<BlenderView>> {
+    let mut groups: Vec<(Option<cac_render::environment::HdriDraw>, Vec<usize>)> = vec![];
+    for (i, c) in conds.iter().enumerate() {
+        match groups.iter_mut().find(|(d, _)| *d == c.hdri) {
+            Some((_, v)) => v.push(i),
+            None => groups.push((c.hdri, vec![i])),
+        }
+    }
+    if groups.len() == 1 && groups[0].0.is_none() {
+        return render_group(r, env, conds, atlas, s, device);
+    }
+    let mut out: Vec<Option<BlenderView>> = (0..conds.len()).map(|_| None).collect();
+    for (draw, idx) in groups {
+        let mut sg = s.clone();
+        if let Some(d) = draw {
+            let path = env.hdri_path(d.index);
+            sg.world = Some(World::new(
+                &path.display().to_string(),
+                d.exposure_stops.exp2(),
+                d.rotation_deg,
+            )?);
+        }
+        let cs: Vec<Condition> = idx.iter().map(|&i| conds[i].clone()).collect();
+        for (i, v) in idx
+            .into_iter()
+            .zip(render_group(r, env, &cs, atlas, &sg, device)?)
+        {
+            out[i] = Some(v);
+        }
+    }
+    Ok(out
+        .into_iter()
+        .map(|v| v.expect("every view rendered"))
+        .collect())
+}
+
+/// [`render_views`] of conditions that share one world.
+fn render_group(
     r: &Renderer,
     env: &Environment,
     conds: &[Condition],
@@ -599,7 +637,10 @@ fn read_view(
         let (bg, al) = match backdrop {
             Some(b) => {
                 let dirv = cam.ray_dir(x as f32 + 0.5, y as f32 + 0.5);
-                (light::background_colour(&b.background, dirv, xi, yi, w, h), px[3])
+                (
+                    light::background_colour(&b.background, dirv, xi, yi, w, h),
+                    px[3],
+                )
             }
             None => ([0.0; 3], 1.0),
         };

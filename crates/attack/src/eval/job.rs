@@ -343,6 +343,7 @@ fn report_part(
         protocol: job.protocol.clone(),
         plan: job.plan.clone(),
         render: job.scene.render.clone(),
+        light: hdri_text(&job.scene.environment),
         textures: names,
         reference,
         models: p.models,
@@ -373,4 +374,18 @@ fn report_part(
         out: job.out.clone(),
         report_md,
     })
+}
+
+/// The protocol statement's words for photographed light: empty under the sun and ambient.
+fn hdri_text(e: &cac_render::environment::EnvConfig) -> String {
+    if e.hdri.is_empty() {
+        return String::new();
+    }
+    format!(
+        "; lit by the HDR environments {} (a share {} of the views, one drawn per view, turned {:?} deg, exposure {:?} stops; the brightness level then changes nothing: L_b and L_d are two draws of views under them)",
+        e.hdri.join(", "),
+        e.hdri_share,
+        e.hdri_rotation_deg,
+        e.hdri_exposure_stops
+    )
 }

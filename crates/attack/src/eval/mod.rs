@@ -17,6 +17,7 @@ pub mod blender;
 pub mod cache;
 pub mod compare;
 pub mod gradcam;
+pub mod ibl_bench;
 pub mod job;
 pub mod realism;
 pub mod report;

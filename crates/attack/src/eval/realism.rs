@@ -69,9 +69,10 @@ pub struct RealismJob {
     /// Apply the sampled photometric transforms (lighten/darken, print error, noise) too.
     #[arg(long)]
     pub photometric: bool,
-    /// Light Blender's scene with these HDR environments instead of the bright and dark levels
-    /// (one row per environment): Blender's own (city, courtyard, forest, interior, night, studio,
-    /// sunrise, sunset) or equirectangular image files. Blender renderer only.
+    /// Light the scene with these HDR environments instead of the bright and dark levels (one
+    /// row per environment), in both renderers (cac's image-based lighting, Cycles' world):
+    /// Blender's own (city, courtyard, forest, interior, night, studio, sunrise, sunset) or
+    /// equirectangular image files.
     #[arg(long, value_delimiter = ',')]
     pub hdri: Vec<String>,
     /// Strength of the HDR environments (1: as photographed).
@@ -162,11 +163,6 @@ pub fn run(
             ]),
         },
     };
-    if !job.hdri.is_empty() && job.renderers.contains(&Which::Cac) {
-        anyhow::bail!(
-            "--hdri lights Blender's scene only: cac's renderer has no image-based lighting yet (use --renderers blender)"
-        );
-    }
     for mesh in &job.meshes {
         b.mesh(mesh)?;
     }
@@ -174,7 +170,7 @@ pub fn run(
 }
 
 /// The conditions of a viewpoint set.
-fn views(
+pub(crate) fn views(
     set: ViewSet,
     cfg: &SceneConfig,
     n: usize,
@@ -208,6 +204,31 @@ fn views(
             }
         })
         .collect())
+}
+
+/// The environment and conditions that light `conds` by `world` in cac's renderer (its
+/// strength as an exposure, its rotation as Blender's).
+pub(crate) fn lit_by(
+    cfg: &SceneConfig,
+    world: &blender::World,
+    conds: &[Condition],
+) -> Result<(Environment, Vec<Condition>)> {
+    let mut ec = cfg.environment.clone();
+    ec.hdri = vec![world.image.clone()];
+    let env = Environment::new(ec)?;
+    let draw = cac_render::environment::HdriDraw {
+        index: 0,
+        rotation_deg: world.rotation_deg,
+        exposure_stops: world.strength.log2(),
+    };
+    let conds = conds
+        .iter()
+        .map(|c| Condition {
+            hdri: Some(draw),
+            ..c.clone()
+        })
+        .collect();
+    Ok((env, conds))
 }
 
 fn texture(name: &str, original: &Texture, mask: &[bool]) -> Result<Texture> {
@@ -250,6 +271,8 @@ impl Bench<'_> {
             for &set in &a.sets {
                 for (b, world) in self.lights()? {
                     let conds = views(set, cfg, a.views, b, a.seed, a.photometric)?;
+                    // cac's rows under an environment: the same views, lit by the same map.
+                    let lit = world.as_ref().map(|w| lit_by(cfg, w, &conds)).transpose()?;
                     let light = match &world {
                         Some(w) => format!("hdri:{}", w.name()),
                         None => format!("{b:?}").to_lowercase(),
@@ -258,8 +281,12 @@ impl Bench<'_> {
                     blender.world = world;
                     for &which in &a.renderers {
                         let t0 = Stopwatch::start();
+                        let (env, conds) = match (&lit, which) {
+                            (Some((e, c)), Which::Cac) => (e, c),
+                            _ => (&env, &conds),
+                        };
                         let (scores, images) =
-                            self.score(which, &r, &env, &conds, &atlas, &blender)?;
+                            self.score(which, &r, env, conds, &atlas, &blender)?;
                         let key = [
                             stem(mesh),
                             match which {

@@ -18,6 +18,8 @@ pub struct EvalInfo {
     pub protocol: Protocol,
     pub plan: ViewPlan,
     pub render: RenderSettings,
+    /// How the views are lit when not by the sun and ambient (the HDRI protocol), else empty.
+    pub light: String,
     /// Row names, in order; `reference` is the one drops are taken against.
     pub textures: Vec<String>,
     pub reference: String,
@@ -48,7 +50,7 @@ pub(crate) fn protocol_text(i: &EvalInfo) -> String {
          views: {sets} (FV: free viewpoint; RV: side views, restricted viewpoint alpha = 120 deg), \
          bright L_b and dark L_d, {n} views per brightness level and set ({per} images per texture), \
          seed {seed}, each at a random condition of the virtual scene (distance, elevation, sun, sky or \
-         colour background, ground, photometric and print error)\n\
+         colour background, ground, photometric and print error){light}\n\
          render: {w}x{h}, {spp} samples per pixel, vertical FOV {fov} deg, atlas {atlas}^2\n\
          hit: a true-class ({tc}) detection with IoU >= {iou} against the ground-truth box (object mask) \
          and confidence >= {conf}; P@0.5 = hits / images\n\
@@ -56,6 +58,7 @@ pub(crate) fn protocol_text(i: &EvalInfo) -> String {
          over detections with IoU >= {iou}\n\
          error bars: binomial standard error sqrt(p (1 - p) / n); breakdowns pool all sets and levels",
         obj = i.object,
+        light = i.light,
         tex = i.textures.join(", "),
         models = i.models.join(", "),
         sets = sets.join(" and "),

@@ -115,6 +115,19 @@ pub struct EnvConfig {
     pub sky_occlusion: f32,
     pub bright: LightLevel,
     pub dark: LightLevel,
+    /// Photographed HDR environments ([`crate::ibl`]): names of Blender's eight (`city`,
+    /// `courtyard`, `forest`, `interior`, `night`, `studio`, `sunrise`, `sunset`) or paths to
+    /// equirectangular EXR/HDR files. Empty (the default): the sun and ambient above.
+    pub hdri: Vec<String>,
+    /// Probability that a drawn condition is lit by one of `hdri` (drawn uniformly) instead of
+    /// the sun and ambient.
+    pub hdri_share: f32,
+    /// Turn of the environment about the vertical axis, degrees (drawn uniformly).
+    pub hdri_rotation_deg: [f32; 2],
+    /// Exposure of the environment in stops (drawn uniformly; 0: as photographed).
+    pub hdri_exposure_stops: [f32; 2],
+    /// How finely the renderer evaluates an environment's light.
+    pub ibl: crate::ibl::IblSettings,
 }
 
 impl Default for EnvConfig {
@@ -146,6 +159,11 @@ impl Default for EnvConfig {
                 ambient: 0.16,
                 sun: 0.24,
             },
+            hdri: vec![],
+            hdri_share: 1.0,
+            hdri_rotation_deg: [0.0, 360.0],
+            hdri_exposure_stops: [0.0, 0.0],
+            ibl: crate::ibl::IblSettings::default(),
         }
     }
 }
@@ -166,11 +184,21 @@ impl EnvConfig {
         check_range("channel_mul", self.channel_mul, 0.0, 100.0)?;
         check_range("noise_std", self.noise_std, 0.0, 10.0)?;
         check_range("sun_elevation_deg", self.sun_elevation_deg, 0.0, 90.0)?;
+        check_range("hdri_rotation_deg", self.hdri_rotation_deg, -720.0, 720.0)?;
+        check_range("hdri_exposure_stops", self.hdri_exposure_stops, -20.0, 20.0)?;
+        if self.ibl.sh_order > 2 || self.ibl.occlusion_rays > 1024 {
+            bail!(
+                "environment.ibl: sh_order {} must be 0, 1 or 2 and occlusion_rays {} at most 1024",
+                self.ibl.sh_order,
+                self.ibl.occlusion_rays
+            );
+        }
         for (n, v) in [
             ("translate", self.translate),
             ("light_add", self.light_add),
             ("channel_add", self.channel_add),
             ("sky_occlusion", self.sky_occlusion),
+            ("hdri_share", self.hdri_share),
         ] {
             if !(v.is_finite() && (0.0..=1.0).contains(&v)) {
                 bail!("environment.{n} = {v} must be within [0, 1]");
@@ -207,6 +235,18 @@ pub struct Condition {
     /// The ambient comes from an open sky over the ground (see `EnvConfig::sky_occlusion`).
     #[serde(default)]
     pub sky_occlusion: bool,
+    /// The photographed environment that lights this view, if any (`EnvConfig::hdri`).
+    #[serde(default)]
+    pub hdri: Option<HdriDraw>,
+}
+
+/// One view's draw of a photographed environment.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HdriDraw {
+    /// Index into `EnvConfig::hdri`.
+    pub index: usize,
+    pub rotation_deg: f32,
+    pub exposure_stops: f32,
 }
 
 impl Condition {
@@ -228,6 +268,7 @@ impl Condition {
             noise_std: 0.0,
             noise_seed: 0,
             sky_occlusion: false,
+            hdri: None,
         }
     }
 }
@@ -264,11 +305,12 @@ pub fn street_views(n: usize, distance_ratio: f32, brightness: Brightness) -> Ve
         .collect()
 }
 
-/// The environment: its config plus the loaded background and ground images.
+/// The environment: its config plus the loaded background, ground and HDR images.
 pub struct Environment {
     pub config: EnvConfig,
     backgrounds: Vec<Arc<Texture>>,
     grounds: Vec<Arc<Texture>>,
+    hdris: Vec<Arc<crate::ibl::EnvironmentMap>>,
 }
 
 impl Environment {
@@ -291,10 +333,20 @@ impl Environment {
         if grounds.is_empty() {
             grounds.push(Arc::new(procedural_ground(256)));
         }
+        let hdris = config
+            .hdri
+            .iter()
+            .map(|h| {
+                let path = crate::ibl::resolve(h).context("environment.hdri")?;
+                let m = crate::ibl::EnvironmentMap::read(&path, crate::ibl::SUN_THRESHOLD)?;
+                Ok(Arc::new(m))
+            })
+            .collect::<Result<Vec<_>>>()?;
         Ok(Environment {
             config,
             backgrounds,
             grounds,
+            hdris,
         })
     }
 
@@ -345,7 +397,7 @@ impl Environment {
             .then(|| [0, 1, 2].map(|_| u(rng, c.background_color)));
         let background_image = (!self.backgrounds.is_empty() && background_color.is_none())
             .then(|| rng.random_range(0..self.backgrounds.len()));
-        Condition {
+        let mut cond = Condition {
             viewpoint,
             brightness,
             sun_azimuth_deg: rng.random_range(0.0..360.0),
@@ -366,7 +418,20 @@ impl Environment {
             // Drawn last, and only when asked for: the draws of every other field, and so the
             // protocol's views, stay as they were.
             sky_occlusion: c.sky_occlusion > 0.0 && rng.random_bool(c.sky_occlusion as f64),
+            hdri: None,
+        };
+        // The environment is drawn from a stream of its own (seeded by the condition's noise
+        // seed), so that listing environments leaves every other draw of every condition as it
+        // was: the same viewpoints, with or without photographed light.
+        if !self.hdris.is_empty() {
+            let mut own = ChaCha8Rng::seed_from_u64(cond.noise_seed ^ 0x4844_5249_4C49_4748);
+            cond.hdri = own.random_bool(c.hdri_share as f64).then(|| HdriDraw {
+                index: own.random_range(0..self.hdris.len()),
+                rotation_deg: u(&mut own, c.hdri_rotation_deg),
+                exposure_stops: u(&mut own, c.hdri_exposure_stops),
+            });
         }
+        cond
     }
 
     /// Draws `n` conditions from a seed (same seed, same conditions).
@@ -383,8 +448,39 @@ impl Environment {
             .collect()
     }
 
-    /// The lighting of a condition.
+    /// The lighting of a condition. Under a photographed environment its exposure is the light
+    /// level (the brightness level then changes nothing).
     pub fn lighting(&self, cond: &Condition) -> Lighting {
+        if let Some(h) = cond.hdri {
+            let map = self
+                .hdris
+                .get(h.index)
+                .unwrap_or_else(|| {
+                    panic!(
+                        "condition names environment {} of {}",
+                        h.index,
+                        self.hdris.len()
+                    )
+                })
+                .clone();
+            let ground_albedo = self
+                .config
+                .ground
+                .then(|| crate::light::mean_colour(self.ground(cond)).map(crate::ibl::srgb_decode));
+            return Lighting {
+                ambient: 0.0,
+                sun: 0.0,
+                sun_dir: glam::Vec3::Y,
+                sky_occlusion: None,
+                image: Some(crate::ibl::ImageLight {
+                    map,
+                    rotation_deg: h.rotation_deg,
+                    strength: h.exposure_stops.exp2(),
+                    ground_albedo,
+                    settings: self.config.ibl,
+                }),
+            };
+        }
         let lv = match cond.brightness {
             Brightness::Bright => self.config.bright,
             Brightness::Dark => self.config.dark,
@@ -400,6 +496,11 @@ impl Environment {
             l.sky_occlusion = Some((r + gr + b) / 3.0);
         }
         l
+    }
+
+    /// The file of environment `index` of `EnvConfig::hdri` (as resolved when it was read).
+    pub fn hdri_path(&self, index: usize) -> &std::path::Path {
+        &self.hdris[index].path
     }
 
     /// The ground texture a condition draws.

@@ -1,0 +1,694 @@
+//! Image-based lighting: a photographed HDR environment (an equirectangular map of linear
+//! radiance, as Blender ships eight of them) as the light and the backdrop.
+//!
+//! The map is split once into a **sun** (the texels around the brightest one whose luminance
+//! exceeds `sun_threshold` × the mean, moved into one directional light with a hard shadow) and
+//! the **residual**, whose diffuse irradiance is carried by order-2 spherical harmonics
+//! (Ramamoorthi & Hanrahan 2001: nine coefficients per channel, irradiance exact for the
+//! residual's first three bands), over the upper and the lower hemisphere apart so that a ground
+//! plane can replace the lower one with its own lit radiance. The body's occlusion of the
+//! residual is a directional visibility ratio from `occlusion_rays` cosine-distributed rays
+//! against the BVH; glossy reflections read a box-prefiltered copy of the residual.
+//!
+//! Directions follow Blender's world mapping as `eval::blender` sets it up (the map's up is
+//! cac's +Y, turned about it by `rotation_deg`), so Cycles and cac see the same world.
+//! cac shades display values: a light of linear irradiance `E` lights a display albedo `a` as
+//! `a × srgb(E / π)`, the conversion the Blender job uses for cac's own ambient.
+
+use anyhow::{bail, Context, Result};
+use glam::Vec3;
+use std::f32::consts::PI;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// The HDR environments Blender's package ships (`datafiles/studiolights/world/NAME.exr`, CC0).
+pub const BLENDER_WORLDS: [&str; 8] = [
+    "city",
+    "courtyard",
+    "forest",
+    "interior",
+    "night",
+    "studio",
+    "sunrise",
+    "sunset",
+];
+
+/// Folders where Blender's `studiolights/world` may be installed (Debian's package first).
+const WORLD_DIRS: [&str; 2] = [
+    "/usr/share/blender/datafiles/studiolights/world",
+    "/usr/local/share/blender/datafiles/studiolights/world",
+];
+
+/// The file of one of [`BLENDER_WORLDS`] by name, or `name` itself when it is an existing file.
+pub fn resolve(name: &str) -> Result<PathBuf> {
+    let p = Path::new(name);
+    if p.is_file() {
+        return Ok(p.to_path_buf());
+    }
+    if !BLENDER_WORLDS.contains(&name) {
+        bail!(
+            "HDR environment {name:?} is neither one of Blender's ({}) nor an existing image file",
+            BLENDER_WORLDS.join(", ")
+        );
+    }
+    WORLD_DIRS
+        .iter()
+        .map(|d| Path::new(d).join(format!("{name}.exr")))
+        .find(|f| f.is_file())
+        .with_context(|| {
+            format!(
+                "Blender's HDR environment {name:?} is not installed (looked in {}): apt-get install blender-data, or give the .exr file's path",
+                WORLD_DIRS.join(", ")
+            )
+        })
+}
+
+/// A light's order-2 spherical-harmonic coefficients: 9 per channel.
+pub type Sh9 = [[f32; 3]; 9];
+
+/// The directional light taken out of a map: the excess radiance of its brightest region.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MapSun {
+    /// Unit vector towards the light, in the map's frame (rotation 0).
+    pub dir: Vec3,
+    /// Linear irradiance on a surface facing it, per channel.
+    pub irradiance: [f32; 3],
+}
+
+/// An equirectangular HDR environment, read and split into sun and residual.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EnvironmentMap {
+    /// The file it was read from.
+    pub path: PathBuf,
+    pub width: usize,
+    pub height: usize,
+    /// Linear radiance, row-major from the top row (the zenith), as read.
+    pub radiance: Vec<[f32; 3]>,
+    pub sun: Option<MapSun>,
+    /// The residual's coefficients over the upper (`y > 0`) and the lower hemisphere, map frame.
+    pub sh_upper: Sh9,
+    pub sh_lower: Sh9,
+    /// The coefficients of a radiance of 1 over the lower hemisphere (what a ground replaces).
+    pub sh_lower_unit: [f32; 9],
+    /// The residual box-filtered by [`REFLECTION_DOWNSAMPLE`] on each side (glossy reflections).
+    reflection: Vec<[f32; 3]>,
+    reflection_width: usize,
+}
+
+/// How much smaller, per side, the map that glossy reflections read is.
+pub const REFLECTION_DOWNSAMPLE: usize = 8;
+
+/// Luminance of linear Rec. 709 RGB.
+fn luminance(c: [f32; 3]) -> f32 {
+    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+}
+
+/// The sRGB encoding of a linear value (display value), extended linearly below 0.
+pub fn srgb_encode(x: f32) -> f32 {
+    if x <= 0.0031308 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// The sRGB decoding of a display value.
+pub fn srgb_decode(x: f32) -> f32 {
+    if x <= 0.04045 {
+        x / 12.92
+    } else {
+        ((x + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// The unit direction (map frame) through the centre of texel `(x, y)` of a `w x h` map.
+fn texel_dir(x: usize, y: usize, w: usize, h: usize) -> Vec3 {
+    let u = (x as f32 + 0.5) / w as f32;
+    let el = (0.5 - (y as f32 + 0.5) / h as f32) * PI;
+    let phi = (0.5 - u) * 2.0 * PI;
+    Vec3::new(el.cos() * phi.cos(), el.sin(), -el.cos() * phi.sin())
+}
+
+/// `d` turned by `angle` (radians) about +Y, in the sense Blender's mapping turns the world's
+/// azimuth (`atan2(-z, x)` grows by `angle`).
+pub(crate) fn turn(d: Vec3, angle: f32) -> Vec3 {
+    let (s, c) = angle.sin_cos();
+    let (a, b) = (d.x, -d.z);
+    Vec3::new(a * c - b * s, d.y, -(a * s + b * c))
+}
+
+/// Continuous texel coordinates (x along the row, y down from the top) of map-frame direction `d`.
+fn map_coords(d: Vec3, w: usize, h: usize) -> (f32, f32) {
+    let phi = (-d.z).atan2(d.x);
+    let u = (0.5 - phi / (2.0 * PI)).rem_euclid(1.0);
+    let el = d.y.clamp(-1.0, 1.0).asin();
+    (u * w as f32, (0.5 - el / PI) * h as f32)
+}
+
+/// Bilinear lookup in an equirectangular image (wrapping in azimuth, clamped at the poles).
+fn lookup(img: &[[f32; 3]], w: usize, h: usize, d: Vec3) -> [f32; 3] {
+    let (x, y) = map_coords(d, w, h);
+    let (x, y) = (x - 0.5, (y - 0.5).clamp(0.0, h as f32 - 1.0));
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let xi = |k: f32| (k as i64).rem_euclid(w as i64) as usize;
+    let yi = |k: f32| (k as usize).min(h - 1);
+    let mut out = [0.0f32; 3];
+    for (xx, yy, wt) in [
+        (x0, y0, (1.0 - fx) * (1.0 - fy)),
+        (x0 + 1.0, y0, fx * (1.0 - fy)),
+        (x0, y0 + 1.0, (1.0 - fx) * fy),
+        (x0 + 1.0, y0 + 1.0, fx * fy),
+    ] {
+        let t = img[yi(yy) * w + xi(xx)];
+        for c in 0..3 {
+            out[c] += wt * t[c];
+        }
+    }
+    out
+}
+
+/// The nine real spherical harmonics up to band 2 at unit direction `d`.
+pub fn sh_basis(d: Vec3) -> [f32; 9] {
+    let (x, y, z) = (d.x, d.y, d.z);
+    [
+        0.282_095,
+        0.488_603 * y,
+        0.488_603 * z,
+        0.488_603 * x,
+        1.092_548 * x * y,
+        1.092_548 * y * z,
+        0.315_392 * (3.0 * z * z - 1.0),
+        1.092_548 * x * z,
+        0.546_274 * (x * x - y * y),
+    ]
+}
+
+/// The cosine lobe's convolution factors per band (π, 2π/3, π/4).
+const BAND_FACTOR: [f32; 3] = [PI, 2.0 * PI / 3.0, PI / 4.0];
+
+/// The band of coefficient `k`.
+fn band(k: usize) -> usize {
+    match k {
+        0 => 0,
+        1..=3 => 1,
+        _ => 2,
+    }
+}
+
+/// Irradiance (linear, per channel) at a surface of unit normal `n` (map frame) from a light of
+/// coefficients `sh`, with the bands up to `order` (0–2).
+pub fn sh_irradiance(sh: &Sh9, n: Vec3, order: usize) -> [f32; 3] {
+    let y = sh_basis(n);
+    let mut e = [0.0f32; 3];
+    for (k, yk) in y.iter().enumerate() {
+        if band(k) > order {
+            break;
+        }
+        let f = BAND_FACTOR[band(k)] * yk;
+        for c in 0..3 {
+            e[c] += f * sh[k][c];
+        }
+    }
+    e.map(|v| v.max(0.0))
+}
+
+/// Radiance (linear, per channel) of a light of coefficients `sh` in direction `d` (map frame).
+pub fn sh_radiance(sh: &Sh9, d: Vec3) -> [f32; 3] {
+    let y = sh_basis(d);
+    let mut l = [0.0f32; 3];
+    for (k, yk) in y.iter().enumerate() {
+        for c in 0..3 {
+            l[c] += yk * sh[k][c];
+        }
+    }
+    l
+}
+
+impl EnvironmentMap {
+    /// Reads an equirectangular environment (OpenEXR, including Blender's DWAB-compressed
+    /// files, or Radiance HDR) and splits it: texels above `sun_threshold` × the mean luminance
+    /// within 15° of the brightest texel become the sun (default threshold: [`SUN_THRESHOLD`]).
+    pub fn read(path: &Path, sun_threshold: f32) -> Result<EnvironmentMap> {
+        let img = image::open(path)
+            .with_context(|| format!("reading HDR environment {}", path.display()))?
+            .into_rgb32f();
+        let (w, h) = (img.width() as usize, img.height() as usize);
+        let radiance: Vec<[f32; 3]> = img.pixels().map(|p| p.0).collect();
+        Self::from_radiance(path.to_path_buf(), w, h, radiance, sun_threshold)
+    }
+
+    /// [`EnvironmentMap::read`] of a map already in memory (linear radiance from the top row).
+    pub fn from_radiance(
+        path: PathBuf,
+        w: usize,
+        h: usize,
+        radiance: Vec<[f32; 3]>,
+        sun_threshold: f32,
+    ) -> Result<EnvironmentMap> {
+        if w < 2 || h < 2 || radiance.len() != w * h {
+            bail!(
+                "HDR environment {}: {w}x{h} is not a usable map",
+                path.display()
+            );
+        }
+        if w != 2 * h {
+            bail!(
+                "HDR environment {}: {w}x{h} is not equirectangular (width must be twice the height)",
+                path.display()
+            );
+        }
+        if let Some(i) = radiance
+            .iter()
+            .position(|t| t.iter().any(|v| !v.is_finite()))
+        {
+            bail!(
+                "HDR environment {}: texel ({}, {}) is {:?} (radiance must be finite)",
+                path.display(),
+                i % w,
+                i / w,
+                radiance[i]
+            );
+        }
+        // Lossy compression (Blender's maps are DWAB) rings slightly below zero: no light.
+        let radiance: Vec<[f32; 3]> = radiance
+            .into_iter()
+            .map(|t| t.map(|v| v.max(0.0)))
+            .collect();
+        let d_omega = |y: usize| {
+            let el = (0.5 - (y as f32 + 0.5) / h as f32) * PI;
+            (2.0 * PI / w as f32) * (PI / h as f32) * el.cos()
+        };
+        let (mut sum, mut area) = (0.0f64, 0.0f64);
+        let (mut peak, mut peak_lum) = (0usize, -1.0f32);
+        for (i, t) in radiance.iter().enumerate() {
+            let (l, dw) = (luminance(*t), d_omega(i / w));
+            sum += (l * dw) as f64;
+            area += dw as f64;
+            if l > peak_lum {
+                (peak, peak_lum) = (i, l);
+            }
+        }
+        let threshold = sun_threshold * (sum / area) as f32;
+        let peak_dir = texel_dir(peak % w, peak / w, w, h);
+        let cos_cone = 15f32.to_radians().cos();
+        let mut residual = radiance.clone();
+        let (mut sun_e, mut sun_dir) = ([0.0f32; 3], Vec3::ZERO);
+        if threshold > 0.0 && peak_lum > threshold {
+            for (i, t) in residual.iter_mut().enumerate() {
+                let (x, y) = (i % w, i / w);
+                let l = luminance(*t);
+                let d = texel_dir(x, y, w, h);
+                if l > threshold && d.dot(peak_dir) >= cos_cone {
+                    let k = threshold / l;
+                    let dw = d_omega(y);
+                    for c in 0..3 {
+                        sun_e[c] += t[c] * (1.0 - k) * dw;
+                        t[c] *= k;
+                    }
+                    sun_dir += d * (l - threshold) * dw;
+                }
+            }
+        }
+        let sun = (luminance(sun_e) > 0.0).then(|| MapSun {
+            dir: sun_dir.normalize(),
+            irradiance: sun_e,
+        });
+        let (mut sh_upper, mut sh_lower) = ([[0.0f32; 3]; 9], [[0.0f32; 3]; 9]);
+        let mut sh_lower_unit = [0.0f32; 9];
+        for y in 0..h {
+            let dw = d_omega(y);
+            for x in 0..w {
+                let d = texel_dir(x, y, w, h);
+                let basis = sh_basis(d);
+                let t = residual[y * w + x];
+                let upper = d.y > 0.0;
+                let sh = if upper { &mut sh_upper } else { &mut sh_lower };
+                for k in 0..9 {
+                    for c in 0..3 {
+                        sh[k][c] += t[c] * basis[k] * dw;
+                    }
+                    if !upper {
+                        sh_lower_unit[k] += basis[k] * dw;
+                    }
+                }
+            }
+        }
+        let f = REFLECTION_DOWNSAMPLE;
+        let (rw, rh) = ((w / f).max(1), (h / f).max(1));
+        let mut reflection = vec![[0.0f32; 3]; rw * rh];
+        for (i, t) in residual.iter().enumerate() {
+            let (x, y) = ((i % w) * rw / w, (i / w) * rh / h);
+            let r = &mut reflection[y * rw + x];
+            let k = (rw * rh) as f32 / (w * h) as f32;
+            for c in 0..3 {
+                r[c] += t[c] * k;
+            }
+        }
+        Ok(EnvironmentMap {
+            path,
+            width: w,
+            height: h,
+            radiance,
+            sun,
+            sh_upper,
+            sh_lower,
+            sh_lower_unit,
+            reflection,
+            reflection_width: rw,
+        })
+    }
+
+    /// The map's full radiance in map-frame direction `d` (what the camera sees of it).
+    pub fn radiance_at(&self, d: Vec3) -> [f32; 3] {
+        lookup(&self.radiance, self.width, self.height, d)
+    }
+
+    /// The prefiltered residual in map-frame direction `d` (what glossy parts reflect).
+    pub fn reflection_at(&self, d: Vec3) -> [f32; 3] {
+        let rh = self.reflection.len() / self.reflection_width;
+        lookup(&self.reflection, self.reflection_width, rh, d)
+    }
+}
+
+/// The default sun threshold: texels brighter than 20 × the map's mean luminance.
+pub const SUN_THRESHOLD: f32 = 20.0;
+
+/// How finely cac's renderer evaluates an environment's light (each knob trades error against
+/// run time; `cac bench ibl` measures them against Cycles).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct IblSettings {
+    /// Spherical-harmonic bands of the residual's irradiance: 0 (its mean), 1 or 2.
+    pub sh_order: usize,
+    /// Rays per shading sample that find the body's occlusion of the residual (0: unoccluded).
+    pub occlusion_rays: usize,
+}
+
+impl Default for IblSettings {
+    fn default() -> Self {
+        IblSettings {
+            sh_order: 2,
+            occlusion_rays: 4,
+        }
+    }
+}
+
+/// An environment as one view's light: the map, turned and scaled, over an optional ground.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ImageLight {
+    pub map: Arc<EnvironmentMap>,
+    /// Turn about +Y, degrees (Blender's mapping rotation).
+    pub rotation_deg: f32,
+    /// Radiance scale (1: as photographed; an exposure of `s` stops is `2^s`).
+    pub strength: f32,
+    /// The ground's mean albedo (linear) when a ground plane replaces the lower hemisphere.
+    pub ground_albedo: Option<[f32; 3]>,
+    pub settings: IblSettings,
+}
+
+impl ImageLight {
+    fn to_map(&self, d: Vec3) -> Vec3 {
+        turn(d, self.rotation_deg.to_radians())
+    }
+
+    /// Unit vector towards the map's sun (world frame) and its linear irradiance, if it has one.
+    pub fn sun(&self) -> Option<(Vec3, [f32; 3])> {
+        self.map.sun.as_ref().map(|s| {
+            (
+                turn(s.dir, -self.rotation_deg.to_radians()),
+                s.irradiance.map(|e| e * self.strength),
+            )
+        })
+    }
+
+    /// The radiance of the lit ground (linear), if there is a ground: its albedo times the
+    /// irradiance of an upward surface over π (the body's shadow on it is not in this term).
+    pub fn ground_radiance(&self) -> Option<[f32; 3]> {
+        let albedo = self.ground_albedo?;
+        let mut e = sh_irradiance(&self.map.sh_upper, Vec3::Y, self.settings.sh_order);
+        if let Some((dir, s)) = self.sun() {
+            for c in 0..3 {
+                e[c] += s[c] * dir.y.max(0.0) / self.strength;
+            }
+        }
+        Some([0, 1, 2].map(|c| albedo[c] * e[c] * self.strength / PI))
+    }
+
+    /// The residual's coefficients (map frame, scaled by the strength) as a surface in the
+    /// scene sees them: the upper hemisphere of the map, and below either the map or the lit
+    /// ground.
+    pub fn residual_sh(&self) -> Sh9 {
+        let m = &self.map;
+        let below = self.ground_radiance();
+        let mut sh = [[0.0f32; 3]; 9];
+        for k in 0..9 {
+            for c in 0..3 {
+                let lower = match below {
+                    Some(g) => g[c] * m.sh_lower_unit[k] / self.strength,
+                    None => m.sh_lower[k][c],
+                };
+                sh[k][c] = (m.sh_upper[k][c] + lower) * self.strength;
+            }
+        }
+        sh
+    }
+
+    /// The residual's irradiance at world-frame normal `n` from coefficients `sh`
+    /// ([`ImageLight::residual_sh`]).
+    pub fn irradiance(&self, sh: &Sh9, n: Vec3) -> [f32; 3] {
+        sh_irradiance(sh, self.to_map(n), self.settings.sh_order)
+    }
+
+    /// The residual's luminance arriving from world direction `d` (weights of occlusion rays).
+    pub fn residual_luminance(&self, sh: &Sh9, d: Vec3) -> f32 {
+        luminance(sh_radiance(sh, self.to_map(d))).max(0.0)
+    }
+
+    /// What the camera sees along world direction `d` (display value per channel).
+    pub fn backdrop(&self, d: Vec3) -> [f32; 3] {
+        let l = self.map.radiance_at(self.to_map(d));
+        l.map(|v| srgb_encode(v * self.strength))
+    }
+
+    /// What a glossy part reflects along world direction `r` (display value per channel): the
+    /// lit ground below the horizon when there is one, the prefiltered residual above.
+    pub fn reflected(&self, r: Vec3) -> [f32; 3] {
+        let l = match self.ground_radiance() {
+            Some(g) if r.y < 0.0 => g,
+            _ => self
+                .map
+                .reflection_at(self.to_map(r))
+                .map(|v| v * self.strength),
+        };
+        l.map(srgb_encode)
+    }
+}
+
+/// `n` directions about `normal`, cosine-distributed (stratified on a spiral, turned by
+/// `phase` in [0, 1) so that neighbouring samples do not share one pattern).
+pub(crate) fn cosine_directions(normal: Vec3, n: usize, phase: f32) -> impl Iterator<Item = Vec3> {
+    let (t, b) = normal.any_orthonormal_pair();
+    let golden = 2.399_963_f32;
+    (0..n).map(move |k| {
+        let r2 = (k as f32 + 0.5) / n as f32;
+        let (s, c) = (golden * k as f32 + phase * 2.0 * PI).sin_cos();
+        let r = r2.sqrt();
+        (t * (r * c) + b * (r * s) + normal * (1.0 - r2).max(0.0).sqrt()).normalize()
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    /// A smooth seeded map (a few broad lobes), linear radiance.
+    fn smooth_map(w: usize, seed: u64) -> Vec<[f32; 3]> {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let lobes: Vec<(Vec3, [f32; 3])> = (0..4)
+            .map(|_| {
+                let d = Vec3::new(rng.random(), rng.random(), rng.random()) * 2.0 - 1.0;
+                (
+                    d.normalize(),
+                    [0, 1, 2].map(|_| rng.random_range(0.2f32..1.5)),
+                )
+            })
+            .collect();
+        let h = w / 2;
+        (0..w * h)
+            .map(|i| {
+                let d = texel_dir(i % w, i / w, w, h);
+                let mut c = [0.1f32; 3];
+                for (ld, lc) in &lobes {
+                    let k = d.dot(*ld).max(0.0).powi(2);
+                    for j in 0..3 {
+                        c[j] += lc[j] * k;
+                    }
+                }
+                c
+            })
+            .collect()
+    }
+
+    /// Irradiance at `n` by summing the whole map (the reference SH is held to).
+    fn brute_irradiance(m: &EnvironmentMap, n: Vec3) -> [f32; 3] {
+        let (w, h) = (m.width, m.height);
+        let mut e = [0.0f64; 3];
+        for y in 0..h {
+            let el = (0.5 - (y as f32 + 0.5) / h as f32) * PI;
+            let dw = (2.0 * PI / w as f32) * (PI / h as f32) * el.cos();
+            for x in 0..w {
+                let d = texel_dir(x, y, w, h);
+                let k = (d.dot(n).max(0.0) * dw) as f64;
+                let t = m.radiance[y * w + x];
+                for c in 0..3 {
+                    e[c] += t[c] as f64 * k;
+                }
+            }
+        }
+        e.map(|v| v as f32)
+    }
+
+    #[test]
+    fn a_uniform_map_gives_pi_times_its_radiance_on_every_surface() {
+        let m = EnvironmentMap::from_radiance("u".into(), 64, 32, vec![[0.5; 3]; 64 * 32], 20.0)
+            .unwrap();
+        assert!(m.sun.is_none(), "a uniform map has no sun");
+        let mut sh = m.sh_upper;
+        for k in 0..9 {
+            for c in 0..3 {
+                sh[k][c] += m.sh_lower[k][c];
+            }
+        }
+        for n in [
+            Vec3::Y,
+            -Vec3::Y,
+            Vec3::X,
+            Vec3::new(0.3, -0.5, 0.8).normalize(),
+        ] {
+            let e = sh_irradiance(&sh, n, 2);
+            for c in 0..3 {
+                assert!((e[c] - 0.5 * PI).abs() < 2e-3 * PI, "{n}: {e:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn order_two_irradiance_is_within_three_percent_of_the_summed_map() {
+        let w = 128;
+        let m = EnvironmentMap::from_radiance("s".into(), w, w / 2, smooth_map(w, 7), 1e9).unwrap();
+        let mut sh = m.sh_upper;
+        for k in 0..9 {
+            for c in 0..3 {
+                sh[k][c] += m.sh_lower[k][c];
+            }
+        }
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let (mut worst, mut worst0) = (0.0f32, 0.0f32);
+        for _ in 0..64 {
+            let n = (Vec3::new(rng.random(), rng.random(), rng.random()) * 2.0 - 1.0).normalize();
+            let want = brute_irradiance(&m, n);
+            let (got, got0) = (sh_irradiance(&sh, n, 2), sh_irradiance(&sh, n, 0));
+            for c in 0..3 {
+                worst = worst.max((got[c] - want[c]).abs() / want[c]);
+                worst0 = worst0.max((got0[c] - want[c]).abs() / want[c]);
+            }
+        }
+        assert!(worst < 0.03, "order 2: worst relative error {worst}");
+        assert!(
+            worst0 > 3.0 * worst,
+            "order 0 ({worst0}) should be far coarser than order 2"
+        );
+    }
+
+    #[test]
+    fn the_sun_takes_the_bright_spot_and_conserves_its_energy() {
+        let (w, h) = (128, 64);
+        let mut rad = smooth_map(w, 11);
+        let (sx, sy) = (40, 20);
+        rad[sy * w + sx] = [4000.0, 3800.0, 3500.0];
+        let m = EnvironmentMap::from_radiance("s".into(), w, h, rad.clone(), 20.0).unwrap();
+        let sun = m.sun.as_ref().expect("the spot is a sun");
+        assert!(
+            sun.dir.dot(texel_dir(sx, sy, w, h)) > 0.9999,
+            "{:?}",
+            sun.dir
+        );
+        // Irradiance facing the sun: sun + residual equals the whole map's.
+        let n = sun.dir;
+        let mut sh = m.sh_upper;
+        for k in 0..9 {
+            for c in 0..3 {
+                sh[k][c] += m.sh_lower[k][c];
+            }
+        }
+        let res = sh_irradiance(&sh, n, 2);
+        let want = brute_irradiance(&m, n);
+        for c in 0..3 {
+            let got = res[c] + sun.irradiance[c];
+            assert!(
+                (got - want[c]).abs() / want[c] < 0.03,
+                "{c}: {got} vs {}",
+                want[c]
+            );
+        }
+    }
+
+    #[test]
+    fn directions_and_texels_map_onto_each_other() {
+        let (w, h) = (64, 32);
+        for (x, y) in [(0, 0), (10, 5), (31, 16), (63, 31), (40, 20)] {
+            let d = texel_dir(x, y, w, h);
+            let (u, v) = map_coords(d, w, h);
+            assert!((u - (x as f32 + 0.5)).abs() < 1e-3 && (v - (y as f32 + 0.5)).abs() < 1e-3);
+            for a in [0.0f32, 0.7, -2.0] {
+                let back = turn(turn(d, a), -a);
+                assert!((back - d).length() < 1e-5);
+            }
+        }
+        // Blender's convention: the map's centre column looks along +X, its top row up.
+        assert!(texel_dir(w / 2, h / 2, w, h).dot(Vec3::X) > 0.99);
+        assert!(texel_dir(3, 0, w, h).y > 0.99);
+    }
+
+    #[test]
+    fn bad_maps_are_refused_naming_the_file_and_the_texel() {
+        let mut rad = vec![[0.2f32; 3]; 64 * 32];
+        rad[5 * 64 + 3] = [f32::NAN, 0.0, 0.0];
+        let e = EnvironmentMap::from_radiance("bad.exr".into(), 64, 32, rad, 20.0).unwrap_err();
+        let s = e.to_string();
+        assert!(s.contains("bad.exr") && s.contains("(3, 5)"), "{s}");
+        let e = EnvironmentMap::from_radiance("sq.exr".into(), 32, 32, vec![[0.0; 3]; 1024], 20.0)
+            .unwrap_err();
+        assert!(e.to_string().contains("equirectangular"), "{e}");
+        // A black map and a saturated one stay finite.
+        for v in [0.0f32, 6.0e4] {
+            let m = EnvironmentMap::from_radiance("k".into(), 64, 32, vec![[v; 3]; 2048], 20.0)
+                .unwrap();
+            let light = ImageLight {
+                map: Arc::new(m),
+                rotation_deg: 30.0,
+                strength: 1.0,
+                ground_albedo: Some([0.1; 3]),
+                settings: IblSettings::default(),
+            };
+            let sh = light.residual_sh();
+            let e = light.irradiance(&sh, Vec3::new(0.2, -0.9, 0.1).normalize());
+            assert!(e.iter().all(|v| v.is_finite()), "{e:?}");
+            assert!(light.backdrop(Vec3::Y).iter().all(|v| v.is_finite()));
+        }
+    }
+
+    #[test]
+    fn cosine_directions_have_the_cosine_mean() {
+        // The mean of n·d over a cosine-distributed set is 2/3.
+        let n = Vec3::new(0.2, 0.9, -0.3).normalize();
+        let m: f32 = cosine_directions(n, 256, 0.37)
+            .map(|d| d.dot(n))
+            .sum::<f32>()
+            / 256.0;
+        assert!((m - 2.0 / 3.0).abs() < 0.01, "{m}");
+        assert!(cosine_directions(n, 64, 0.1).all(|d| d.dot(n) >= 0.0));
+    }
+}
