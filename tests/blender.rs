@@ -29,6 +29,27 @@ fn conditions() -> Vec<Condition> {
     vec![a, b]
 }
 
+/// A renderer of `scene` (normalised) at `size` pixels, `samples` per pixel, `vfov_deg` and an
+/// atlas of `atlas_res`², with the scene's initial atlas.
+fn renderer(
+    mut scene: cac::scene::Scene,
+    (width, height): (usize, usize),
+    samples: usize,
+    vfov_deg: f32,
+    atlas_res: usize,
+) -> (Renderer, cac::scene::Texture) {
+    scene.normalise(0.0, None);
+    let atlas = scene.initial_atlas(atlas_res);
+    let settings = RenderSettings {
+        width,
+        height,
+        samples,
+        vfov_deg,
+        atlas_res,
+    };
+    (Renderer::new(scene, settings).unwrap(), atlas)
+}
+
 /// Blender's settings for these tests: the defaults, with the executable and the kept job
 /// folder the command line would take from `$CAC_BLENDER` and `$CAC_BLENDER_WORK`.
 fn cycles() -> BlenderSettings {
@@ -46,20 +67,7 @@ fn cycles() -> BlenderSettings {
 /// fully covered in both.
 fn both_renderers(s: &BlenderSettings) -> Vec<([f64; 3], [f64; 3])> {
     let (w, h) = (96usize, 64usize);
-    let mut scene = generate::pickup();
-    scene.normalise(0.0, None);
-    let atlas = scene.initial_atlas(128);
-    let r = Renderer::new(
-        scene,
-        RenderSettings {
-            width: w,
-            height: h,
-            samples: 16,
-            vfov_deg: 45.0,
-            atlas_res: 128,
-        },
-    )
-    .unwrap();
+    let (r, atlas) = renderer(generate::pickup(), (w, h), 16, 45.0, 128);
     let env = Environment::new(EnvConfig {
         ground: false,
         ..Default::default()
@@ -215,20 +223,7 @@ fn a_failing_blender_run_reports_its_stderr() {
         ..cycles()
     };
     assert_eq!(blender::check(&s).unwrap(), "Blender 9.9");
-    let mut scene = generate::barrel();
-    scene.normalise(0.0, None);
-    let atlas = scene.initial_atlas(16);
-    let r = Renderer::new(
-        scene,
-        RenderSettings {
-            width: 16,
-            height: 16,
-            samples: 1,
-            vfov_deg: 45.0,
-            atlas_res: 16,
-        },
-    )
-    .unwrap();
+    let (r, atlas) = renderer(generate::barrel(), (16, 16), 1, 45.0, 16);
     let env = Environment::new(EnvConfig::default()).unwrap();
     let e = blender::render_views(&r, &env, &conditions(), &atlas, &s, &device())
         .err()
@@ -243,20 +238,7 @@ fn a_failing_blender_run_reports_its_stderr() {
 #[test]
 fn with_a_ground_the_box_still_matches_and_the_ground_is_opaque() {
     let (w, h) = (64usize, 48usize);
-    let mut scene = generate::jeep();
-    scene.normalise(0.0, None);
-    let atlas = scene.initial_atlas(64);
-    let r = Renderer::new(
-        scene,
-        RenderSettings {
-            width: w,
-            height: h,
-            samples: 16,
-            vfov_deg: 50.0,
-            atlas_res: 64,
-        },
-    )
-    .unwrap();
+    let (r, atlas) = renderer(generate::jeep(), (w, h), 16, 50.0, 64);
     let env = Environment::new(EnvConfig::default()).unwrap();
     let mut c = Condition::plain(Viewpoint::new(120.0, 18.0, 2.2), Brightness::Bright);
     c.background_color = Some([1.0, 0.0, 1.0]);
@@ -292,20 +274,7 @@ fn with_a_ground_the_box_still_matches_and_the_ground_is_opaque() {
 #[test]
 fn an_hdr_environment_lights_the_scene_and_is_its_backdrop() {
     let (w, h) = (64usize, 48usize);
-    let mut scene = generate::pickup();
-    scene.normalise(0.0, None);
-    let atlas = scene.initial_atlas(64);
-    let r = Renderer::new(
-        scene,
-        RenderSettings {
-            width: w,
-            height: h,
-            samples: 16,
-            vfov_deg: 50.0,
-            atlas_res: 64,
-        },
-    )
-    .unwrap();
+    let (r, atlas) = renderer(generate::pickup(), (w, h), 16, 50.0, 64);
     let env = Environment::new(EnvConfig::default()).unwrap();
     let mut c = Condition::plain(Viewpoint::new(40.0, 10.0, 2.0), Brightness::Bright);
     c.background_color = Some([1.0, 0.0, 1.0]);
@@ -380,20 +349,7 @@ fn an_hdr_environment_lights_the_scene_and_is_its_backdrop() {
 #[test]
 fn cac_and_cycles_light_the_object_alike_under_an_hdr_environment() {
     let (w, h) = (96usize, 64usize);
-    let mut scene = generate::pickup();
-    scene.normalise(0.0, None);
-    let atlas = scene.initial_atlas(64);
-    let r = Renderer::new(
-        scene,
-        RenderSettings {
-            width: w,
-            height: h,
-            samples: 16,
-            vfov_deg: 50.0,
-            atlas_res: 64,
-        },
-    )
-    .unwrap();
+    let (r, atlas) = renderer(generate::pickup(), (w, h), 16, 50.0, 64);
     let env = Environment::new(EnvConfig::default()).unwrap();
     let lit = Environment::new(EnvConfig {
         hdri: vec!["sunset".into()],

@@ -63,6 +63,9 @@ fn models_fetch_stops_at_an_unreadable_model_file() {
         .expect("run cac");
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "{err}");
-    assert!(err.contains("cannot read") && err.contains("centernet.json"), "{err}");
+    assert!(
+        err.contains("cannot read") && err.contains("centernet.json"),
+        "{err}"
+    );
     assert!(!err.contains("npm"), "{err}");
 }

@@ -120,7 +120,10 @@ fn same_detections(
     let mut used = vec![false; mine.len()];
     for (k, (label, score, bbox)) in want.iter().enumerate() {
         let gap = |(_, s, b): &(usize, f32, [f32; 4])| {
-            let db = b.iter().zip(bbox).fold(0f64, |m, (a, b)| m.max((a - b).abs() as f64));
+            let db = b
+                .iter()
+                .zip(bbox)
+                .fold(0f64, |m, (a, b)| m.max((a - b).abs() as f64));
             (db, (s - score).abs() as f64)
         };
         let found = (0..mine.len()).find(|&j| {
@@ -269,7 +272,10 @@ fn class_logit_gradient_matches_torch_and_finite_differences() {
     // to 3.05e-3 of torch's (max) and 3.4e-4 to 2.9e-3 (L2) with burn's convolutions; this
     // crate's stem kernel (another order of the same sums, 1e-7 from burn's on this layer)
     // lands on 3.05e-3 too. A wrong backward is off by O(1).
-    assert!(e <= 6e-3 && e2 <= 6e-3, "gradient relative error {e} (max), {e2} (L2)");
+    assert!(
+        e <= 6e-3 && e2 <= 6e-3,
+        "gradient relative error {e} (max), {e2} (L2)"
+    );
 
     // Finite differences (the random network is strongly non-linear: small step, loose bound).
     let dir: Vec<f32> = uniform("direction", 3 * h * w)

@@ -130,46 +130,15 @@ fn a_lit_view_is_exact_in_bands_and_composites_in_colour_with_exact_gradients() 
     let atlas: Vec<f64> = (0..32 * 32 * 3)
         .map(|_| rng.random_range(0.1..0.9))
         .collect();
-    let dev = burn::tensor::Device::autodiff(device());
-    let wimg: Vec<f64> = (0..2 * 3 * 66 * 66)
-        .map(|_| rng.random_range(-1.0..1.0))
-        .collect();
-    let loss_of = |a: &[f64], grad: bool| -> (f64, Vec<f64>, Option<Vec<f64>>) {
-        let t = Tensor::<4>::from_data(
-            TensorData::new(a.to_vec(), [1, 32, 32, 3]),
-            (&dev, DType::F64),
-        );
-        let t = if grad { t.require_grad() } else { t };
-        let img = render::composite(&plans, t.clone());
-        let pixels = img
-            .clone()
-            .into_data()
-            .convert::<f64>()
-            .try_to_vec::<f64>()
-            .unwrap();
-        let w = Tensor::<4>::from_data(
-            TensorData::new(wimg.clone(), [2, 3, 66, 66]),
-            (&dev, DType::F64),
-        );
-        let loss = (img * w).sum();
-        let v = loss
-            .clone()
-            .into_data()
-            .convert::<f64>()
-            .try_to_vec::<f64>()
-            .unwrap()[0];
-        let g = grad.then(|| {
-            let gr = loss.backward();
-            t.grad(&gr)
-                .unwrap()
-                .into_data()
-                .convert::<f64>()
-                .try_to_vec::<f64>()
-                .unwrap()
-        });
-        (v, pixels, g)
-    };
-    let (_, pixels, g) = loss_of(&atlas, true);
+    let form = |t: Tensor<4>| render::composite(&plans, t);
+    let pixels: Vec<f64> = form(Tensor::<4>::from_data(
+        TensorData::new(atlas.clone(), [1, 32, 32, 3]),
+        (&device(), DType::F64),
+    ))
+    .into_data()
+    .convert::<f64>()
+    .try_to_vec::<f64>()
+    .unwrap();
     let tex = cac::scene::Texture {
         width: 32,
         height: 32,
@@ -187,19 +156,14 @@ fn a_lit_view_is_exact_in_bands_and_composites_in_colour_with_exact_gradients() 
         }
     }
     assert!(worst < 1e-5, "tensor and CPU composites differ by {worst}");
-    let g = g.unwrap();
-    let mut idx: Vec<usize> = (0..g.len()).filter(|&i| g[i].abs() > 1e-6).collect();
-    assert!(idx.len() > 50, "{} texels with a gradient", idx.len());
-    let mut worst = 0.0f64;
-    for _ in 0..30 {
-        let i = idx.swap_remove(rng.random_range(0..idx.len()));
-        let (h, mut a) = (1e-6, atlas.clone());
-        a[i] += h;
-        let (lp, _, _) = loss_of(&a, false);
-        a[i] -= 2.0 * h;
-        let (lm, _, _) = loss_of(&a, false);
-        worst = worst.max(((lp - lm) / (2.0 * h) - g[i]).abs() / g[i].abs().max(1e-8));
-    }
+    let worst = support::gradient::worst_atlas_gradient_error(
+        &form,
+        &atlas,
+        32,
+        [2, 3, 66, 66],
+        30,
+        &mut rng,
+    );
     assert!(worst < 1e-3, "worst relative gradient error {worst:e}");
 }
 

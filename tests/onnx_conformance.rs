@@ -791,7 +791,10 @@ fn files_that_select_inside_run_up_to_their_dense_head() {
     for e in &entries {
         let path = dir.join(&e.file);
         if e.selects == "nms" {
-            let err = format!("{:#}", OnnxDetector::load(&path, None, &train).err().unwrap());
+            let err = format!(
+                "{:#}",
+                OnnxDetector::load(&path, None, &train).err().unwrap()
+            );
             assert!(
                 err.contains(&e.file)
                     && err.contains("NMS or top-k selection inside")
@@ -805,7 +808,8 @@ fn files_that_select_inside_run_up_to_their_dense_head() {
         let want = &read(&dir.join(format!("{}.expected.json", e.name)))["output0"];
         assert_eq!(want.shape, [1, 300, 6], "{}", e.name);
         let x0: Vec<f32> = input.data.iter().map(|&v| v as f32).collect();
-        let x = Tensor::<4>::from_data(TensorData::new(x0, [1, 3, 320, 320]), &train).require_grad();
+        let x =
+            Tensor::<4>::from_data(TensorData::new(x0, [1, 3, 320, 320]), &train).require_grad();
         let c = det.candidates(x.clone()).unwrap();
         let [_, n, k] = c.scores.dims();
         let scores = cac::detect::to_vec(&c.scores).unwrap();
@@ -825,10 +829,19 @@ fn files_that_select_inside_run_up_to_their_dense_head() {
                 continue;
             }
             let (q, class) = (flat / k, flat % k);
-            assert_eq!(class as f64, row[5], "{}: class of selected row {i}", e.name);
+            assert_eq!(
+                class as f64, row[5],
+                "{}: class of selected row {i}",
+                e.name
+            );
             // onnxruntime's box as cac states it: x1, y1, x2, y2 in input pixels.
             let theirs: [f64; 4] = if rtdetr {
-                let (cx, cy, w, h) = (row[0] * 320.0, row[1] * 320.0, row[2] * 320.0, row[3] * 320.0);
+                let (cx, cy, w, h) = (
+                    row[0] * 320.0,
+                    row[1] * 320.0,
+                    row[2] * 320.0,
+                    row[3] * 320.0,
+                );
                 [cx - w / 2.0, cy - h / 2.0, cx + w / 2.0, cy + h / 2.0]
             } else {
                 [row[0], row[1], row[2], row[3]]
@@ -843,23 +856,43 @@ fn files_that_select_inside_run_up_to_their_dense_head() {
             e.name
         );
         assert!(worst_score <= 1e-4, "{}: scores {worst_score}", e.name);
-        assert!(compared >= 10, "{}: only {compared} rows stand apart", e.name);
+        assert!(
+            compared >= 10,
+            "{}: only {compared} rows stand apart",
+            e.name
+        );
         assert!(worst_box <= 1e-2, "{}: boxes {worst_box} px", e.name);
         // PyTorch's loss and input gradient.
         let torch = read(&dir.join(format!("{}.grad.json", e.name)));
         let loss = c.logits.narrow(2, 0, 1).mean();
         let ours = loss.clone().into_scalar::<f32>() as f64;
         let theirs = torch["loss"].data[0];
-        assert!((ours - theirs).abs() <= 1e-4 * theirs.abs().max(1.0), "{}: loss {ours} vs PyTorch {theirs}", e.name);
+        assert!(
+            (ours - theirs).abs() <= 1e-4 * theirs.abs().max(1.0),
+            "{}: loss {ours} vs PyTorch {theirs}",
+            e.name
+        );
         let grads = loss.backward();
-        let g: Vec<f32> = x.grad(&grads).unwrap().to_data().convert::<f32>().try_into_vec::<f32>().unwrap();
+        let g: Vec<f32> = x
+            .grad(&grads)
+            .unwrap()
+            .to_data()
+            .convert::<f32>()
+            .try_into_vec::<f32>()
+            .unwrap();
         let t = &torch["images"].data;
         let dot: f64 = g.iter().zip(t).map(|(a, b)| *a as f64 * b).sum();
         let (na, nb) = (
             g.iter().map(|a| (*a as f64).powi(2)).sum::<f64>().sqrt(),
             t.iter().map(|b| b * b).sum::<f64>().sqrt(),
         );
-        let diff = g.iter().zip(t).map(|(a, b)| (*a as f64 - b).powi(2)).sum::<f64>().sqrt() / nb;
+        let diff = g
+            .iter()
+            .zip(t)
+            .map(|(a, b)| (*a as f64 - b).powi(2))
+            .sum::<f64>()
+            .sqrt()
+            / nb;
         // Held to max(1e-3, 2 x PyTorch's own spread when the input moves by two ulps).
         let noise = torch["noise"].data[0];
         let bound = (2.0 * noise).max(1e-3);
@@ -869,7 +902,11 @@ fn files_that_select_inside_run_up_to_their_dense_head() {
             e.name,
             dot / (na * nb)
         );
-        assert!(diff <= bound, "{}: input gradient relative error {diff} > {bound}", e.name);
+        assert!(
+            diff <= bound,
+            "{}: input gradient relative error {diff} > {bound}",
+            e.name
+        );
     }
     // Each trains through the command line: the overlap rule over the queries / one-to-one rows.
     let tmp = tempfile::tempdir().unwrap();
@@ -878,8 +915,17 @@ fn files_that_select_inside_run_up_to_their_dense_head() {
         let run = tmp.path().join(stem);
         let spec = format!("onnx:{}", dir.join(format!("{stem}.onnx")).display());
         support::cac_ok(&[
-            "train", "--config", scene.to_str().unwrap(), "--models", &spec,
-            "--iterations", "2", "--batch", "1", "--out", run.to_str().unwrap(),
+            "train",
+            "--config",
+            scene.to_str().unwrap(),
+            "--models",
+            &spec,
+            "--iterations",
+            "2",
+            "--batch",
+            "1",
+            "--out",
+            run.to_str().unwrap(),
         ]);
         let json: serde_json::Value =
             serde_json::from_slice(&std::fs::read(run.join("run.json")).unwrap()).unwrap();

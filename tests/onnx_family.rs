@@ -42,8 +42,10 @@ struct Family {
 }
 
 fn read(path: &Path) -> BTreeMap<String, T> {
-    serde_json::from_slice(&std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())))
-        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+    serde_json::from_slice(
+        &std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())),
+    )
+    .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
 /// The family's exports, built once per script version; None (a skip outside CI, a failure
@@ -129,24 +131,46 @@ fn run_row(dir: &Path, row: &Row, config: Option<&Path>) -> anyhow::Result<(f64,
     assert_eq!(input.shape, row.input);
     let x0: Vec<f32> = input.data.iter().map(|&v| v as f32).collect();
     let x = Tensor::<4>::from_data(TensorData::new(x0, [b, c, h, w]), &train);
-    let got = det.graph().run_images("images", x.clone().detach(), &["output0"])?;
+    let got = det
+        .graph()
+        .run_images("images", x.clone().detach(), &["output0"])?;
     let h0 = got[0].host()?;
-    anyhow::ensure!(h0.shape() == want.shape.as_slice(), "output0 shape {:?}, onnxruntime {:?}", h0.shape(), want.shape);
+    anyhow::ensure!(
+        h0.shape() == want.shape.as_slice(),
+        "output0 shape {:?}, onnxruntime {:?}",
+        h0.shape(),
+        want.shape
+    );
     let ours = comparable(h0.shape(), h0.floats().iter().map(|&v| v as f64).collect());
     let theirs = comparable(&want.shape, want.data.clone());
     let scale = theirs.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-6);
     let err = ours
         .iter()
         .zip(&theirs)
-        .map(|(a, b)| if a.is_finite() { (a - b).abs() / scale } else { f64::INFINITY })
+        .map(|(a, b)| {
+            if a.is_finite() {
+                (a - b).abs() / scale
+            } else {
+                f64::INFINITY
+            }
+        })
         .fold(0.0, f64::max);
     let bound = 1e-4f64.max(2.0 * row.noise);
     // Trainable: the class-0 logits of the candidates cac reads, back to the input.
     let x = x.require_grad();
     let loss = det.candidates(x.clone())?.logits.narrow(2, 0, 1).mean();
     let grads = loss.backward();
-    let g: Vec<f32> = x.grad(&grads).unwrap().to_data().convert::<f32>().try_into_vec::<f32>().unwrap();
-    anyhow::ensure!(g.iter().all(|v| v.is_finite()), "a non-finite input gradient");
+    let g: Vec<f32> = x
+        .grad(&grads)
+        .unwrap()
+        .to_data()
+        .convert::<f32>()
+        .try_into_vec::<f32>()
+        .unwrap();
+    anyhow::ensure!(
+        g.iter().all(|v| v.is_finite()),
+        "a non-finite input gradient"
+    );
     let norm = g.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
     Ok((err, bound, norm))
 }
@@ -154,9 +178,14 @@ fn run_row(dir: &Path, row: &Row, config: Option<&Path>) -> anyhow::Result<(f64,
 #[test]
 fn every_export_of_the_family_is_matched_and_trainable_or_refused_saying_what_to_do() {
     let Some(dir) = family() else { return };
-    let fam: Family = serde_json::from_slice(&std::fs::read(dir.join("family.json")).unwrap()).unwrap();
+    let fam: Family =
+        serde_json::from_slice(&std::fs::read(dir.join("family.json")).unwrap()).unwrap();
     assert!(fam.rows.len() >= 23, "{} rows", fam.rows.len());
-    let versions: Vec<String> = fam.versions.iter().map(|(k, v)| format!("{k} {v}")).collect();
+    let versions: Vec<String> = fam
+        .versions
+        .iter()
+        .map(|(k, v)| format!("{k} {v}"))
+        .collect();
     let mut table = format!(
         "ultralytics exports built from yaml with seeded random weights ({}); cac against \
          onnxruntime on a seeded input\n\n| export | task | cac | output0 vs onnxruntime | bound | input gradient |\n|---|---|---|---|---|---|\n",
@@ -172,15 +201,27 @@ fn every_export_of_the_family_is_matched_and_trainable_or_refused_saying_what_to
             (Expect::Refused(words), Err(e)) => {
                 let msg = format!("{e:#}");
                 if !words.iter().all(|w| msg.contains(w)) || !msg.contains(&row.file) {
-                    failures.push(format!("{}: refused, but not saying {words:?}: {msg}", row.name));
+                    failures.push(format!(
+                        "{}: refused, but not saying {words:?}: {msg}",
+                        row.name
+                    ));
                 }
-                let said = msg.split(": ").nth(1).unwrap_or(&msg).split(". ").next().unwrap_or("");
+                let said = msg
+                    .split(": ")
+                    .nth(1)
+                    .unwrap_or(&msg)
+                    .split(". ")
+                    .next()
+                    .unwrap_or("");
                 format!("refused: {} | | |", said.replace('|', "/"))
             }
             (Expect::RunsWithConfig(config, words), Err(e)) => {
                 let msg = format!("{e:#}");
                 if !words.iter().all(|w| msg.contains(w)) {
-                    failures.push(format!("{}: refused, but not saying {words:?}: {msg}", row.name));
+                    failures.push(format!(
+                        "{}: refused, but not saying {words:?}: {msg}",
+                        row.name
+                    ));
                 }
                 // Not `MODEL.toml` beside the file: that one is read without being named, and
                 // a rerun on the cached family would then load the row with no refusal.
@@ -198,7 +239,11 @@ fn every_export_of_the_family_is_matched_and_trainable_or_refused_saying_what_to
                 }
             }
             (_, other) => {
-                failures.push(format!("{}: {:?}", row.name, other.map_err(|e| format!("{e:#}"))));
+                failures.push(format!(
+                    "{}: {:?}",
+                    row.name,
+                    other.map_err(|e| format!("{e:#}"))
+                ));
                 "FAILED | | |".into()
             }
         };

@@ -3,7 +3,7 @@
 
 mod support;
 
-use burn::tensor::{DType, Tensor, TensorData};
+use burn::tensor::Tensor;
 use cac::environment::{self, Brightness, Condition, EnvConfig, Environment, ViewpointSet};
 use cac::render::{self, Backdrop, Background, Lighting, RenderSettings, Renderer, Viewpoint};
 use cac::scene::{generate, LoadOptions, Scene, Texture};
@@ -70,68 +70,19 @@ fn texture_gradient_matches_finite_differences_in_f64() {
         plans.iter().all(|p| !p.tap_pixel.is_empty()),
         "object not visible"
     );
-    let dev = burn::tensor::Device::autodiff(device());
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
     let atlas: Vec<f64> = (0..32 * 32 * 3)
         .map(|_| rng.random_range(0.2..0.7))
         .collect();
-    let wimg: Vec<f64> = (0..2 * 3 * 48 * 48)
-        .map(|_| rng.random_range(-1.0..1.0))
-        .collect();
-    let loss_of = |a: &[f64], grad: bool| -> (f64, Option<Vec<f64>>) {
-        let t = Tensor::<4>::from_data(
-            TensorData::new(a.to_vec(), [1, 32, 32, 3]),
-            (&dev, DType::F64),
-        );
-        let t = if grad { t.require_grad() } else { t };
-        let img = environment::form_planned(&plans, t.clone(), &conds);
-        let w = Tensor::<4>::from_data(
-            TensorData::new(wimg.clone(), [2, 3, 48, 48]),
-            (&dev, DType::F64),
-        );
-        let loss = (img * w).sum();
-        let v = loss
-            .clone()
-            .into_data()
-            .convert::<f64>()
-            .try_to_vec::<f64>()
-            .unwrap()[0];
-        let g = grad.then(|| {
-            let gr = loss.backward();
-            t.grad(&gr)
-                .unwrap()
-                .into_data()
-                .convert::<f64>()
-                .try_to_vec::<f64>()
-                .unwrap()
-        });
-        (v, g)
-    };
-    let (_, g) = loss_of(&atlas, true);
-    let g = g.unwrap();
-    // Random texels among those that matter, plus a few that do not (gradient exactly 0).
-    let mut idx: Vec<usize> = (0..g.len()).filter(|&i| g[i].abs() > 1e-6).collect();
-    assert!(
-        idx.len() > 50,
-        "too few texels with a gradient: {}",
-        idx.len()
+    let form = |t: Tensor<4>| environment::form_planned(&plans, t, &conds);
+    let worst = support::gradient::worst_atlas_gradient_error(
+        &form,
+        &atlas,
+        32,
+        [2, 3, 48, 48],
+        40,
+        &mut rng,
     );
-    let mut picked = vec![];
-    for _ in 0..40 {
-        picked.push(idx.swap_remove(rng.random_range(0..idx.len())));
-    }
-    let h = 1e-6;
-    let mut worst = 0.0f64;
-    for &i in &picked {
-        let mut a = atlas.clone();
-        a[i] += h;
-        let (lp, _) = loss_of(&a, false);
-        a[i] -= 2.0 * h;
-        let (lm, _) = loss_of(&a, false);
-        let fd = (lp - lm) / (2.0 * h);
-        let rel = (fd - g[i]).abs() / g[i].abs().max(1e-8);
-        worst = worst.max(rel);
-    }
     assert!(worst < 1e-3, "worst relative gradient error {worst:e}");
 }
 

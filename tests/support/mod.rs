@@ -6,6 +6,7 @@
 
 #![allow(dead_code)]
 
+pub mod gradient;
 pub mod score_report;
 
 use burn::tensor::Device;

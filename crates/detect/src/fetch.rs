@@ -90,7 +90,10 @@ pub enum ModelsError {
 impl ModelsError {
     /// Whether fetching the package again repairs the folder.
     pub fn refetch_repairs(&self) -> bool {
-        matches!(self, ModelsError::Missing { .. } | ModelsError::Corrupt { .. })
+        matches!(
+            self,
+            ModelsError::Missing { .. } | ModelsError::Corrupt { .. }
+        )
     }
 }
 
@@ -226,18 +229,33 @@ mod tests {
     fn verify_says_which_file_fails_and_how() {
         let dir = tempfile::tempdir().unwrap();
         let e = verify(dir.path()).unwrap_err();
-        assert!(matches!(&e, ModelsError::Missing { path } if path.ends_with("centernet.json")), "{e}");
-        assert!(e.refetch_repairs() && e.to_string().contains("cac models fetch"), "{e}");
+        assert!(
+            matches!(&e, ModelsError::Missing { path } if path.ends_with("centernet.json")),
+            "{e}"
+        );
+        assert!(
+            e.refetch_repairs() && e.to_string().contains("cac models fetch"),
+            "{e}"
+        );
 
         std::fs::write(dir.path().join("centernet.json"), b"{}").unwrap();
         let e = verify(dir.path()).unwrap_err();
-        assert!(matches!(&e, ModelsError::Corrupt { want, .. } if *want == FILES[0].1), "{e}");
-        assert!(e.refetch_repairs() && e.to_string().contains("centernet.json"), "{e}");
+        assert!(
+            matches!(&e, ModelsError::Corrupt { want, .. } if *want == FILES[0].1),
+            "{e}"
+        );
+        assert!(
+            e.refetch_repairs() && e.to_string().contains("centernet.json"),
+            "{e}"
+        );
 
         std::fs::remove_file(dir.path().join("centernet.json")).unwrap();
         std::fs::create_dir(dir.path().join("centernet.json")).unwrap();
         let e = verify(dir.path()).unwrap_err();
         assert!(matches!(e, ModelsError::Unreadable { .. }), "{e}");
-        assert!(!e.refetch_repairs() && e.to_string().contains("centernet.json"), "{e}");
+        assert!(
+            !e.refetch_repairs() && e.to_string().contains("centernet.json"),
+            "{e}"
+        );
     }
 }

@@ -103,23 +103,7 @@ fn luminance(c: [f32; 3]) -> f32 {
     0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
 }
 
-/// The sRGB encoding of a linear value (display value), extended linearly below 0.
-pub fn srgb_encode(x: f32) -> f32 {
-    if x <= 0.0031308 {
-        12.92 * x
-    } else {
-        1.055 * x.powf(1.0 / 2.4) - 0.055
-    }
-}
-
-/// The sRGB decoding of a display value.
-pub fn srgb_decode(x: f32) -> f32 {
-    if x <= 0.04045 {
-        x / 12.92
-    } else {
-        ((x + 0.055) / 1.055).powf(2.4)
-    }
-}
+pub use cac_scene::srgb::{decode as srgb_decode, encode as srgb_encode};
 
 /// The unit direction (map frame) through the centre of texel `(x, y)` of a `w x h` map.
 fn texel_dir(x: usize, y: usize, w: usize, h: usize) -> Vec3 {

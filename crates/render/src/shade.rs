@@ -15,7 +15,7 @@ use super::ibl::{self, ImageLight, Sh9};
 use super::light::{background_colour, environment_colour, mean_colour};
 use super::light::{Backdrop, Background, Lighting};
 use cac_scene::bilinear::{self, Wrap};
-use cac_scene::{Scene, Texture};
+use cac_scene::{Material, Scene, Texture};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
@@ -265,8 +265,9 @@ impl Shader<'_> {
         [0, 1, 2].map(|i| (c[i] * k) * (1.0 - fog) + hz[i] * fog)
     }
 
-    /// An object sample: the sun's highlight and the reflected environment into `base`; the
-    /// lit albedo into `base`, or, on paintable parts, the lit atlas texels into `taps`.
+    /// An object sample: the highlight and the reflected environment into `base`; the lit
+    /// albedo into `base`, or, on paintable parts, the lit atlas texels into `taps` (and, under
+    /// coloured light, their light into `colours`).
     fn object(
         &self,
         sm: &Sample,
@@ -275,11 +276,56 @@ impl Shader<'_> {
         taps: &mut Vec<(u32, f32)>,
         colours: &mut Vec<[f32; 3]>,
     ) {
-        if let Some(i) = &self.ibl {
-            return self.object_ibl(i, sm, phase, base, taps, colours);
-        }
         let tri = &self.scene.triangles[sm.tri as usize];
         let mat = &self.scene.materials[tri.material as usize];
+        let n = sm.normal;
+        let (diffuse, highlight) = match &self.ibl {
+            Some(i) => self.environment_light(i, sm, mat, phase),
+            None => self.sun_light(sm, mat),
+        };
+        add(base, highlight, self.inv_s);
+        // Mirror reflection of the environment on glossy parts (clear coat,
+        // glass, chrome), weighted by Schlick's Fresnel term.
+        let gloss = (mat.specular * 1.5).min(1.0);
+        if gloss > 0.05 {
+            let cos = (-sm.dir).dot(n).clamp(0.0, 1.0);
+            let fresnel = 0.04 + 0.96 * (1.0 - cos).powi(5);
+            let r = sm.dir - n * 2.0 * sm.dir.dot(n);
+            let env = match &self.ibl {
+                Some(i) => i.light.reflected(r),
+                None => environment_colour(self.backdrop, self.light, self.image_mean, r),
+            };
+            add(base, env, gloss * fresnel * self.inv_s);
+        }
+        if self.scene.is_paintable(tri) {
+            for (texel, w) in bilinear::taps(sm.uv, self.atlas_res, self.atlas_res, Wrap::Repeat) {
+                if w > 0.0 {
+                    match diffuse {
+                        Diffuse::Grey(d) => taps.push((texel, w * d * self.inv_s)),
+                        Diffuse::Colour(k) => {
+                            taps.push((texel, w * self.inv_s));
+                            colours.push(k);
+                        }
+                    }
+                }
+            }
+        } else {
+            let albedo = match (mat.texture, tri.uv) {
+                (Some(t), Some(_)) => {
+                    let c = self.scene.textures[t].sample(sm.uv);
+                    [0, 1, 2].map(|i| c[i] * mat.base_color[i])
+                }
+                _ => mat.base_color,
+            };
+            match diffuse {
+                Diffuse::Grey(d) => add(base, albedo, d * self.inv_s),
+                Diffuse::Colour(k) => add(base, [0, 1, 2].map(|j| albedo[j] * k[j]), self.inv_s),
+            }
+        }
+    }
+
+    /// The diffuse light and the highlight of an object sample under the ambient and the sun.
+    fn sun_light(&self, sm: &Sample, mat: &Material) -> (Diffuse, [f32; 3]) {
         let n = sm.normal;
         let ndl = n.dot(self.light.sun_dir);
         let vis = if self.shadows
@@ -310,81 +356,34 @@ impl Shader<'_> {
         } else {
             0.0
         };
-        add(base, [spec; 3], self.inv_s);
-        // Mirror reflection of the environment on glossy parts (clear coat,
-        // glass, chrome), weighted by Schlick's Fresnel term.
-        let gloss = (mat.specular * 1.5).min(1.0);
-        if gloss > 0.05 {
-            let cos = (-sm.dir).dot(n).clamp(0.0, 1.0);
-            let fresnel = 0.04 + 0.96 * (1.0 - cos).powi(5);
-            let r = sm.dir - n * 2.0 * sm.dir.dot(n);
-            let env = environment_colour(self.backdrop, self.light, self.image_mean, r);
-            add(base, env, gloss * fresnel * self.inv_s);
-        }
-        if self.scene.is_paintable(tri) {
-            for (texel, w) in bilinear::taps(sm.uv, self.atlas_res, self.atlas_res, Wrap::Repeat) {
-                if w > 0.0 {
-                    taps.push((texel, w * diffuse * self.inv_s));
-                }
-            }
-        } else {
-            let albedo = match (mat.texture, tri.uv) {
-                (Some(t), Some(_)) => {
-                    let c = self.scene.textures[t].sample(sm.uv);
-                    [0, 1, 2].map(|i| c[i] * mat.base_color[i])
-                }
-                _ => mat.base_color,
-            };
-            add(base, albedo, diffuse * self.inv_s);
-        }
+        (Diffuse::Grey(diffuse), [spec; 3])
     }
-}
 
-impl Shader<'_> {
-    /// An object sample under an environment: as [`Shader::object`], with coloured light.
-    fn object_ibl(
+    /// The diffuse light and the highlight of an object sample under an environment: coloured.
+    fn environment_light(
         &self,
         i: &Ibl,
         sm: &Sample,
+        mat: &Material,
         phase: f32,
-        base: &mut [f32; 3],
-        taps: &mut Vec<(u32, f32)>,
-        colours: &mut Vec<[f32; 3]>,
-    ) {
-        let tri = &self.scene.triangles[sm.tri as usize];
-        let mat = &self.scene.materials[tri.material as usize];
+    ) -> (Diffuse, [f32; 3]) {
         let n = sm.normal;
         let (k, sun_disp, vis) = self.ibl_light(i, &i.sh, sm.position, n, phase);
+        let mut highlight = [0.0; 3];
         if let Some((dir, _)) = i.sun {
             let h = (dir - sm.dir).normalize_or_zero();
             let s = mat.specular * vis * n.dot(h).max(0.0).powf(mat.shininess);
-            add(base, sun_disp, s * self.inv_s);
+            highlight = sun_disp.map(|v| v * s);
         }
-        let gloss = (mat.specular * 1.5).min(1.0);
-        if gloss > 0.05 {
-            let cos = (-sm.dir).dot(n).clamp(0.0, 1.0);
-            let fresnel = 0.04 + 0.96 * (1.0 - cos).powi(5);
-            let r = sm.dir - n * 2.0 * sm.dir.dot(n);
-            add(base, i.light.reflected(r), gloss * fresnel * self.inv_s);
-        }
-        if self.scene.is_paintable(tri) {
-            for (texel, w) in bilinear::taps(sm.uv, self.atlas_res, self.atlas_res, Wrap::Repeat) {
-                if w > 0.0 {
-                    taps.push((texel, w * self.inv_s));
-                    colours.push(k);
-                }
-            }
-        } else {
-            let albedo = match (mat.texture, tri.uv) {
-                (Some(t), Some(_)) => {
-                    let c = self.scene.textures[t].sample(sm.uv);
-                    [0, 1, 2].map(|j| c[j] * mat.base_color[j])
-                }
-                _ => mat.base_color,
-            };
-            add(base, [0, 1, 2].map(|j| albedo[j] * k[j]), self.inv_s);
-        }
+        (Diffuse::Colour(k), highlight)
     }
+}
+
+/// The diffuse light on a sample: one grey level, or per channel.
+#[derive(Clone, Copy)]
+enum Diffuse {
+    Grey(f32),
+    Colour([f32; 3]),
 }
 
 impl RenderPlan {

@@ -10,16 +10,6 @@ use anyhow::{anyhow, bail, Result};
 use glam::{Mat4, Vec2, Vec3};
 use std::path::Path;
 
-/// Linear → sRGB display encoding.
-pub(crate) fn linear_to_srgb(c: f32) -> f32 {
-    let c = c.clamp(0.0, 1.0);
-    if c <= 0.003_130_8 {
-        12.92 * c
-    } else {
-        1.055 * c.powf(1.0 / 2.4) - 0.055
-    }
-}
-
 fn texture_from(data: &gltf::image::Data, path: &Path) -> Result<Texture> {
     use gltf::image::Format::*;
     let (w, h) = (data.width as usize, data.height as usize);
@@ -120,7 +110,7 @@ pub fn load(path: &Path) -> Result<Scene> {
                 .name()
                 .map(String::from)
                 .unwrap_or_else(|| format!("material{i}")),
-            base_color: [f[0], f[1], f[2]].map(linear_to_srgb),
+            base_color: [f[0], f[1], f[2]].map(|c| crate::srgb::encode(c.clamp(0.0, 1.0))),
             texture,
             specular: 0.04 + 0.5 * metallic * (1.0 - rough) + 0.2 * (1.0 - rough),
             shininess: 2.0 + 126.0 * (1.0 - rough) * (1.0 - rough),

@@ -18,6 +18,7 @@ mod obj_load;
 pub mod obj_write;
 pub mod paint;
 pub mod polygon;
+pub mod srgb;
 pub mod textures;
 
 use anyhow::{bail, Context, Result};

@@ -103,11 +103,9 @@ impl World {
     /// naming the choices.
     pub fn new(image: &str, strength: f32, rotation_deg: f32) -> Result<World> {
         let known = BLENDER_WORLDS.contains(&image);
-        if !known && !Path::new(image).is_file() {
-            bail!(
-                "HDR environment {image:?} is neither one of Blender's ({}) nor an existing image file",
-                BLENDER_WORLDS.join(", ")
-            );
+        if !known {
+            // Neither a name nor a file: the one error that says so (`render::ibl::resolve`).
+            cac_render::ibl::resolve(image)?;
         }
         if !(strength.is_finite() && strength > 0.0) {
             bail!("HDR environment strength {strength} must be positive");
@@ -221,13 +219,7 @@ pub struct BlenderView {
 }
 
 /// sRGB decoding, extended linearly-in-power above 1 (cac's light levels may exceed 1).
-pub(crate) fn srgb_to_linear(x: f32) -> f32 {
-    if x <= 0.04045 {
-        x / 12.92
-    } else {
-        ((x + 0.055) / 1.055).powf(2.4)
-    }
-}
+pub(crate) use cac_scene::srgb::decode as srgb_to_linear;
 
 /// Blender's camera for a cac camera: `matrix_world` (row-major 4×4), lens and sensor (mm),
 /// sensor fit and shift. Assumes square pixels (`fx == fy`).

@@ -62,6 +62,11 @@ fn mae(a: &[[f32; 3]], b: &image::RgbImage, keep: impl Fn(usize) -> bool) -> (f6
 
 /// Runs the benchmark: Cycles once per environment, then cac at each of [`settings`].
 pub fn run(job: &IblBenchJob, dev: &Device, on_row: &mut dyn FnMut(&[String])) -> Result<Table> {
+    if job.views == 0 || job.hdri.is_empty() {
+        anyhow::bail!(
+            "cac bench ibl needs at least one view (--views) and one environment (--hdri)"
+        );
+    }
     let cfg = &job.cfg;
     let mut oc = cfg.object.clone();
     oc.mesh = job.mesh.clone();

@@ -321,7 +321,10 @@ impl OnnxDetector {
         };
         let (x1, y1, x2, y2) = if self.config.box_scale == "normalized" {
             let (nw, nh) = (self.size.0 as f32, self.size.1 as f32);
-            let (sx, sy) = (|v: Tensor<3>| v.mul_scalar(nw), |v: Tensor<3>| v.mul_scalar(nh));
+            let (sx, sy) = (
+                |v: Tensor<3>| v.mul_scalar(nw),
+                |v: Tensor<3>| v.mul_scalar(nh),
+            );
             (sx(x1), sy(y1), sx(x2), sy(y2))
         } else {
             (x1, y1, x2, y2)
@@ -463,9 +466,18 @@ fn head_before_selection(model: &Model) -> Option<InsideHead> {
         Some(v)
     }
     let back = |v, through| follow(&producer, v, through);
-    const LAYOUT: &[&str] = &["Reshape", "Squeeze", "Unsqueeze", "Identity", "Cast", "Flatten"];
+    const LAYOUT: &[&str] = &[
+        "Reshape",
+        "Squeeze",
+        "Unsqueeze",
+        "Identity",
+        "Cast",
+        "Flatten",
+    ];
     let out = back(&model.outputs.first()?.name, LAYOUT)?;
-    let cat = producer.get(out).filter(|n| n.op == "Concat" && n.inputs.len() >= 3)?;
+    let cat = producer
+        .get(out)
+        .filter(|n| n.op == "Concat" && n.inputs.len() >= 3)?;
     let gather = producer.get(back(&cat.inputs[0], LAYOUT)?)?;
     (gather.op == "GatherElements").then_some(())?;
     let boxes = gather.inputs.first()?.clone();
@@ -478,9 +490,9 @@ fn head_before_selection(model: &Model) -> Option<InsideHead> {
     }
     // The dense values must not come out of a selection themselves.
     let selected = |v: &str| {
-        producer
-            .get(v)
-            .is_some_and(|n| ["TopK", "GatherElements", "NonMaxSuppression", "NonZero"].contains(&n.op.as_str()))
+        producer.get(v).is_some_and(|n| {
+            ["TopK", "GatherElements", "NonMaxSuppression", "NonZero"].contains(&n.op.as_str())
+        })
     };
     (!selected(scores) && !selected(&boxes)).then_some(())?;
     Some(InsideHead {
@@ -502,12 +514,22 @@ impl InsideHead {
             .meta("end2end")
             .is_some_and(|v| v.trim().eq_ignore_ascii_case("true"));
         let conventions = if rtdetr {
-            [("resize", "stretch"), ("box_format", "cxcywh"), ("box_scale", "normalized")]
+            [
+                ("resize", "stretch"),
+                ("box_format", "cxcywh"),
+                ("box_scale", "normalized"),
+            ]
         } else if end2end {
-            [("resize", "letterbox"), ("box_format", "xyxy"), ("box_scale", "pixels")]
+            [
+                ("resize", "letterbox"),
+                ("box_format", "xyxy"),
+                ("box_scale", "pixels"),
+            ]
         } else {
             ensure!(
-                ["box_format", "box_scale", "resize"].iter().all(|k| config.given(k)),
+                ["box_format", "box_scale", "resize"]
+                    .iter()
+                    .all(|k| config.given(k)),
                 "{src}: the file selects boxes inside with top-k; cac found the dense head \
                  before it (scores {:?}, boxes {:?}) but the file does not say how its boxes are \
                  written (no ultralytics `head` / `end2end` metadata): set box_format, box_scale \
