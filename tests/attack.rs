@@ -14,7 +14,12 @@ use cac::scene::generate;
 use cac::scene::Texture;
 use std::collections::HashSet;
 
+/// The build's CPU backend (libtorch's in a `tch` build: the attack checked on the fast path).
 fn inference() -> burn::tensor::Device {
+    #[cfg(feature = "tch")]
+    #[allow(deprecated)] // burn 0.22 marks LibTorch deprecated (docs/detectors.md)
+    return burn::tensor::Device::from(burn::backend::LibTorchDevice::Cpu);
+    #[cfg(not(feature = "tch"))]
     burn::tensor::Device::from(burn::backend::FlexDevice)
 }
 

@@ -69,3 +69,26 @@ fn models_fetch_stops_at_an_unreadable_model_file() {
     );
     assert!(!err.contains("npm"), "{err}");
 }
+
+/// A compute device the binary cannot run on is refused before anything is computed or written
+/// (exit code 2), naming the value and the choices: not a silent fall-back to another backend.
+#[test]
+fn an_unknown_or_unbuilt_device_is_refused_before_anything_is_written() {
+    let d = tempfile::tempdir().unwrap();
+    let png = d.path().join("view.png");
+    let unbuilt = match cfg!(feature = "tch") {
+        true => "gpu",
+        false => "libtorch",
+    };
+    for (value, says) in [("tpu", "unknown device \"tpu\""), (unbuilt, "--features")] {
+        let o = support::cac_command()
+            .args(["render", "--out", png.to_str().unwrap()])
+            .env("CAC_DEVICE", value)
+            .output()
+            .expect("run cac");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "CAC_DEVICE={value}: {err}");
+        assert!(err.contains(says) && err.contains("CAC_DEVICE"), "{err}");
+        assert!(!png.exists(), "nothing written");
+    }
+}

@@ -6,7 +6,12 @@ use burn::tensor::{Device, Tensor};
 use cac::detect::preprocess;
 use std::path::{Path, PathBuf};
 
+/// The build's CPU backend (libtorch's in a `tch` build), as `support::device`.
 pub fn dev() -> Device {
+    #[cfg(feature = "tch")]
+    #[allow(deprecated)] // burn 0.22 marks LibTorch deprecated (docs/detectors.md)
+    return Device::from(burn::backend::LibTorchDevice::Cpu);
+    #[cfg(not(feature = "tch"))]
     Device::from(burn::backend::FlexDevice)
 }
 

@@ -14,8 +14,13 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::OnceLock;
 
-/// The inference device of the tests (the CPU backend).
+/// The inference device of the tests: the build's CPU backend (Flex; libtorch's CPU in a build
+/// with `--features tch`, so the oracles are checked on the fast path too).
 pub fn device() -> Device {
+    #[cfg(feature = "tch")]
+    #[allow(deprecated)] // burn 0.22 marks LibTorch deprecated (docs/detectors.md)
+    return Device::from(burn::backend::LibTorchDevice::Cpu);
+    #[cfg(not(feature = "tch"))]
     Device::from(burn::backend::FlexDevice)
 }
 

@@ -35,7 +35,7 @@ use rayon::prelude::*;
 /// The fused activations, per backend. The default bodies compose burn's own ops (what every
 /// backend but Flex and autodiff uses); the `_backward` kernels take the op's *input* `x` and the
 /// incoming gradient `g`.
-#[backend_extension(Flex, Autodiff, Cube: cfg(feature = "gpu"))]
+#[backend_extension(Flex, Autodiff, Cube: cfg(feature = "gpu"), LibTorch: cfg(feature = "tch"))]
 pub(crate) trait ActivationKernels: Backend {
     fn act_sigmoid(x: FloatTensor<Self>) -> FloatTensor<Self> {
         Self::sigmoid(x)
@@ -78,7 +78,7 @@ pub fn sigmoid<const D: usize>(x: Tensor<D>) -> Tensor<D> {
 }
 
 /// `x · sigmoid(x)` (SiLU, swish), elementwise.
-pub(crate) fn silu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
+pub fn silu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
     Tensor::from_dispatch(<Dispatch as ActivationKernels>::act_silu(x.into_dispatch()))
 }
 

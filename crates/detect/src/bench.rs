@@ -15,6 +15,27 @@ use cac_core::report::Table;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+/// One backend to time, as the edge (the command line) named and made its devices: the library
+/// names no backend, it only labels the rows.
+pub struct BenchDevice {
+    /// The name in the tables' `backend` column.
+    pub name: String,
+    /// Its inference device.
+    pub inference: Device,
+    /// The autodiff device on top of it.
+    pub training: Device,
+}
+
+/// Every backend at every batch size, batch-major, so a table shows the backends side by side.
+fn backends_by_batch<'a>(
+    backends: &'a [BenchDevice],
+    batches: &'a [usize],
+) -> impl Iterator<Item = (&'a BenchDevice, usize)> + 'a {
+    batches
+        .iter()
+        .flat_map(move |&n| backends.iter().map(move |b| (b, n)))
+}
+
 /// Fastest ms of the TFJS wasm runner, from its `--time` report; None when it cannot run.
 pub(crate) fn tfjs_wasm(
     runner: &Path,
@@ -165,7 +186,7 @@ pub fn tfjs_models(
     runner: Option<&Path>,
     image: Option<&Path>,
     runs: usize,
-    (inference, training): (&Device, &Device),
+    backends: &[BenchDevice],
     on_row: &mut dyn FnMut(&Table),
 ) -> Result<Table> {
     let models = super::fetch::ensure_models()?;
@@ -187,6 +208,7 @@ pub fn tfjs_models(
     }
     let mut rows = Table::new([
         "model",
+        "backend",
         "batch",
         "forward_ms",
         "forward_backward_ms",
@@ -197,17 +219,20 @@ pub fn tfjs_models(
         .iter()
         .filter(|m| m.weights == Weights::Folder && m.variant_of.is_none());
     for name in tfjs.map(|m| m.name) {
-        let det = super::load(name, &models, inference)?;
-        let (w, h) = det.input_size();
         let tfjs = if have_runner {
             tfjs_wasm(&runner, name, &image, &models, runs.max(3))
         } else {
             None
         };
-        for batch in [1usize, 4] {
-            let x =
-                Tensor::<4>::random([batch, 3, h, w], Distribution::Uniform(0.0, 1.0), inference);
-            let (fwd, bwd) = forward_backward_ms(det.as_ref(), runs, x, training)?;
+        for (b, batch) in backends_by_batch(backends, &[1, 4]) {
+            let det = super::load(name, &models, &b.inference)?;
+            let (w, h) = det.input_size();
+            let x = Tensor::<4>::random(
+                [batch, 3, h, w],
+                Distribution::Uniform(0.0, 1.0),
+                &b.inference,
+            );
+            let (fwd, bwd) = forward_backward_ms(det.as_ref(), runs, x, &b.training)?;
             let row = TfjsRow {
                 name,
                 batch,
@@ -217,6 +242,7 @@ pub fn tfjs_models(
             };
             rows.row([
                 name.to_string(),
+                b.name.clone(),
                 batch.to_string(),
                 format!("{fwd:.2}"),
                 format!("{bwd:.2}"),
@@ -256,11 +282,12 @@ pub fn frcnn_models(
     runs: usize,
     python: &str,
     torch: (usize, &str),
-    (inference, training): (&Device, &Device),
+    backends: &[BenchDevice],
     on_row: &mut dyn FnMut(&Table),
 ) -> Result<Table> {
     let mut rows = Table::new([
         "model",
+        "backend",
         "input",
         "threads",
         "forward_ms",
@@ -271,27 +298,33 @@ pub fn frcnn_models(
         "backward_over_torch",
     ]);
     for name in super::frcnn::MODELS {
-        let ((w, h), fwd, bwd) = frcnn_forward_backward_ms(name, runs, inference, training)?;
-        let row = FrcnnRow {
-            name,
-            input: (w, h),
-            forward_ms: fwd,
-            backward_ms: bwd,
-            torch: torch_ms(python, name, torch, runs, (h, w)),
-        };
-        let (rf, rb) = row.ratios();
-        rows.row([
-            name.to_string(),
-            format!("{w}x{h}"),
-            torch.0.to_string(),
-            format!("{fwd:.2}"),
-            format!("{bwd:.2}"),
-            na(row.torch.map(|t| t.0), 2),
-            na(row.torch.map(|t| t.1), 2),
-            na(rf, 4),
-            na(rb, 4),
-        ]);
-        on_row(&rows);
+        let mut peer = None;
+        for b in backends {
+            let ((w, h), fwd, bwd) =
+                frcnn_forward_backward_ms(name, runs, &b.inference, &b.training)?;
+            let peer = *peer.get_or_insert_with(|| torch_ms(python, name, torch, runs, (h, w)));
+            let row = FrcnnRow {
+                name,
+                input: (w, h),
+                forward_ms: fwd,
+                backward_ms: bwd,
+                torch: peer,
+            };
+            let (rf, rb) = row.ratios();
+            rows.row([
+                name.to_string(),
+                b.name.clone(),
+                format!("{w}x{h}"),
+                torch.0.to_string(),
+                format!("{fwd:.2}"),
+                format!("{bwd:.2}"),
+                na(row.torch.map(|t| t.0), 2),
+                na(row.torch.map(|t| t.1), 2),
+                na(rf, 4),
+                na(rb, 4),
+            ]);
+            on_row(&rows);
+        }
     }
     Ok(rows)
 }
@@ -371,11 +404,12 @@ pub fn onnx_models(
     runs: usize,
     python: &str,
     threads: usize,
-    (inference, training): (&Device, &Device),
+    backends: &[BenchDevice],
     on_row: &mut dyn FnMut(&Table),
 ) -> Result<Table> {
     let mut rows = Table::new([
         "model",
+        "backend",
         "input",
         "threads",
         "graph_forward_ms",
@@ -392,42 +426,53 @@ pub fn onnx_models(
         let spec = format!("onnx:{f}");
         let (path, config) = super::onnx::parse_spec(&spec)
             .with_context(|| format!("{f:?}: write MODEL.onnx[:CONFIG.toml]"))?;
-        let det = super::onnx::OnnxDetector::load(&path, config.as_deref(), inference)?;
-        let (w, h) = det.input_size();
-        let input = det.graph().graph_inputs()[0].name.clone();
-        let output = det.graph().graph_outputs()[0].name.clone();
-        let x = Tensor::<4>::random([1, 3, h, w], Distribution::Uniform(0.0, 1.0), inference);
-        let graph_ms = time(runs, || {
-            let v = det.graph().run_images(&input, x.clone(), &[&output])?;
-            let _ = v[0].dev(inference)?.t.sum().into_scalar::<f32>();
-            Ok(())
-        })?;
-        let (fwd, bwd) = forward_backward_ms(&det, runs, x, training)?;
-        let row = OnnxRow {
-            name: det.name().to_string(),
-            input: (w, h),
-            graph_ms,
-            forward_ms: fwd,
-            backward_ms: bwd,
-            ort_ms: ort_ms(python, &path, &input, [1, 3, h, w], threads, runs.max(3)),
-            torch_ms: onnx_torch_ms(python, &path, [1, 3, h, w], threads, runs),
-        };
-        let (rf, rb) = row.ratios();
-        rows.row([
-            row.name.clone(),
-            format!("{w}x{h}"),
-            threads.to_string(),
-            format!("{graph_ms:.2}"),
-            format!("{fwd:.2}"),
-            format!("{bwd:.2}"),
-            na(row.ort_ms, 2),
-            na(rf, 4),
-            na(rb, 4),
-            na(row.torch_ms.map(|t| t.0), 2),
-            na(row.torch_ms.map(|t| t.1), 2),
-            na(row.torch_ms.map(|t| bwd / t.1), 4),
-        ]);
-        on_row(&rows);
+        let mut peers = None;
+        for b in backends {
+            let (inference, training) = (&b.inference, &b.training);
+            let det = super::onnx::OnnxDetector::load(&path, config.as_deref(), inference)?;
+            let (w, h) = det.input_size();
+            let input = det.graph().graph_inputs()[0].name.clone();
+            let output = det.graph().graph_outputs()[0].name.clone();
+            let x = Tensor::<4>::random([1, 3, h, w], Distribution::Uniform(0.0, 1.0), inference);
+            let graph_ms = time(runs, || {
+                let v = det.graph().run_images(&input, x.clone(), &[&output])?;
+                let _ = v[0].dev(inference)?.t.sum().into_scalar::<f32>();
+                Ok(())
+            })?;
+            let (fwd, bwd) = forward_backward_ms(&det, runs, x, training)?;
+            let (ort, torch) = *peers.get_or_insert_with(|| {
+                (
+                    ort_ms(python, &path, &input, [1, 3, h, w], threads, runs.max(3)),
+                    onnx_torch_ms(python, &path, [1, 3, h, w], threads, runs),
+                )
+            });
+            let row = OnnxRow {
+                name: det.name().to_string(),
+                input: (w, h),
+                graph_ms,
+                forward_ms: fwd,
+                backward_ms: bwd,
+                ort_ms: ort,
+                torch_ms: torch,
+            };
+            let (rf, rb) = row.ratios();
+            rows.row([
+                row.name.clone(),
+                b.name.clone(),
+                format!("{w}x{h}"),
+                threads.to_string(),
+                format!("{graph_ms:.2}"),
+                format!("{fwd:.2}"),
+                format!("{bwd:.2}"),
+                na(row.ort_ms, 2),
+                na(rf, 4),
+                na(rb, 4),
+                na(row.torch_ms.map(|t| t.0), 2),
+                na(row.torch_ms.map(|t| t.1), 2),
+                na(row.torch_ms.map(|t| bwd / t.1), 4),
+            ]);
+            on_row(&rows);
+        }
     }
     Ok(rows)
 }

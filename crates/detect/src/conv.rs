@@ -32,7 +32,7 @@ use rayon::prelude::*;
 /// The convolution without bias, and its two gradients, per backend. The default bodies are
 /// burn's own; Flex's implementation picks this module's kernels where the layer is dense or
 /// depthwise and f32, and burn's elsewhere.
-#[backend_extension(Flex, Autodiff, Cube: cfg(feature = "gpu"))]
+#[backend_extension(Flex, Autodiff, Cube: cfg(feature = "gpu"), LibTorch: cfg(feature = "tch"))]
 pub(crate) trait ConvKernels: Backend {
     fn cac_conv2d(
         x: FloatTensor<Self>,

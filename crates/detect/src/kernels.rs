@@ -8,11 +8,8 @@
 use crate::conv::conv2d;
 use anyhow::{bail, Result};
 use burn::tensor::ops::{ConvOptions, PadMode};
-use burn::tensor::{Slice, Tensor};
+use burn::tensor::Tensor;
 
-/// The `k[0]·k[1]` taps of a sliding window over NCHW `x` zero-padded by `ph`, `pw`, as strided
-/// views (row-major tap order), each of the output's spatial size `out`.
-/// numpy's broadcast of two shapes (aligned at the last axis; a 1 stretches).
 pub fn broadcast_shape(a: &[usize], b: &[usize]) -> Result<Vec<usize>> {
     let r = a.len().max(b.len());
     let at = |s: &[usize], k: usize| {
@@ -32,6 +29,12 @@ pub fn broadcast_shape(a: &[usize], b: &[usize]) -> Result<Vec<usize>> {
         .collect()
 }
 
+/// The `k[0]·k[1]` taps of a sliding window over NCHW `x` zero-padded by `ph`, `pw`
+/// (row-major tap order), each of the output's spatial size `out`, as views with unit steps:
+/// the padded input is reshaped to `[n, c, rows, stride₀, cols, stride₁]`, so a tap is one phase
+/// of each stride, `[n, c, oh, 1, ow, 1]`. (Strided slices would do the same, but a strided
+/// slice's gradient is an index-put on burn's LibTorch backend: slow, and it fails on a
+/// non-contiguous gradient.) Only the rows and columns a tap reads are padded.
 pub fn taps(
     x: Tensor<4>,
     k: [usize; 2],
@@ -39,27 +42,39 @@ pub fn taps(
     dil: [usize; 2],
     [ph, pw]: [(usize, usize); 2],
     [oh, ow]: [usize; 2],
-) -> Vec<Tensor<4>> {
-    let xp = if ph == (0, 0) && pw == (0, 0) {
-        x
-    } else {
-        x.pad([ph, pw], PadMode::Constant(0.0))
+) -> Vec<Tensor<6>> {
+    let [n, c, h, w] = x.dims();
+    // The extent read along an axis, rounded up to whole strides; zeros added at the end where
+    // the padded input is shorter, rows cut where it is longer (no tap reads them).
+    let fit = |len: usize, (before, _): (usize, usize), k: usize, d: usize, o: usize, s: usize| {
+        let full = ((k - 1) * d + (o - 1) * s + 1).div_ceil(s) * s;
+        (full, full.saturating_sub(len + before))
     };
-    let view = |start: usize, n: usize, step: usize| {
-        Slice::new(
-            start as isize,
-            Some((start + (n - 1) * step + 1) as isize),
-            step as isize,
-        )
+    let (fh, eh) = fit(h, ph, k[0], dil[0], oh, stride[0]);
+    let (fw, ew) = fit(w, pw, k[1], dil[1], ow, stride[1]);
+    let xp = match (ph.0, eh, pw.0, ew) {
+        (0, 0, 0, 0) => x,
+        _ => x.pad([(ph.0, eh), (pw.0, ew)], PadMode::Constant(0.0)),
     };
+    let [_, _, hp, wp] = xp.dims();
+    let xp = match (hp, wp) == (fh, fw) {
+        true => xp,
+        false => xp.slice([0..n, 0..c, 0..fh, 0..fw]),
+    };
+    let [sy, sx] = stride;
+    let grid: Tensor<6> = xp.reshape([n, c, fh / sy, sy, fw / sx, sx]);
     let mut out = Vec::with_capacity(k[0] * k[1]);
     for ky in 0..k[0] {
+        let (qy, py) = ((ky * dil[0]) / sy, (ky * dil[0]) % sy);
         for kx in 0..k[1] {
-            out.push(xp.clone().slice([
-                Slice::full(),
-                Slice::full(),
-                view(ky * dil[0], oh, stride[0]),
-                view(kx * dil[1], ow, stride[1]),
+            let (qx, px) = ((kx * dil[1]) / sx, (kx * dil[1]) % sx);
+            out.push(grid.clone().slice([
+                0..n,
+                0..c,
+                qy..qy + oh,
+                py..py + 1,
+                qx..qx + ow,
+                px..px + 1,
             ]));
         }
     }
@@ -100,8 +115,10 @@ pub(crate) fn conv_im2col(
     let [o, _, kh, kw] = w.dims();
     let oh = conv_out(h, ph, kh, stride[0], dil[0])?;
     let ow = conv_out(wd, pw, kw, stride[1], dil[1])?;
+    let n = x.dims()[0];
     let cols = taps(x, [kh, kw], stride, dil, [ph, pw], [oh, ow]);
-    let cols = Tensor::cat(cols, 1); // channel (ky·kw + kx)·c + ci
+    // channel (ky·kw + kx)·c + ci
+    let cols: Tensor<4> = Tensor::cat(cols, 1).reshape([n, kh * kw * c, oh, ow]);
     let w = w.permute([0, 2, 3, 1]).reshape([o, kh * kw * c, 1, 1]);
     Some(conv2d(
         cols,
@@ -136,6 +153,9 @@ mod tests {
             (2, 5, 2, 1, [(1, 2), (2, 1)]),
             (4, 3, 1, 2, [(2, 2), (0, 0)]),
             (1, 2, 3, 1, [(0, 0), (0, 0)]),
+            // Rows and columns past the last window (cut before the stride reshape).
+            (2, 2, 2, 1, [(0, 0), (0, 0)]),
+            (3, 1, 2, 1, [(0, 0), (0, 0)]),
         ] {
             let x = Tensor::<4>::from_data(uniform(vec![2, c, 17, 12]), &dev);
             let w = Tensor::<4>::from_data(uniform(vec![6, c, k, k]), &dev);

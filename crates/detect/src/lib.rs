@@ -15,9 +15,12 @@
 //! [`bench`] times detectors (and their TFJS and PyTorch references) for `cac bench detect`;
 //! [`draw`] draws detections into an image.
 
+// The kernel modules name burn's LibTorch backend in `tch` builds, which burn 0.22 marks deprecated.
+#[cfg_attr(feature = "tch", allow(deprecated))]
 pub mod activation;
 pub mod bench;
 pub mod centernet;
+#[cfg_attr(feature = "tch", allow(deprecated))]
 pub mod conv;
 pub mod draw;
 pub mod exec;
@@ -25,6 +28,8 @@ pub mod fetch;
 pub mod frcnn;
 pub mod kernels;
 pub mod labels;
+#[cfg(feature = "tch")]
+mod libtorch;
 pub mod nanodet;
 pub mod nms;
 pub mod onnx;

@@ -50,6 +50,10 @@ pub struct DetectBench {
     /// CSV output file of the ONNX table.
     #[arg(long, default_value = "bench-detect-onnx.csv")]
     pub onnx_csv: PathBuf,
+    /// Backends to time side by side (comma-separated: flex, libtorch, cuda, gpu; default: the
+    /// one CAC_DEVICE names, else every CPU backend of this build).
+    #[arg(long, value_delimiter = ',')]
+    pub backends: Vec<String>,
 }
 
 pub fn run(a: DetectBench) -> Result<()> {
@@ -63,7 +67,7 @@ pub fn run(a: DetectBench) -> Result<()> {
         bench_tfjs(&a)?;
     }
     if !a.no_frcnn {
-        let t = super::frcnn::bench(a.runs, &a.python)?;
+        let t = super::frcnn::bench(a.runs, &a.python, &super::backends(&a.backends)?)?;
         cac::io::write_atomic(&a.frcnn_csv, t.csv().as_bytes())?;
         println!("wrote {}", a.frcnn_csv.display());
     }
@@ -71,11 +75,11 @@ pub fn run(a: DetectBench) -> Result<()> {
 }
 
 fn bench_tfjs(a: &DetectBench) -> Result<()> {
-    let devices = (&device::inference(), &device::training());
+    let backends = super::backends(&a.backends)?;
     let runner =
         (a.runner.clone()).or_else(|| std::env::var_os("CAC_TFJS_RUNNER").map(PathBuf::from));
     let (runner, image) = (runner.as_deref(), a.image.as_deref());
-    let rows = bench::tfjs_models(runner, image, a.runs, devices, &mut |t| {
+    let rows = bench::tfjs_models(runner, image, a.runs, &backends, &mut |t| {
         print!("{}", t.markdown_last())
     })?;
     cac::io::write_atomic(&a.csv, rows.csv().as_bytes())?;
@@ -88,17 +92,18 @@ fn bench_onnx(a: &DetectBench) -> Result<()> {
         true => vec![rayon::current_num_threads()],
         false => a.threads.clone(),
     };
-    let devices = (&device::inference(), &device::training());
+    let backends = super::backends(&a.backends)?;
     let mut all: Option<cac::report::Table> = None;
     for threads in counts {
         println!(
-            "{threads} threads: cac's CPU backend, onnxruntime (CPU) and PyTorch (onnx2torch, CPU)"
+            "{threads} threads: cac's backends, onnxruntime (CPU) and PyTorch (onnx2torch, CPU)"
         );
+        device::set_threads(threads);
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .build()?;
         let rows = pool.install(|| {
-            bench::onnx_models(&a.onnx, a.runs, &a.python, threads, devices, &mut |t| {
+            bench::onnx_models(&a.onnx, a.runs, &a.python, threads, &backends, &mut |t| {
                 print!("{}", t.markdown_last())
             })
         })?;

@@ -12,3 +12,31 @@ pub mod kernels;
 pub mod realism;
 pub mod render;
 pub mod video;
+
+use crate::cli::device::{self, Backend};
+use cac::detect::bench::BenchDevice;
+
+/// The backends a detector benchmark times side by side: those `--backends` names, else the one
+/// `CAC_DEVICE` names, else every CPU backend of this build (Flex, and libtorch in a `tch`
+/// build: both paths in one run).
+pub fn backends(names: &[String]) -> anyhow::Result<Vec<BenchDevice>> {
+    let chosen: Vec<Backend> = match (names.is_empty(), std::env::var_os("CAC_DEVICE")) {
+        (false, _) => names
+            .iter()
+            .map(|n| Backend::parse(n).map_err(|e| anyhow::anyhow!("--backends: {e}")))
+            .collect::<anyhow::Result<_>>()?,
+        (true, Some(_)) => vec![device::backend()],
+        (true, None) => Backend::cpus(),
+    };
+    Ok(chosen
+        .into_iter()
+        .map(|b| {
+            let inference = b.device();
+            BenchDevice {
+                name: b.name().to_string(),
+                training: burn::tensor::Device::autodiff(inference.clone()),
+                inference,
+            }
+        })
+        .collect())
+}

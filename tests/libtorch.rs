@@ -1,0 +1,224 @@
+//! The libtorch fast path (`--features tch`) against the pure-Rust backend (Flex), both in one
+//! process on the same seeded inputs: the detectors' candidates and input gradients, the image
+//! formation, and the attack's loss over iterations agree within float noise; libtorch's fused
+//! activation kernels agree with Flex's at the extremes. The conformance suites
+//! (`detect_conformance`, `onnx_conformance`, `frcnn_conformance` with Faster R-CNN, `attack`)
+//! also run on libtorch
+//! in a `tch` build: `support::device()` is libtorch's CPU there. `.ci/run` runs them so.
+#![cfg(feature = "tch")]
+
+mod support;
+
+use burn::tensor::{Device, Tensor, TensorData};
+use cac::attack::{AttackConfig, Trainer};
+use cac::detect;
+use cac::environment::{EnvConfig, Environment};
+use cac::render::{RenderSettings, Renderer};
+use cac::scene::generate;
+use rand::{Rng, SeedableRng};
+
+fn flex() -> Device {
+    Device::from(burn::backend::FlexDevice)
+}
+
+#[allow(deprecated)] // burn 0.22 marks its LibTorch backend deprecated (docs/detectors.md)
+fn torch() -> Device {
+    Device::from(burn::backend::LibTorchDevice::Cpu)
+}
+
+fn host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data().convert::<f32>().try_to_vec::<f32>().unwrap()
+}
+
+/// A seeded uniform tensor on `dev` (the same values on every backend).
+fn seeded(shape: [usize; 4], seed: u64, (lo, hi): (f32, f32), dev: &Device) -> Tensor<4> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let n = shape.iter().product();
+    let v: Vec<f32> = (0..n).map(|_| rng.random_range(lo..hi)).collect();
+    Tensor::from_data(TensorData::new(v, shape), dev)
+}
+
+fn max_abs(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
+
+/// ‖a − b‖ / ‖b‖.
+fn rel_l2(a: &[f32], b: &[f32]) -> f64 {
+    let d: f64 = a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum();
+    let n: f64 = b.iter().map(|y| (*y as f64).powi(2)).sum();
+    (d / n).sqrt()
+}
+
+/// A detector's logits and the gradient of `sum(max_c logits)` to a seeded image, on `dev`;
+/// with `jitter`, the image moved by about two ulps (float noise, to size the bounds by).
+fn logits_and_gradient(name: &str, dev: &Device, jitter: bool) -> (Vec<f32>, Vec<f32>) {
+    let det = detect::load(name, support::models(), dev).unwrap();
+    let (w, h) = det.input_size();
+    let train = Device::autodiff(dev.clone());
+    let mut x = seeded([1, 3, h, w], 11, (0.0, 1.0), &train);
+    if jitter {
+        x = x.clone() + x * seeded([1, 3, h, w], 12, (-2.4e-7, 2.4e-7), &train);
+    }
+    let x = x.detach().require_grad();
+    let c = det.candidates(x.clone()).unwrap();
+    let logits = c.logits.clone();
+    let g = c.logits.max_dim(2).sum().backward();
+    let grad = x.grad(&g).expect("a gradient reaches the image");
+    (host(logits), host(grad))
+}
+
+#[test]
+fn detectors_on_libtorch_match_flex_forward_and_backward() {
+    for name in ["nanodet", "centernet"] {
+        let (lf, gf) = logits_and_gradient(name, &flex(), false);
+        let (lt, gt) = logits_and_gradient(name, &torch(), false);
+        // Flex against itself when the image moves by two ulps: the float noise of the network.
+        let (lj, gj) = logits_and_gradient(name, &flex(), true);
+        let scale = lf.iter().fold(0f32, |m, v| m.max(v.abs()));
+        let (dl, dg) = (max_abs(&lt, &lf), rel_l2(&gt, &gf));
+        let (nl, ng) = (max_abs(&lj, &lf), rel_l2(&gj, &gf));
+        eprintln!(
+            "{name}: logits max |Δ| {dl:.2e} (max |logit| {scale:.1}; Flex's own noise {nl:.2e}), \
+             gradient rel L2 {dg:.2e} (Flex's own noise {ng:.2e})"
+        );
+        assert!(
+            lt.iter().chain(&gt).all(|v| v.is_finite()),
+            "{name}: non-finite"
+        );
+        assert!(
+            dl <= 1e-4 * scale.max(1.0),
+            "{name}: logits differ by {dl:e}"
+        );
+        let bound = (2e-3f64).max(4.0 * ng);
+        assert!(
+            dg <= bound,
+            "{name}: input gradients differ (rel L2 {dg:e} > {bound:e})"
+        );
+        assert!(
+            gf.iter().any(|v| *v != 0.0),
+            "{name}: zero gradient proves nothing"
+        );
+    }
+}
+
+/// The fused kernels' forward and backward on libtorch (ATen's silu/silu_backward,
+/// sigmoid_backward, leaky_relu_backward) against Flex's, including huge and saturating inputs.
+#[test]
+fn libtorch_activation_kernels_match_flex_at_the_extremes() {
+    let run = |dev: &Device, f: &dyn Fn(Tensor<4>) -> Tensor<4>| {
+        let train = Device::autodiff(dev.clone());
+        let mut x = seeded([1, 4, 16, 16], 5, (-12.0, 12.0), &train);
+        // Saturating and huge values, and exact zeros, in the first plane.
+        let extremes = [1e30f32, -1e30, 88.0, -88.0, 0.0, -0.0, 1e-30, 40.0];
+        let mut v = host(x.clone());
+        v[..extremes.len()].copy_from_slice(&extremes);
+        x = Tensor::from_data(TensorData::new(v, [1, 4, 16, 16]), &train).require_grad();
+        let y = f(x.clone());
+        let g = (y.clone() * seeded([1, 4, 16, 16], 6, (-1.0, 1.0), &train))
+            .sum()
+            .backward();
+        (host(y), host(x.grad(&g).unwrap()))
+    };
+    type Act = fn(Tensor<4>) -> Tensor<4>;
+    let acts: [(&str, Act); 3] = [
+        ("sigmoid", detect::activation::sigmoid),
+        ("silu", detect::activation::silu),
+        ("leaky_relu", |x| {
+            burn::tensor::activation::leaky_relu(x, 0.1)
+        }),
+    ];
+    for (name, f) in acts {
+        let (yf, gf) = run(&flex(), &f);
+        let (yt, gt) = run(&torch(), &f);
+        assert!(
+            yt.iter().chain(&gt).all(|v| v.is_finite()),
+            "{name}: non-finite on libtorch"
+        );
+        // Relative to each value (SiLU passes 1e30 through).
+        let worst = yt
+            .iter()
+            .zip(&yf)
+            .chain(gt.iter().zip(&gf))
+            .map(|(a, b)| (a - b).abs() / b.abs().max(1.0))
+            .fold(0f32, f32::max);
+        eprintln!("{name}: worst relative |Δ| {worst:.2e}");
+        assert!(
+            worst <= 1e-5,
+            "{name}: libtorch and Flex differ by {worst:e}"
+        );
+    }
+}
+
+fn scene() -> (Renderer, Environment) {
+    let mut s = generate::jeep();
+    s.normalise(0.0, None);
+    let settings = RenderSettings {
+        width: 128,
+        height: 128,
+        samples: 1,
+        vfov_deg: 45.0,
+        atlas_res: 64,
+    };
+    let env = EnvConfig {
+        distance_ratio: [1.2, 2.0],
+        elevation_deg: [0.0, 20.0],
+        ..Default::default()
+    };
+    (
+        Renderer::new(s, settings).unwrap(),
+        Environment::new(env).unwrap(),
+    )
+}
+
+/// The attack's loss over iterations (and the image formation of iteration 0) on `dev`.
+fn attack_run(dev: &Device) -> (Vec<f64>, Vec<f32>) {
+    let (r, env) = scene();
+    let init = r.scene.initial_atlas(64);
+    let d = detect::load("nanodet", support::models(), dev).unwrap();
+    let cfg = AttackConfig {
+        models: vec!["nanodet".into()],
+        iterations: 3,
+        batch: 2,
+        top_n: 50,
+        lr: 0.05,
+        seed: 7,
+        checkpoint_every: 0,
+        ..Default::default()
+    };
+    let mut t = Trainer::new(
+        cfg,
+        &r,
+        &env,
+        vec![d.as_ref()],
+        Device::autodiff(dev.clone()),
+        &init,
+    )
+    .unwrap();
+    let a = cac::render::atlas_tensor(&init, dev);
+    let (img, _) = cac::environment::form(&r, &env, &t.conditions(0), a).unwrap();
+    let losses = (0..3).map(|_| t.step().unwrap().loss).collect();
+    (losses, host(img))
+}
+
+#[test]
+fn the_attack_on_libtorch_follows_the_attack_on_flex() {
+    let (lf, imf) = attack_run(&flex());
+    let (lt, imt) = attack_run(&torch());
+    let di = max_abs(&imt, &imf);
+    eprintln!("image formation max |Δ| {di:.2e}; losses flex {lf:?} libtorch {lt:?}");
+    assert!(di <= 1e-5, "the rendered batch differs by {di:e}");
+    for (i, (a, b)) in lt.iter().zip(&lf).enumerate() {
+        assert!(a.is_finite(), "iteration {i}: loss {a}");
+        // Adam moves each texel by about lr whatever the gradient's size, so a gradient that
+        // differs in the last bits moves a texel the same way: the losses stay close.
+        assert!(
+            (a - b).abs() <= 1e-3 * b.abs().max(1.0),
+            "iteration {i}: {a} vs {b}"
+        );
+    }
+    assert!(lt[2] != lt[0], "the atlas moved, so the loss moved");
+}
