@@ -330,3 +330,42 @@ fn bad_environments_are_clear_errors_naming_the_file() {
     );
     assert!(e.contains("sh_order"), "{e}");
 }
+
+/// `cac demo --hdri`: training and the protocol views are lit by the environment, and the demo
+/// says so in its table's heading and in summary.json (a short run: 2 iterations, 4 views).
+#[test]
+fn the_demo_trains_and_scores_under_an_environment_and_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let map = write_map(dir.path());
+    let out = dir.path().join("demo");
+    let text = support::cac_ok(&[
+        "demo",
+        "--iterations",
+        "2",
+        "--views",
+        "1",
+        "--hdri",
+        map.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        text.contains("lit by one of the photographed environments")
+            && text.contains(map.to_str().unwrap()),
+        "{text}"
+    );
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    let env = &summary["scene"]["environment"];
+    assert_eq!(env["hdri"][0].as_str(), Some(map.to_str().unwrap()), "{env}");
+    assert_eq!(env["hdri_share"].as_f64(), Some(1.0), "{env}");
+    let run: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("run/run.json")).unwrap()).unwrap();
+    assert_eq!(run["scene"]["environment"]["hdri"], env["hdri"], "trained under it too");
+    // A missing environment is refused before anything is trained or written.
+    let bad = dir.path().join("bad");
+    let o = support::cac(&["demo", "--hdri", "nowhere", "--out", bad.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("nowhere"), "{err}");
+    assert!(!bad.join("run").exists(), "nothing trained");
+}

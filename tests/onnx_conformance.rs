@@ -814,11 +814,31 @@ fn files_that_select_inside_run_up_to_their_dense_head() {
         let [_, n, k] = c.scores.dims();
         let scores = cac::detect::to_vec(&c.scores).unwrap();
         let boxes = cac::detect::to_vec(&c.boxes).unwrap();
+        // cac's own float noise: the boxes again with the input moved by two ulps (seeded signs).
+        // A random-weight network amplifies rounding, by how much depends on the CPU's kernels
+        // (8.3e-3 px on an AVX2 EPYC, 1.3e-2 on an AVX-512 Xeon for YOLOv10n's boxes). Only
+        // where a row is one anchor (the end-to-end YOLOs): RT-DETR's rows are queries its
+        // encoder selects, which the jitter reorders, so its bound stays 1e-2 px.
+        let rtdetr = e.name.starts_with("rtdetr");
+        let moved: Vec<f32> = match rtdetr {
+            true => boxes.clone(),
+            false => {
+                use rand::{Rng, SeedableRng};
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4321);
+                let x = input.data.iter().map(|&v| {
+                    let sign = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+                    (v * (1.0 + sign * 2f64.powi(-22))) as f32
+                });
+                let x = TensorData::new(x.collect::<Vec<f32>>(), [1, 3, 320, 320]);
+                let c = det.candidates(Tensor::<4>::from_data(x, &train)).unwrap();
+                cac::detect::to_vec(&c.boxes).unwrap()
+            }
+        };
         // The exporter's selection: the best 300 (row, class) scores.
         let mut order: Vec<usize> = (0..n * k).collect();
         order.sort_by(|&a, &b| scores[b].total_cmp(&scores[a]).then(a.cmp(&b)));
-        let rtdetr = e.name.starts_with("rtdetr");
         let (mut worst_score, mut worst_box, mut compared) = (0.0f64, 0.0f64, 0);
+        let mut own_noise = 0.0f64;
         for (i, &flat) in order.iter().take(300).enumerate() {
             let row = &want.data[i * 6..(i + 1) * 6];
             let s = scores[flat] as f64;
@@ -848,11 +868,14 @@ fn files_that_select_inside_run_up_to_their_dense_head() {
             };
             for (j, t) in theirs.iter().enumerate() {
                 worst_box = worst_box.max((boxes[q * 4 + j] as f64 - t).abs());
+                own_noise =
+                    own_noise.max((boxes[q * 4 + j] as f64 - moved[q * 4 + j] as f64).abs());
             }
             compared += 1;
         }
+        let box_bound = (1e-2f64).max(2.0 * own_noise);
         eprintln!(
-            "{}: top-300 scores within {worst_score:.2e} of onnxruntime's, {compared} boxes within {worst_box:.2e} px",
+            "{}: top-300 scores within {worst_score:.2e} of onnxruntime's, {compared} boxes within {worst_box:.2e} px (bound {box_bound:.2e}: cac's own two-ulp spread {own_noise:.2e})",
             e.name
         );
         assert!(worst_score <= 1e-4, "{}: scores {worst_score}", e.name);
@@ -861,7 +884,7 @@ fn files_that_select_inside_run_up_to_their_dense_head() {
             "{}: only {compared} rows stand apart",
             e.name
         );
-        assert!(worst_box <= 1e-2, "{}: boxes {worst_box} px", e.name);
+        assert!(worst_box <= box_bound, "{}: boxes {worst_box} px", e.name);
         // PyTorch's loss and input gradient.
         let torch = read(&dir.join(format!("{}.grad.json", e.name)));
         let loss = c.logits.narrow(2, 0, 1).mean();

@@ -505,3 +505,104 @@ fn killed_capture_resumes_each_missing_frame_once() {
         16 - before.len()
     );
 }
+
+/// A 64×32 equirectangular room written as Radiance HDR: a warm half and a cool half of the
+/// walls (by azimuth), a grey floor below the horizon, no sun.
+fn write_room(dir: &Path) -> PathBuf {
+    let (w, h) = (64usize, 32usize);
+    let px: Vec<image::Rgb<f32>> = (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            image::Rgb(match (y < h / 2, x < w / 2) {
+                (true, true) => [1.6, 0.7, 0.3],
+                (true, false) => [0.3, 0.6, 1.5],
+                (false, _) => [0.4, 0.4, 0.4],
+            })
+        })
+        .collect();
+    let p = dir.join("room.hdr");
+    let f = std::io::BufWriter::new(std::fs::File::create(&p).unwrap());
+    image::codecs::hdr::HdrEncoder::new(f)
+        .encode(&px, w, h)
+        .unwrap();
+    p
+}
+
+/// `rig.toml` in `dir` with a `[twin]` table lit by `room` (noise and blur off, so frames
+/// compare exactly), turned by `turn` degrees; `room: None` keeps the lamp and ambient.
+fn rig_in_room(dir: &Path, room: Option<&str>, turn: f32) -> PathBuf {
+    let p = rig_file(dir, false, [96, 72], [0.0, 0.0]);
+    let mut text = std::fs::read_to_string(&p).unwrap();
+    text.push_str("[twin]\nread_noise = 0.0\nshot_noise = 0.0\nblur_px = 0.0\n");
+    if let Some(room) = room {
+        text.push_str(&format!("hdri = {room:?}\nhdri_rotation_deg = {turn}\n"));
+    }
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// `[twin] hdri`: the room lights the object and is seen behind it, fixed in the rig frame. The
+/// pixels above the object are the same at every table angle (the object turns, the room does
+/// not), change when the room is turned, and are not the lamp-lit twin's backdrop; a room that
+/// is not there is refused naming the rig file and the key.
+#[test]
+fn the_twin_lit_by_a_room_turns_the_object_not_the_room() {
+    let dir = tempfile::tempdir().unwrap();
+    let room = write_room(dir.path());
+    let room = room.to_str().unwrap();
+    let frame = |rig: &Path, angle: f64| {
+        let rig = Arc::new(Rig::load(rig).unwrap());
+        let atlas = rig.renderer.scene.initial_atlas(64);
+        let twin = DigitalTwin::new(rig.clone(), &atlas, Box::new(|| Err("unused".into())), 1);
+        let pose = Pose {
+            angle_deg: angle,
+            horizontal_m: rig.horizontal_distance(1.5).unwrap(),
+        };
+        twin.render(pose, 0).unwrap()
+    };
+    let sub = tempfile::tempdir().unwrap();
+    let lit = rig_in_room(sub.path(), Some(room), 0.0);
+    let (a, b) = (frame(&lit, 0.0), frame(&lit, 70.0));
+    // Rows above both objects' boxes see only the room.
+    let top = a.mask_box.unwrap()[1].min(b.mask_box.unwrap()[1]).floor() as u32;
+    assert!(top >= 4, "the test view needs backdrop rows above the object (top {top})");
+    let rows = |f: &cac::physical::twin::TwinFrame| -> Vec<u8> {
+        (0..top * 96).flat_map(|i| f.image.get_pixel(i % 96, i / 96).0).collect()
+    };
+    let diff = |x: &[u8], y: &[u8]| {
+        x.iter().zip(y).map(|(p, q)| p.abs_diff(*q) as f64).sum::<f64>() / x.len() as f64
+    };
+    assert_eq!(rows(&a), rows(&b), "the room moved with the table");
+    assert_ne!(a.image, b.image, "the object turned");
+    let turned = rig_in_room(sub.path(), Some(room), 180.0);
+    let c = frame(&turned, 0.0);
+    let moved = diff(&rows(&a), &rows(&c));
+    assert!(moved > 20.0, "turning the room by 180 deg changed the backdrop by {moved} levels");
+    let lamp = rig_in_room(sub.path(), None, 0.0);
+    let d = frame(&lamp, 0.0);
+    assert!(diff(&rows(&a), &rows(&d)) > 20.0, "the room is not the lamp-lit backdrop");
+    // A warm room warms the object: its mean red over blue rises against the cool turn.
+    let object_rb = |f: &cac::physical::twin::TwinFrame| {
+        let [x1, y1, x2, y2] = f.mask_box.unwrap().map(|v| v as u32);
+        let (mut r, mut b) = (0.0, 0.0);
+        for y in y1..y2.min(72) {
+            for x in x1..x2.min(96) {
+                let p = f.image.get_pixel(x, y).0;
+                (r, b) = (r + p[0] as f64, b + p[2] as f64);
+            }
+        }
+        r / b.max(1.0)
+    };
+    // The halves split the room along the camera's axis at turns 0 and 180; at 90 and 270 the
+    // side the camera sees faces the warm half, then the cool one.
+    let warm = object_rb(&frame(&rig_in_room(sub.path(), Some(room), 90.0), 0.0));
+    let cool = object_rb(&frame(&rig_in_room(sub.path(), Some(room), 270.0), 0.0));
+    eprintln!(
+        "room: backdrop moved {moved:.1} levels by a 180-deg turn; object red/blue {warm:.3} \
+         facing the warm half, {cool:.3} facing the cool half"
+    );
+    assert!(warm > cool * 1.05, "the room's colour reaches the object: {warm} vs {cool}");
+    let bad = rig_in_room(sub.path(), Some("nowhere-room"), 0.0);
+    let e = format!("{:#}", Rig::load(&bad).err().expect("refused"));
+    assert!(e.contains("rig.toml") && e.contains("twin.hdri") && e.contains("nowhere-room"), "{e}");
+}

@@ -11,10 +11,12 @@
 use super::calib::CameraModel;
 use anyhow::{bail, Context, Result};
 use cac_render::config::ObjectConfig;
+use cac_render::ibl::{self, EnvironmentMap};
 use cac_render::{Camera, RenderSettings, Renderer};
 use glam::{Mat3, Vec3};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// The `[camera]` table.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -94,6 +96,15 @@ pub struct TwinSettings {
     /// Read noise σ and shot-noise σ at full white (0–1 units).
     pub read_noise: f32,
     pub shot_noise: f32,
+    /// The room as a photographed HDR environment (one of Blender's eight by name, e.g.
+    /// "interior", or an equirectangular .exr/.hdr file): it lights the object and the table
+    /// (image-based lighting, `cac_render::ibl`) and is seen behind them, instead of `ambient`,
+    /// `lamp` and `background`. Fixed in the rig frame: the object turns in it.
+    pub hdri: Option<String>,
+    /// The room map's turn about the vertical axis (degrees, Blender's mapping rotation).
+    pub hdri_rotation_deg: f32,
+    /// The room's exposure in stops (its radiance × 2^stops).
+    pub hdri_exposure_stops: f32,
 }
 
 impl Default for TwinSettings {
@@ -109,6 +120,9 @@ impl Default for TwinSettings {
             blur_px: 0.5,
             read_noise: 0.01,
             shot_noise: 0.02,
+            hdri: None,
+            hdri_rotation_deg: 0.0,
+            hdri_exposure_stops: 0.0,
         }
     }
 }
@@ -186,6 +200,10 @@ impl RigConfig {
         {
             bail!("twin: exposure must be positive, blur and noise not negative");
         }
+        let t = &self.twin;
+        if !(t.hdri_rotation_deg.abs() <= 720.0 && t.hdri_exposure_stops.abs() <= 20.0) {
+            bail!("twin: hdri_rotation_deg must be within ±720 and hdri_exposure_stops within ±20");
+        }
         Ok(())
     }
 }
@@ -195,6 +213,8 @@ pub struct Rig {
     pub config: RigConfig,
     pub lens: CameraModel,
     pub renderer: Renderer,
+    /// The room's environment map (`twin.hdri`), read once.
+    pub room: Option<Arc<EnvironmentMap>>,
 }
 
 impl Rig {
@@ -211,10 +231,20 @@ impl Rig {
             vfov_deg: 45.0, // unused: the lens gives the rays
             atlas_res: 512,
         };
+        let room = match &config.twin.hdri {
+            Some(name) => {
+                let read = || EnvironmentMap::read(&ibl::resolve(name)?, ibl::SUN_THRESHOLD);
+                Some(Arc::new(
+                    read().with_context(|| format!("twin.hdri {name:?}"))?,
+                ))
+            }
+            None => None,
+        };
         Ok(Rig {
             renderer: Renderer::new(scene, settings)?,
             config,
             lens,
+            room,
         })
     }
 

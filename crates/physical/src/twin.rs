@@ -2,10 +2,12 @@
 //! the turntable's *physical* angle and the camera's distance (read at capture time from a
 //! [`PoseSource`], e.g. the simulated device's mechanics) through the calibrated lens — rays
 //! are cast through the plumb-bob distortion model — then applies exposure, blur and sensor noise
-//! (read + shot). Deterministic for a seed, frame number and pose.
+//! (read + shot). Lit by the rig file's lamp and ambient, or by a photographed environment of
+//! the room (`[twin] hdri`, image-based lighting). Deterministic for a seed, frame number and pose.
 
 use super::camera::{CameraError, Frame, FrameSource};
 use super::rig::Rig;
+use cac_render::ibl::{self, IblSettings, ImageLight};
 use cac_render::{Backdrop, Background, Ground, Lighting};
 use cac_scene::Texture;
 use glam::Vec2;
@@ -68,12 +70,29 @@ impl DigitalTwin {
         let cam = rig.camera_at(pose.angle_deg, pose.horizontal_m)?;
         let lens = &rig.lens;
         let ray = |x: f32, y: f32| lens.ray(&cam, x, y);
-        let light = Lighting {
-            ambient: t.ambient,
-            sun: t.lamp,
-            sun_dir: rig.lamp_dir(pose.angle_deg),
-            sky_occlusion: None,
-            image: None,
+        let light = match &rig.room {
+            // The room turns with the rig frame, not with the object: the map's rotation is
+            // the room's plus the table's angle (the object frame turns by -angle).
+            Some(map) => Lighting {
+                ambient: 0.0,
+                sun: 0.0,
+                sun_dir: glam::Vec3::Y,
+                sky_occlusion: None,
+                image: Some(ImageLight {
+                    map: map.clone(),
+                    rotation_deg: t.hdri_rotation_deg + pose.angle_deg as f32,
+                    strength: t.hdri_exposure_stops.exp2(),
+                    ground_albedo: t.ground.map(|c| c.map(ibl::srgb_decode)),
+                    settings: IblSettings::default(),
+                }),
+            },
+            None => Lighting {
+                ambient: t.ambient,
+                sun: t.lamp,
+                sun_dir: rig.lamp_dir(pose.angle_deg),
+                sky_occlusion: None,
+                image: None,
+            },
         };
         let backdrop = Backdrop {
             background: Background::Color(t.background),

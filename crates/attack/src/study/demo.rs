@@ -39,6 +39,12 @@ pub struct DemoJob {
     /// Seed of the protocol views (not the training seed: the texture never saw these views).
     #[arg(long, default_value_t = 2026)]
     pub view_seed: u64,
+    /// Photographed HDR environments (Blender's by name, e.g. `city,interior`, or .exr/.hdr
+    /// files): every training and protocol view is lit by one of them, drawn per view with a
+    /// random turn, and shows it behind the vehicle (image-based lighting). Default: the
+    /// procedural sun, sky and ground.
+    #[arg(long, value_delimiter = ',')]
+    pub hdri: Vec<String>,
 }
 
 /// What the demo measured.
@@ -54,7 +60,7 @@ impl DemoJob {
     /// sheets and summary.json, saying what it does on stdout.
     pub fn run(&self, device: &Device) -> Result<DemoOutcome> {
         let start = Instant::now();
-        let cfg = SceneConfig::training();
+        let cfg = self.scene_config();
         let Stage {
             renderer,
             env,
@@ -132,6 +138,16 @@ impl DemoJob {
         })
     }
 
+    /// The training preset, with every view lit by one of `--hdri`'s environments when given.
+    fn scene_config(&self) -> SceneConfig {
+        let mut cfg = SceneConfig::training();
+        if !self.hdri.is_empty() {
+            cfg.environment.hdri = self.hdri.clone();
+            cfg.environment.hdri_share = 1.0;
+        }
+        cfg
+    }
+
     /// The demo's attack: NanoDet, target "person", batch 2, checkpoints every 50 iterations.
     fn attack_config(&self) -> AttackConfig {
         AttackConfig {
@@ -198,6 +214,18 @@ impl DemoJob {
             self.view_seed,
             self.seed,
         );
+        if !cfg.environment.hdri.is_empty() {
+            let _ = writeln!(
+                s,
+                "Every view, in training and in these protocol views, is lit by one of the \
+                 photographed environments {} (drawn per view, turned {:?} deg, exposure {:?} \
+                 stops) and shows it behind the vehicle; under an environment the bright/dark \
+                 level does not change the light.",
+                cfg.environment.hdri.join(", "),
+                cfg.environment.hdri_rotation_deg,
+                cfg.environment.hdri_exposure_stops,
+            );
+        }
         let _ = writeln!(
             s,
             "{:<22} {:>4} {:>12} {:>12} {:>7} {:>14} {:>14}",
