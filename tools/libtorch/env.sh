@@ -9,7 +9,7 @@
 CAC_TORCH_VENV="${CAC_TORCH_VENV:-$HOME/.cache/cac/torch-2.9.0}"
 _cac_torch="$CAC_TORCH_VENV/lib/python3.11/site-packages/torch"
 if [ ! -f "$_cac_torch/lib/libtorch_cpu.so" ]; then
-    _cac_torch="$(ls -d "$CAC_TORCH_VENV"/lib/python3*/site-packages/torch 2>/dev/null | head -n1)"
+    _cac_torch="$( (ls -d "$CAC_TORCH_VENV"/lib/python3*/site-packages/torch 2>/dev/null || true) | head -n1)"
 fi
 if [ -z "$_cac_torch" ] || [ ! -f "$_cac_torch/lib/libtorch_cpu.so" ]; then
     echo "tools/libtorch/env.sh: no torch 2.9.0 in $CAC_TORCH_VENV (run tools/libtorch/install.sh)" >&2
