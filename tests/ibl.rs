@@ -357,11 +357,18 @@ fn the_demo_trains_and_scores_under_an_environment_and_says_so() {
     let summary: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
     let env = &summary["scene"]["environment"];
-    assert_eq!(env["hdri"][0].as_str(), Some(map.to_str().unwrap()), "{env}");
+    assert_eq!(
+        env["hdri"][0].as_str(),
+        Some(map.to_str().unwrap()),
+        "{env}"
+    );
     assert_eq!(env["hdri_share"].as_f64(), Some(1.0), "{env}");
     let run: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("run/run.json")).unwrap()).unwrap();
-    assert_eq!(run["scene"]["environment"]["hdri"], env["hdri"], "trained under it too");
+    assert_eq!(
+        run["scene"]["environment"]["hdri"], env["hdri"],
+        "trained under it too"
+    );
     // A missing environment is refused before anything is trained or written.
     let bad = dir.path().join("bad");
     let o = support::cac(&["demo", "--hdri", "nowhere", "--out", bad.to_str().unwrap()]);

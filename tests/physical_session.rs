@@ -565,22 +565,37 @@ fn the_twin_lit_by_a_room_turns_the_object_not_the_room() {
     let (a, b) = (frame(&lit, 0.0), frame(&lit, 70.0));
     // Rows above both objects' boxes see only the room.
     let top = a.mask_box.unwrap()[1].min(b.mask_box.unwrap()[1]).floor() as u32;
-    assert!(top >= 4, "the test view needs backdrop rows above the object (top {top})");
+    assert!(
+        top >= 4,
+        "the test view needs backdrop rows above the object (top {top})"
+    );
     let rows = |f: &cac::physical::twin::TwinFrame| -> Vec<u8> {
-        (0..top * 96).flat_map(|i| f.image.get_pixel(i % 96, i / 96).0).collect()
+        (0..top * 96)
+            .flat_map(|i| f.image.get_pixel(i % 96, i / 96).0)
+            .collect()
     };
     let diff = |x: &[u8], y: &[u8]| {
-        x.iter().zip(y).map(|(p, q)| p.abs_diff(*q) as f64).sum::<f64>() / x.len() as f64
+        x.iter()
+            .zip(y)
+            .map(|(p, q)| p.abs_diff(*q) as f64)
+            .sum::<f64>()
+            / x.len() as f64
     };
     assert_eq!(rows(&a), rows(&b), "the room moved with the table");
     assert_ne!(a.image, b.image, "the object turned");
     let turned = rig_in_room(sub.path(), Some(room), 180.0);
     let c = frame(&turned, 0.0);
     let moved = diff(&rows(&a), &rows(&c));
-    assert!(moved > 20.0, "turning the room by 180 deg changed the backdrop by {moved} levels");
+    assert!(
+        moved > 20.0,
+        "turning the room by 180 deg changed the backdrop by {moved} levels"
+    );
     let lamp = rig_in_room(sub.path(), None, 0.0);
     let d = frame(&lamp, 0.0);
-    assert!(diff(&rows(&a), &rows(&d)) > 20.0, "the room is not the lamp-lit backdrop");
+    assert!(
+        diff(&rows(&a), &rows(&d)) > 20.0,
+        "the room is not the lamp-lit backdrop"
+    );
     // A warm room warms the object: its mean red over blue rises against the cool turn.
     let object_rb = |f: &cac::physical::twin::TwinFrame| {
         let [x1, y1, x2, y2] = f.mask_box.unwrap().map(|v| v as u32);
@@ -601,8 +616,14 @@ fn the_twin_lit_by_a_room_turns_the_object_not_the_room() {
         "room: backdrop moved {moved:.1} levels by a 180-deg turn; object red/blue {warm:.3} \
          facing the warm half, {cool:.3} facing the cool half"
     );
-    assert!(warm > cool * 1.05, "the room's colour reaches the object: {warm} vs {cool}");
+    assert!(
+        warm > cool * 1.05,
+        "the room's colour reaches the object: {warm} vs {cool}"
+    );
     let bad = rig_in_room(sub.path(), Some("nowhere-room"), 0.0);
     let e = format!("{:#}", Rig::load(&bad).err().expect("refused"));
-    assert!(e.contains("rig.toml") && e.contains("twin.hdri") && e.contains("nowhere-room"), "{e}");
+    assert!(
+        e.contains("rig.toml") && e.contains("twin.hdri") && e.contains("nowhere-room"),
+        "{e}"
+    );
 }
