@@ -369,6 +369,24 @@ fn the_demo_trains_and_scores_under_an_environment_and_says_so() {
         run["scene"]["environment"]["hdri"], env["hdri"],
         "trained under it too"
     );
+    // The same folder without the environments is not resumed as if it had been trained so,
+    // and what it holds stays as it was.
+    let before = std::fs::read(out.join("summary.json")).unwrap();
+    let o = support::cac(&[
+        "demo",
+        "--iterations",
+        "2",
+        "--views",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("other settings") && err.contains("hdri"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(out.join("summary.json")).unwrap(), before);
     // A missing environment is refused before anything is trained or written.
     let bad = dir.path().join("bad");
     let o = support::cac(&["demo", "--hdri", "nowhere", "--out", bad.to_str().unwrap()]);

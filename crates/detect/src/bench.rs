@@ -26,14 +26,16 @@ pub struct BenchDevice {
     pub training: Device,
 }
 
-/// Every backend at every batch size, batch-major, so a table shows the backends side by side.
-fn backends_by_batch<'a>(
+/// Every backend (with its loaded detector) at every batch size, batch-major, so a table shows
+/// the backends side by side.
+fn backends_by_batch<'a, D>(
     backends: &'a [BenchDevice],
+    dets: &'a [D],
     batches: &'a [usize],
-) -> impl Iterator<Item = (&'a BenchDevice, usize)> + 'a {
+) -> impl Iterator<Item = ((&'a BenchDevice, &'a D), usize)> + 'a {
     batches
         .iter()
-        .flat_map(move |&n| backends.iter().map(move |b| (b, n)))
+        .flat_map(move |&n| backends.iter().zip(dets).map(move |p| (p, n)))
 }
 
 /// Fastest ms of the TFJS wasm runner, from its `--time` report; None when it cannot run.
@@ -224,8 +226,11 @@ pub fn tfjs_models(
         } else {
             None
         };
-        for (b, batch) in backends_by_batch(backends, &[1, 4]) {
-            let det = super::load(name, &models, &b.inference)?;
+        let dets = backends
+            .iter()
+            .map(|b| super::load(name, &models, &b.inference))
+            .collect::<Result<Vec<_>>>()?;
+        for ((b, det), batch) in backends_by_batch(backends, &dets, &[1, 4]) {
             let (w, h) = det.input_size();
             let x = Tensor::<4>::random(
                 [batch, 3, h, w],

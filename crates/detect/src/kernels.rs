@@ -10,6 +10,7 @@ use anyhow::{bail, Result};
 use burn::tensor::ops::{ConvOptions, PadMode};
 use burn::tensor::Tensor;
 
+/// numpy's broadcast of two shapes (aligned at the last axis; a 1 stretches).
 pub fn broadcast_shape(a: &[usize], b: &[usize]) -> Result<Vec<usize>> {
     let r = a.len().max(b.len());
     let at = |s: &[usize], k: usize| {

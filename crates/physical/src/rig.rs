@@ -232,12 +232,7 @@ impl Rig {
             atlas_res: 512,
         };
         let room = match &config.twin.hdri {
-            Some(name) => {
-                let read = || EnvironmentMap::read(&ibl::resolve(name)?, ibl::SUN_THRESHOLD);
-                Some(Arc::new(
-                    read().with_context(|| format!("twin.hdri {name:?}"))?,
-                ))
-            }
+            Some(name) => Some(ibl::load(name).context("twin.hdri")?),
             None => None,
         };
         Ok(Rig {

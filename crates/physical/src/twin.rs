@@ -78,13 +78,13 @@ impl DigitalTwin {
                 sun: 0.0,
                 sun_dir: glam::Vec3::Y,
                 sky_occlusion: None,
-                image: Some(ImageLight {
-                    map: map.clone(),
-                    rotation_deg: t.hdri_rotation_deg + pose.angle_deg as f32,
-                    strength: t.hdri_exposure_stops.exp2(),
-                    ground_albedo: t.ground.map(|c| c.map(ibl::srgb_decode)),
-                    settings: IblSettings::default(),
-                }),
+                image: Some(ImageLight::new(
+                    map.clone(),
+                    t.hdri_rotation_deg + pose.angle_deg as f32,
+                    t.hdri_exposure_stops,
+                    t.ground.map(|c| c.map(ibl::srgb_decode)),
+                    IblSettings::default(),
+                )),
             },
             None => Lighting {
                 ambient: t.ambient,

@@ -63,6 +63,15 @@ pub fn resolve(name: &str) -> Result<PathBuf> {
         })
 }
 
+/// The environment `name` ([`resolve`]: one of Blender's by name, or a file) read and split at
+/// the default [`SUN_THRESHOLD`]; errors name it.
+pub fn load(name: &str) -> Result<Arc<EnvironmentMap>> {
+    let read = || EnvironmentMap::read(&resolve(name)?, SUN_THRESHOLD);
+    Ok(Arc::new(
+        read().with_context(|| format!("HDR environment {name:?}"))?,
+    ))
+}
+
 /// A light's order-2 spherical-harmonic coefficients: 9 per channel.
 pub type Sh9 = [[f32; 3]; 9];
 
@@ -392,6 +401,24 @@ pub struct ImageLight {
 }
 
 impl ImageLight {
+    /// `map` turned by `rotation_deg` about +Y, at an exposure of `exposure_stops` (radiance ×
+    /// 2^stops), over a ground of linear albedo `ground_albedo` if there is one.
+    pub fn new(
+        map: Arc<EnvironmentMap>,
+        rotation_deg: f32,
+        exposure_stops: f32,
+        ground_albedo: Option<[f32; 3]>,
+        settings: IblSettings,
+    ) -> ImageLight {
+        ImageLight {
+            map,
+            rotation_deg,
+            strength: exposure_stops.exp2(),
+            ground_albedo,
+            settings,
+        }
+    }
+
     fn to_map(&self, d: Vec3) -> Vec3 {
         turn(d, self.rotation_deg.to_radians())
     }

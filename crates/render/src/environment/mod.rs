@@ -336,11 +336,7 @@ impl Environment {
         let hdris = config
             .hdri
             .iter()
-            .map(|h| {
-                let path = crate::ibl::resolve(h).context("environment.hdri")?;
-                let m = crate::ibl::EnvironmentMap::read(&path, crate::ibl::SUN_THRESHOLD)?;
-                Ok(Arc::new(m))
-            })
+            .map(|h| crate::ibl::load(h).context("environment.hdri"))
             .collect::<Result<Vec<_>>>()?;
         Ok(Environment {
             config,
@@ -472,13 +468,13 @@ impl Environment {
                 sun: 0.0,
                 sun_dir: glam::Vec3::Y,
                 sky_occlusion: None,
-                image: Some(crate::ibl::ImageLight {
+                image: Some(crate::ibl::ImageLight::new(
                     map,
-                    rotation_deg: h.rotation_deg,
-                    strength: h.exposure_stops.exp2(),
+                    h.rotation_deg,
+                    h.exposure_stops,
                     ground_albedo,
-                    settings: self.config.ibl,
-                }),
+                    self.config.ibl,
+                )),
             };
         }
         let lv = match cond.brightness {
