@@ -222,3 +222,13 @@ fn the_attack_on_libtorch_follows_the_attack_on_flex() {
     }
     assert!(lt[2] != lt[0], "the atlas moved, so the loss moved");
 }
+
+/// libtorch's CPU computes on the host's cores, so the trainer plans each step's views itself
+/// there; a CUDA device (only named here, not opened) does not, so it plans them ahead.
+#[test]
+#[allow(deprecated)]
+fn libtorch_cpu_is_the_hosts_and_cuda_is_not() {
+    assert!(detect::computes_on_host(&Device::autodiff(torch())));
+    let cuda = Device::autodiff(Device::from(burn::backend::LibTorchDevice::Cuda(0)));
+    assert!(!detect::computes_on_host(&cuda));
+}

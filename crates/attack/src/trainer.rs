@@ -42,8 +42,14 @@ pub struct Trainer<'a> {
     /// Iteration, optimiser state, parameters (for 2D methods: the patch) and log.
     pub state: Checkpoint,
     pub param: Parameterisation,
-    /// The next iteration's views, ray-cast and shaded while this one's detectors ran (see
-    /// [`Trainer::step`]); `None` before the first step and for 2D methods.
+    /// Ray-cast and shade the next iteration's views on another thread while this one's
+    /// detectors run ([`Trainer::step`]): on by default when the device is not the host's CPU
+    /// (a GPU leaves the cores idle). Off for Flex and libtorch's CPU: both compete for the same
+    /// cores, which measured no faster on Flex and 8% slower on libtorch (whose OpenMP threads
+    /// spin while the renderer's take their cores) on two cores (docs/attack.md).
+    pub plan_ahead: bool,
+    /// The next iteration's views when planned ahead; `None` before the first step, when not
+    /// planning ahead, and for 2D methods.
     next_plans: Option<(usize, Vec<RenderPlan>)>,
 }
 
@@ -105,6 +111,7 @@ impl<'a> Trainer<'a> {
             log: vec![],
         };
         Ok(Trainer {
+            plan_ahead: !cac_detect::computes_on_host(&device),
             config,
             renderer,
             env,
@@ -219,11 +226,12 @@ impl<'a> Trainer<'a> {
         }
     }
 
-    /// One iteration: form the images, detect, loss, backward, Adam step. While the detectors
-    /// run forward and backward, another thread ray-casts and shades the next iteration's views
-    /// (they depend on the seed and the iteration only, not on the atlas), so the render hides
-    /// in the time the detectors leave a core idle; the result is the same bit for bit.
-    /// `ms_render` is the compositing plus any wait for those views.
+    /// One iteration: form the images (ray-cast, shade and composite the views), detect, loss,
+    /// backward, Adam step. With [`Trainer::plan_ahead`], another thread ray-casts and shades
+    /// the next iteration's views while the detectors run forward and backward (they depend on
+    /// the seed and the iteration only, not on the atlas); the result is the same bit for bit.
+    /// `ms_render` is the ray casting and shading, the compositing, and any wait for views
+    /// planned ahead.
     pub fn step(&mut self) -> Result<IterationLog> {
         let i = self.state.iteration;
         let t0 = Instant::now();
@@ -232,7 +240,7 @@ impl<'a> Trainer<'a> {
             .require_grad();
         let (images, objects) = self.images(i, leaf.clone())?;
         let mut ms_render = t0.elapsed().as_secs_f64() * 1e3;
-        let prefetch = matches!(self.param, Parameterisation::Atlas { .. });
+        let prefetch = self.plan_ahead && matches!(self.param, Parameterisation::Atlas { .. });
         let (detected, next) = std::thread::scope(|s| {
             let (renderer, env, config) = (self.renderer, self.env, &self.config);
             let next = prefetch.then(|| {

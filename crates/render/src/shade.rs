@@ -72,62 +72,59 @@ pub fn plan(
             _ => [0.0; 3],
         },
     };
-    // Per pixel: the constant colour, the atlas taps of its samples and their colours.
-    type Pixel = ([f32; 3], Vec<(u32, f32)>, Vec<[f32; 3]>);
-    let pixels: Vec<Pixel> = g
+    // One image row at a time (in parallel): its pixels' constant colours, the atlas taps of
+    // their samples and the taps' colours, stacked in row order.
+    let rows: Vec<RenderPlan> = g
         .data
-        .par_chunks_exact(s)
+        .par_chunks(s * g.width)
         .enumerate()
-        .map(|(pi, samples)| {
-            let mut base = [0.0f32; 3];
-            let (mut taps, mut colours) = (Vec::new(), Vec::new());
-            let global = (g.rows.start * g.width + pi) as u64;
-            for (k, sm) in samples.iter().enumerate() {
-                let phase = sample_phase(global, k);
-                match sm.surface {
-                    Surface::Sky if sh.ibl.is_some() => {
-                        let i = sh.ibl.as_ref().expect("checked");
-                        add(&mut base, i.light.backdrop(sm.dir), sh.inv_s);
+        .map(|(row, samples)| {
+            let mut out = RenderPlan::empty(g.width, atlas_res);
+            out.height = 1;
+            let mut taps = Vec::new();
+            for (x, samples) in samples.chunks_exact(s).enumerate() {
+                let mut base = [0.0f32; 3];
+                taps.clear();
+                let pi = row * g.width + x;
+                let global = (g.rows.start * g.width + pi) as u64;
+                for (k, sm) in samples.iter().enumerate() {
+                    let phase = sample_phase(global, k);
+                    match sm.surface {
+                        Surface::Sky if sh.ibl.is_some() => {
+                            let i = sh.ibl.as_ref().expect("checked");
+                            add(&mut base, i.light.backdrop(sm.dir), sh.inv_s);
+                        }
+                        Surface::Sky => {
+                            let c = background_colour(
+                                &backdrop.background,
+                                sm.dir,
+                                x,
+                                g.rows.start + row,
+                                g.width,
+                                g.height,
+                            );
+                            add(&mut base, c, sh.inv_s);
+                        }
+                        Surface::Ground => add(&mut base, sh.ground(sm, phase), sh.inv_s),
+                        Surface::Object => {
+                            sh.object(sm, phase, &mut base, &mut taps, &mut out.tap_colour)
+                        }
                     }
-                    Surface::Sky => {
-                        let c = background_colour(
-                            &backdrop.background,
-                            sm.dir,
-                            pi % g.width,
-                            g.rows.start + pi / g.width,
-                            g.width,
-                            g.height,
-                        );
-                        add(&mut base, c, sh.inv_s);
-                    }
-                    Surface::Ground => add(&mut base, sh.ground(sm, phase), sh.inv_s),
-                    Surface::Object => sh.object(sm, phase, &mut base, &mut taps, &mut colours),
+                }
+                out.base.push(base);
+                for &(t, w) in &taps {
+                    out.tap_pixel.push(x as u32);
+                    out.tap_texel.push(t);
+                    out.tap_weight.push(w);
                 }
             }
-            (base, taps, colours)
+            out
         })
         .collect();
-    let mut out = RenderPlan {
-        width: g.width,
-        height: g.rows.len(),
-        atlas_res,
-        base: Vec::with_capacity(pixels.len()),
-        tap_pixel: vec![],
-        tap_texel: vec![],
-        tap_weight: vec![],
-        tap_colour: vec![],
-        coverage: g.coverage(),
-        object_box: g.object_box(),
-    };
-    for (i, (base, taps, colours)) in pixels.into_iter().enumerate() {
-        out.base.push(base);
-        out.tap_colour.extend(colours);
-        for (t, w) in taps {
-            out.tap_pixel.push(i as u32);
-            out.tap_texel.push(t);
-            out.tap_weight.push(w);
-        }
-    }
+    let mut out =
+        RenderPlan::stack(std::iter::once(RenderPlan::empty(g.width, atlas_res)).chain(rows));
+    out.coverage = g.coverage();
+    out.object_box = g.object_box();
     out
 }
 
@@ -395,9 +392,25 @@ impl RenderPlan {
         }
     }
 
+    /// A plan of no rows, `width` wide.
+    fn empty(width: usize, atlas_res: usize) -> RenderPlan {
+        RenderPlan {
+            width,
+            height: 0,
+            atlas_res,
+            base: vec![],
+            tap_pixel: vec![],
+            tap_texel: vec![],
+            tap_weight: vec![],
+            tap_colour: vec![],
+            coverage: vec![],
+            object_box: None,
+        }
+    }
+
     /// The plan of a whole view from the plans of its bands of rows, top to bottom (all of one
     /// width and atlas): the same plan, bit for bit, as shading the view at once.
-    pub fn stack(bands: Vec<RenderPlan>) -> RenderPlan {
+    pub fn stack(bands: impl IntoIterator<Item = RenderPlan>) -> RenderPlan {
         let mut bands = bands.into_iter();
         let mut out = bands.next().expect("stack needs at least one band");
         for b in bands {
