@@ -106,14 +106,18 @@ fn detectors_on_libtorch_match_flex_forward_and_backward() {
 }
 
 /// The fused kernels' forward and backward on libtorch (ATen's silu/silu_backward,
-/// sigmoid_backward, leaky_relu_backward) against Flex's, including huge and saturating inputs.
+/// sigmoid_backward, leaky_relu_backward, hardswish/hardswish_backward, threshold_backward,
+/// hardtanh_backward) against Flex's, including huge and saturating inputs and the kinks (0, ±3,
+/// 6), where both take the same one-sided derivative.
 #[test]
 fn libtorch_activation_kernels_match_flex_at_the_extremes() {
     let run = |dev: &Device, f: &dyn Fn(Tensor<4>) -> Tensor<4>| {
         let train = Device::autodiff(dev.clone());
         let mut x = seeded([1, 4, 16, 16], 5, (-12.0, 12.0), &train);
         // Saturating and huge values, and exact zeros, in the first plane.
-        let extremes = [1e30f32, -1e30, 88.0, -88.0, 0.0, -0.0, 1e-30, 40.0];
+        let extremes = [
+            1e30f32, -1e30, 88.0, -88.0, 0.0, -0.0, 1e-30, 40.0, 3.0, -3.0, 6.0,
+        ];
         let mut v = host(x.clone());
         v[..extremes.len()].copy_from_slice(&extremes);
         x = Tensor::from_data(TensorData::new(v, [1, 4, 16, 16]), &train).require_grad();
@@ -124,12 +128,15 @@ fn libtorch_activation_kernels_match_flex_at_the_extremes() {
         (host(y), host(x.grad(&g).unwrap()))
     };
     type Act = fn(Tensor<4>) -> Tensor<4>;
-    let acts: [(&str, Act); 3] = [
+    let acts: [(&str, Act); 6] = [
         ("sigmoid", detect::activation::sigmoid),
         ("silu", detect::activation::silu),
         ("leaky_relu", |x| {
             burn::tensor::activation::leaky_relu(x, 0.1)
         }),
+        ("hard_swish", |x| detect::activation::hard_swish(x, 1.7)),
+        ("relu", detect::activation::relu),
+        ("relu6", detect::activation::relu6),
     ];
     for (name, f) in acts {
         let (yf, gf) = run(&flex(), &f);

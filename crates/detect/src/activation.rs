@@ -1,9 +1,12 @@
-//! Sigmoid, SiLU and leaky ReLU, forward and backward, at vector speed on the CPU.
+//! Sigmoid, SiLU, leaky ReLU, hard swish, ReLU and ReLU6, forward and backward, at vector speed
+//! on the CPU.
 //!
 //! The detectors' activations were a quarter of a YOLO forward pass: burn's Flex evaluates a
 //! sigmoid element by element with a branch and a scalar `exp` on one thread, SiLU is composed
-//! as `x · sigmoid(x)` (three passes forward, five backward), and leaky ReLU as a mask, a scaled
-//! copy and a select. Here each is one pass forward and one pass backward (the derivative is
+//! as `x · sigmoid(x)` (three passes forward, five backward), leaky ReLU as a mask, a scaled
+//! copy and a select, MobileNetV3's hard swish (CenterNet) as six passes forward and more
+//! backward, ReLU6 as two clamps with two masks each. Here each is one pass forward and one pass
+//! backward (the derivative is
 //! computed from the input, fused with the incoming gradient), through a burn *backend
 //! extension*: [`ActivationKernels`] has composite default bodies (any backend gets them; the
 //! `gpu` build's wgpu backend uses them), a Flex implementation on f32 slices (a polynomial `exp`
@@ -17,7 +20,9 @@
 //! onnxruntime moved by as much as with this one (1.6–2.0e-4 of the largest box output on the
 //! test photos, against 1.2–2.2e-4 with f32, and onnxruntime against itself 0.7–2.8e-4): on a
 //! random-weight network that is float noise amplified, not the kernel's error. The library calls the tensor-level functions
-//! ([`sigmoid`], [`silu`], [`leaky_relu`]); the backend is whatever the tensor's device is.
+//! ([`sigmoid`], [`silu`], [`leaky_relu`], [`hard_swish`], [`relu`], [`relu6`]); the backend is
+//! whatever the tensor's device is. At the kinks (0, ±3, 6) the derivative is ATen's one-sided
+//! one (TensorFlow's for ReLU and ReLU6).
 
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -68,6 +73,80 @@ pub(crate) trait ActivationKernels: Backend {
         let scaled = Self::float_mul_scalar(g.clone(), slope.into());
         Self::float_mask_where(g, neg, scaled)
     }
+    /// `scale · x · clamp(x/6 + 1/2, 0, 1)`: `scale` times PyTorch's `hardswish` (MobileNetV3's
+    /// activation as TFJS graphs spell it, fused by `tfjs::fuse::hard_swish`).
+    fn act_hard_swish(x: FloatTensor<Self>, scale: f32) -> FloatTensor<Self> {
+        composite::hard_swish::<Self>(x, scale)
+    }
+    /// `g · scale · (0 where x ≤ −3, x/3 + 1/2 where −3 < x < 3, 1 where x ≥ 3)`: ATen's
+    /// `hardswish_backward` times `scale` (and TensorFlow's at the kinks, through its ReLU6).
+    fn act_hard_swish_backward(
+        x: FloatTensor<Self>,
+        g: FloatTensor<Self>,
+        scale: f32,
+    ) -> FloatTensor<Self> {
+        composite::hard_swish_backward::<Self>(x, g, scale)
+    }
+    /// `clamp(x, 0, hi)`: ReLU (`hi = ∞`) and ReLU6.
+    fn act_relu_to(x: FloatTensor<Self>, hi: f32) -> FloatTensor<Self> {
+        composite::relu_to::<Self>(x, hi)
+    }
+    /// `g` where `0 < x < hi`, 0 elsewhere (ATen's `threshold_backward`, `hardtanh_backward`).
+    fn act_relu_to_backward(
+        x: FloatTensor<Self>,
+        g: FloatTensor<Self>,
+        hi: f32,
+    ) -> FloatTensor<Self> {
+        composite::relu_to_backward::<Self>(x, g, hi)
+    }
+}
+
+/// Hard swish and clamped ReLU composed of burn's ops, for any backend: the trait's default
+/// bodies, and Flex's route for what its kernels do not take (not f32).
+mod composite {
+    use super::*;
+
+    pub(super) fn hard_swish<B: Backend>(x: FloatTensor<B>, scale: f32) -> FloatTensor<B> {
+        let h = B::float_add_scalar(B::float_div_scalar(x.clone(), 6f32.into()), 0.5f32.into());
+        let h = B::float_clamp(h, 0f32.into(), 1f32.into());
+        B::float_mul(B::float_mul_scalar(x, scale.into()), h)
+    }
+    pub(super) fn hard_swish_backward<B: Backend>(
+        x: FloatTensor<B>,
+        g: FloatTensor<B>,
+        scale: f32,
+    ) -> FloatTensor<B> {
+        let dtype = burn::backend::get_or_init_device_settings::<B>(&x.device()).bool_dtype;
+        let low = B::float_lower_equal_elem(x.clone(), (-3f32).into(), dtype);
+        let high = B::float_greater_equal_elem(x.clone(), 3f32.into(), dtype);
+        let d = B::float_add_scalar(B::float_div_scalar(x, 3f32.into()), 0.5f32.into());
+        let d = B::float_mask_fill(d, high, 1f32.into());
+        let d = B::float_mask_fill(d, low, 0f32.into());
+        B::float_mul(B::float_mul_scalar(g, scale.into()), d)
+    }
+    pub(super) fn relu_to<B: Backend>(x: FloatTensor<B>, hi: f32) -> FloatTensor<B> {
+        let y = B::float_clamp_min(x, 0f32.into());
+        match hi.is_finite() {
+            true => B::float_clamp_max(y, hi.into()),
+            false => y,
+        }
+    }
+    pub(super) fn relu_to_backward<B: Backend>(
+        x: FloatTensor<B>,
+        g: FloatTensor<B>,
+        hi: f32,
+    ) -> FloatTensor<B> {
+        let dtype = burn::backend::get_or_init_device_settings::<B>(&x.device()).bool_dtype;
+        let off = B::float_lower_equal_elem(x.clone(), 0f32.into(), dtype);
+        let g = B::float_mask_fill(g, off, 0f32.into());
+        match hi.is_finite() {
+            true => {
+                let top = B::float_greater_equal_elem(x, hi.into(), dtype);
+                B::float_mask_fill(g, top, 0f32.into())
+            }
+            false => g,
+        }
+    }
 }
 
 /// `sigmoid(x)`, elementwise.
@@ -87,6 +166,30 @@ pub(crate) fn leaky_relu<const D: usize>(x: Tensor<D>, slope: f32) -> Tensor<D> 
     Tensor::from_dispatch(<Dispatch as ActivationKernels>::act_leaky_relu(
         x.into_dispatch(),
         slope,
+    ))
+}
+
+/// `scale · x · clamp(x/6 + 1/2, 0, 1)` (hard swish times `scale`), elementwise.
+pub fn hard_swish<const D: usize>(x: Tensor<D>, scale: f32) -> Tensor<D> {
+    Tensor::from_dispatch(<Dispatch as ActivationKernels>::act_hard_swish(
+        x.into_dispatch(),
+        scale,
+    ))
+}
+
+/// `max(x, 0)`, elementwise.
+pub fn relu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
+    Tensor::from_dispatch(<Dispatch as ActivationKernels>::act_relu_to(
+        x.into_dispatch(),
+        f32::INFINITY,
+    ))
+}
+
+/// `clamp(x, 0, 6)`, elementwise.
+pub fn relu6<const D: usize>(x: Tensor<D>) -> Tensor<D> {
+    Tensor::from_dispatch(<Dispatch as ActivationKernels>::act_relu_to(
+        x.into_dispatch(),
+        6.0,
     ))
 }
 
@@ -114,6 +217,24 @@ impl ActivationKernels for Flex {
             slow::leaky_relu_backward(x, g, slope)
         })
     }
+    fn act_hard_swish(x: FlexTensor, scale: f32) -> FlexTensor {
+        map1(x, HardSwish(scale), |x| {
+            composite::hard_swish::<Flex>(x, scale)
+        })
+    }
+    fn act_hard_swish_backward(x: FlexTensor, g: FlexTensor, scale: f32) -> FlexTensor {
+        map2(x, g, HardSwish(scale), |x, g| {
+            composite::hard_swish_backward::<Flex>(x, g, scale)
+        })
+    }
+    fn act_relu_to(x: FlexTensor, hi: f32) -> FlexTensor {
+        map1(x, ReluTo(hi), |x| composite::relu_to::<Flex>(x, hi))
+    }
+    fn act_relu_to_backward(x: FlexTensor, g: FlexTensor, hi: f32) -> FlexTensor {
+        map2(x, g, ReluTo(hi), |x, g| {
+            composite::relu_to_backward::<Flex>(x, g, hi)
+        })
+    }
 }
 
 /// An elementwise function of the input (forward) or of the input and the incoming gradient
@@ -138,6 +259,10 @@ struct Silu;
 struct SiluGrad;
 #[derive(Clone, Copy)]
 struct Leaky(f32);
+#[derive(Clone, Copy)]
+struct HardSwish(f32);
+#[derive(Clone, Copy)]
+struct ReluTo(f32);
 
 impl Lane for Sigmoid {
     #[inline(always)]
@@ -180,6 +305,45 @@ impl Lane for Leaky {
             self.0 * g
         } else {
             g
+        }
+    }
+}
+
+impl Lane for HardSwish {
+    #[inline(always)]
+    fn f(self, x: f32) -> f32 {
+        self.0 * x * (x / 6.0 + 0.5).clamp(0.0, 1.0)
+    }
+    #[inline(always)]
+    fn fg(self, x: f32, g: f32) -> f32 {
+        let d = if x <= -3.0 {
+            0.0
+        } else if x >= 3.0 {
+            1.0
+        } else {
+            x / 3.0 + 0.5
+        };
+        g * self.0 * d
+    }
+}
+impl Lane for ReluTo {
+    #[inline(always)]
+    fn f(self, x: f32) -> f32 {
+        // NaN stays NaN (as in burn's clamp), which `x.clamp` would not promise.
+        if x > self.0 {
+            self.0
+        } else if x < 0.0 {
+            0.0
+        } else {
+            x
+        }
+    }
+    #[inline(always)]
+    fn fg(self, x: f32, g: f32) -> f32 {
+        if x > 0.0 && x < self.0 {
+            g
+        } else {
+            0.0
         }
     }
 }
@@ -389,6 +553,12 @@ impl<B: Backend + ActivationKernels, C: CheckpointStrategy> ActivationKernels fo
     fn act_leaky_relu(x: FloatTensor<Self>, slope: f32) -> FloatTensor<Self> {
         tracked::<B, C>(Fused::LeakyRelu(slope), x)
     }
+    fn act_hard_swish(x: FloatTensor<Self>, scale: f32) -> FloatTensor<Self> {
+        tracked::<B, C>(Fused::HardSwish(scale), x)
+    }
+    fn act_relu_to(x: FloatTensor<Self>, hi: f32) -> FloatTensor<Self> {
+        tracked::<B, C>(Fused::ReluTo(hi), x)
+    }
 }
 
 /// One fused activation as an autodiff op: the input is kept, the backward is one kernel.
@@ -397,6 +567,8 @@ enum Fused {
     Sigmoid,
     Silu,
     LeakyRelu(f32),
+    HardSwish(f32),
+    ReluTo(f32),
 }
 
 impl Fused {
@@ -405,6 +577,8 @@ impl Fused {
             Fused::Sigmoid => B::act_sigmoid(x),
             Fused::Silu => B::act_silu(x),
             Fused::LeakyRelu(a) => B::act_leaky_relu(x, a),
+            Fused::HardSwish(k) => B::act_hard_swish(x, k),
+            Fused::ReluTo(hi) => B::act_relu_to(x, hi),
         }
     }
     fn backward<B: ActivationKernels>(
@@ -416,6 +590,8 @@ impl Fused {
             Fused::Sigmoid => B::act_sigmoid_backward(x, g),
             Fused::Silu => B::act_silu_backward(x, g),
             Fused::LeakyRelu(a) => B::act_leaky_relu_backward(x, g, a),
+            Fused::HardSwish(k) => B::act_hard_swish_backward(x, g, k),
+            Fused::ReluTo(hi) => B::act_relu_to_backward(x, g, hi),
         }
     }
 }
@@ -517,7 +693,7 @@ mod tests {
         let data = seeded(n, 12.0, 7);
         let weights = seeded(n, 1.0, 8);
         type Op = fn(Tensor<4>) -> Tensor<4>;
-        let cases: [(&str, Op, Op); 3] = [
+        let cases: [(&str, Op, Op); 6] = [
             ("sigmoid", sigmoid, activation::sigmoid),
             ("silu", silu, |x| x.clone() * activation::sigmoid(x)),
             (
@@ -525,6 +701,13 @@ mod tests {
                 |x| leaky_relu(x, 0.1),
                 |x| activation::leaky_relu(x, 0.1),
             ),
+            (
+                "hard_swish",
+                |x| hard_swish(x, 1.7),
+                |x| x.clone().mul_scalar(1.7) * activation::hard_sigmoid(x, 1.0 / 6.0, 0.5),
+            ),
+            ("relu", relu, activation::relu),
+            ("relu6", relu6, |x| x.clamp(0.0, 6.0)),
         ];
         for (name, fast, reference) in cases {
             for strided in [false, true] {

@@ -7,10 +7,43 @@
 
 use crate::conv::conv2d;
 use anyhow::{bail, Result};
-use burn::tensor::ops::{ConvOptions, PadMode};
+use burn::tensor::ops::ConvOptions;
 use burn::tensor::Tensor;
 
 /// numpy's broadcast of two shapes (aligned at the last axis; a 1 stretches).
+/// `x` with `pairs[i]` = (before, after) values of `value` added along its last `pairs.len()`
+/// axes, as burn's `pad` with `PadMode::Constant`. burn builds that constant on the host on
+/// backends without a native `full` (libtorch: a host buffer the size of the output, then a
+/// copy), which was most of NanoDet's pads there; zeros, a scalar add and a slice assignment stay
+/// on the device. The gradient is the slice of the output's.
+pub fn pad_constant<const D: usize>(
+    x: Tensor<D>,
+    pairs: &[(usize, usize)],
+    value: f32,
+) -> Tensor<D> {
+    assert!(
+        pairs.len() <= D,
+        "{} padding pairs for a rank-{D} tensor",
+        pairs.len()
+    );
+    let dims = x.dims();
+    let first = D - pairs.len();
+    let (mut out, mut centre) = (dims, dims.map(|d| 0..d));
+    for (i, &(before, after)) in pairs.iter().enumerate() {
+        out[first + i] += before + after;
+        centre[first + i] = before..before + dims[first + i];
+    }
+    if out == dims {
+        return x;
+    }
+    let base = Tensor::<D>::zeros(out, &x.device());
+    let base = match value == 0.0 {
+        true => base,
+        false => base.add_scalar(value),
+    };
+    base.slice_assign(centre, x)
+}
+
 pub fn broadcast_shape(a: &[usize], b: &[usize]) -> Result<Vec<usize>> {
     let r = a.len().max(b.len());
     let at = |s: &[usize], k: usize| {
@@ -55,7 +88,7 @@ pub fn taps(
     let (fw, ew) = fit(w, pw, k[1], dil[1], ow, stride[1]);
     let xp = match (ph.0, eh, pw.0, ew) {
         (0, 0, 0, 0) => x,
-        _ => x.pad([(ph.0, eh), (pw.0, ew)], PadMode::Constant(0.0)),
+        _ => pad_constant(x, &[(ph.0, eh), (pw.0, ew)], 0.0),
     };
     let [_, _, hp, wp] = xp.dims();
     let xp = match (hp, wp) == (fh, fw) {

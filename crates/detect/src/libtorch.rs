@@ -1,5 +1,6 @@
 //! The kernels on burn's LibTorch backend (the `tch` fast path): libtorch's own fused
-//! activations (one ATen call forward and one backward, as PyTorch's autograd runs them) and its
+//! activations (sigmoid, SiLU, leaky ReLU, hard swish, ReLU and ReLU6: one ATen call forward and
+//! one backward, as PyTorch's autograd runs them) and its
 //! convolution (oneDNN forward; the input gradient as burn's transposed convolution, which
 //! libtorch also runs on oneDNN).
 //!
@@ -15,7 +16,10 @@
 use crate::activation::ActivationKernels;
 use crate::conv::ConvKernels;
 use burn::backend::libtorch::TchTensor;
+use burn::backend::ops::ModuleOps;
 use burn::backend::LibTorch;
+use burn::backend::TensorMetadata;
+use burn::tensor::ops::ConvOptions;
 
 impl ActivationKernels for LibTorch {
     fn act_sigmoid(x: TchTensor) -> TchTensor {
@@ -35,7 +39,83 @@ impl ActivationKernels for LibTorch {
     fn act_leaky_relu_backward(x: TchTensor, g: TchTensor, slope: f32) -> TchTensor {
         TchTensor::new(x.tensor.leaky_relu_backward(&g.tensor, slope as f64, false))
     }
+    fn act_hard_swish(x: TchTensor, scale: f32) -> TchTensor {
+        let y = x.tensor.hardswish();
+        TchTensor::new(match scale == 1.0 {
+            true => y,
+            false => y * scale as f64,
+        })
+    }
+    fn act_hard_swish_backward(x: TchTensor, g: TchTensor, scale: f32) -> TchTensor {
+        let g = match scale == 1.0 {
+            true => g.tensor,
+            false => g.tensor * scale as f64,
+        };
+        TchTensor::new(x.tensor.hardswish_backward(&g))
+    }
+    fn act_relu_to(x: TchTensor, hi: f32) -> TchTensor {
+        TchTensor::new(match hi.is_finite() {
+            true => x.tensor.clamp(0.0, hi as f64),
+            false => x.tensor.relu(),
+        })
+    }
+    fn act_relu_to_backward(x: TchTensor, g: TchTensor, hi: f32) -> TchTensor {
+        TchTensor::new(match hi.is_finite() {
+            true => x.tensor.hardtanh_backward(&g.tensor, 0.0, hi as f64),
+            false => x.tensor.threshold_backward(&g.tensor, 0.0),
+        })
+    }
 }
 
-/// The default bodies: burn-tch's `conv2d` is libtorch's, and the gradients compose libtorch ops.
-impl ConvKernels for LibTorch {}
+/// burn's own convolution and gradients (libtorch's `conv2d`, the input gradient as a transposed
+/// convolution), except for an asymmetrically padded input (TensorFlow's SAME padding at stride
+/// 2: CenterNet's and NanoDet's downsampling layers): burn pads it with a constant it builds on
+/// the host on this backend (a buffer the size of the padded input, filled and copied on every
+/// call, forward and backward); here ATen's `constant_pad_nd` pads it, and the input gradient is
+/// cropped back.
+impl ConvKernels for LibTorch {
+    fn cac_conv2d(x: TchTensor, w: TchTensor, options: ConvOptions<2>) -> TchTensor {
+        let (x, options) = pad_asymmetric(x, options);
+        LibTorch::conv2d(x, w, None, options)
+    }
+    fn cac_conv2d_x_backward(
+        x: TchTensor,
+        w: TchTensor,
+        g: TchTensor,
+        options: ConvOptions<2>,
+    ) -> TchTensor {
+        if !options.is_asymmetric() {
+            return LibTorch::conv2d_x_backward(x, w, g, options);
+        }
+        let [_, _, h, wd] = x.shape().dims();
+        let [(top, _), (left, _)] = options.padding;
+        let (x, options) = pad_asymmetric(x, options);
+        let grad = LibTorch::conv2d_x_backward(x, w, g, options).tensor;
+        TchTensor::new(
+            grad.narrow(2, top as i64, h as i64)
+                .narrow(3, left as i64, wd as i64),
+        )
+    }
+    fn cac_conv2d_weight_backward(
+        x: TchTensor,
+        w: TchTensor,
+        g: TchTensor,
+        options: ConvOptions<2>,
+    ) -> TchTensor {
+        let (x, options) = pad_asymmetric(x, options);
+        LibTorch::conv2d_weight_backward(x, w, g, options)
+    }
+}
+
+/// `x` padded by `options.padding` with zeros on the device, and the options without padding;
+/// unchanged where the padding is symmetric (the convolution pads that itself).
+fn pad_asymmetric(x: TchTensor, options: ConvOptions<2>) -> (TchTensor, ConvOptions<2>) {
+    if !options.is_asymmetric() {
+        return (x, options);
+    }
+    let [(top, bottom), (left, right)] = options.padding;
+    let pad = [left, right, top, bottom].map(|p| p as i64);
+    let x = TchTensor::new(x.tensor.constant_pad_nd(pad));
+    let options = ConvOptions::new(options.stride, [0, 0], options.dilation, options.groups);
+    (x, options)
+}

@@ -225,9 +225,10 @@ impl OnnxDetector {
             );
             let (left, top) = ((nw - rw) / 2, (nh - rh) / 2);
             let x = resize_bilinear(images, 2, 3, rh, rw, false, true);
-            let x = x.pad(
-                [(top, nh - rh - top), (left, nw - rw - left)],
-                burn::tensor::ops::PadMode::Constant(self.config.pad_value),
+            let x = crate::kernels::pad_constant(
+                x,
+                &[(top, nh - rh - top), (left, nw - rw - left)],
+                self.config.pad_value,
             );
             (
                 x,

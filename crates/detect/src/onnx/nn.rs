@@ -9,13 +9,11 @@
 use super::args::{axis, broadcast, expand, Args};
 use super::value::{pad6, Dev, Host, Val, MAX_RANK};
 use crate::conv::conv2d;
-use crate::kernels::{conv_im2col, IM2COL_MAX_CHANNELS};
+use crate::kernels::{conv_im2col, pad_constant, IM2COL_MAX_CHANNELS};
 use crate::nms::non_max_suppression as nms;
 use anyhow::{anyhow, bail, ensure, Result};
 use burn::tensor::module::{avg_pool2d, conv_transpose2d, max_pool2d};
-use burn::tensor::ops::{
-    AvgPoolOptions, ConvOptions, ConvTransposeOptions, MaxPoolOptions, PadMode,
-};
+use burn::tensor::ops::{AvgPoolOptions, ConvOptions, ConvTransposeOptions, MaxPoolOptions};
 use burn::tensor::{activation, Int, Tensor, TensorData};
 use ndarray::{ArrayD, Axis, IxDyn};
 
@@ -219,10 +217,7 @@ pub(crate) fn conv_transpose(a: &Args) -> Result<Val> {
     let (w0, w1, wpad) = keep(1, yw);
     let mut y = y.slice([0..s[0], 0..m, h0..h1, w0..w1]);
     if hpad > 0 || wpad > 0 {
-        y = y.pad(
-            [(0, 0), (0, 0), (0, hpad), (0, wpad)],
-            PadMode::Constant(0.0),
-        );
+        y = pad_constant(y, &[(0, hpad), (0, wpad)], 0.0);
     }
     if let Some(b) = a.opt(2) {
         let b = b.dev(a.dev)?;
@@ -732,7 +727,7 @@ pub fn pad(a: &Args) -> Result<Val> {
         shape[k] += b + e;
     }
     Ok(Val::D(Dev {
-        t: x.t.pad(pairs, PadMode::Constant(value)),
+        t: pad_constant(x.t, &pairs, value),
         shape,
     }))
 }

@@ -133,7 +133,7 @@ pub fn eval(node: &NodeDef, opset: i64, dev: &Device, args: &[Option<&Val>]) -> 
     let one = |v: Val| Ok(vec![v]);
     match node.op.as_str() {
         "Identity" | "Dropout" => one(a.input(0)?.clone()),
-        "Relu" => unary(&a, activation::relu),
+        "Relu" => unary(&a, fast::relu),
         "Sigmoid" => unary(&a, fast::sigmoid),
         "Tanh" => unary(&a, |t| t.tanh()),
         "Exp" => unary(&a, |t| t.exp()),
@@ -164,9 +164,7 @@ pub fn eval(node: &NodeDef, opset: i64, dev: &Device, args: &[Option<&Val>]) -> 
             let (al, be) = (a.f("alpha").unwrap_or(0.2), a.f("beta").unwrap_or(0.5));
             unary(&a, move |t| t.mul_scalar(al).add_scalar(be).clamp(0.0, 1.0))
         }
-        "HardSwish" => unary(&a, |t| {
-            t.clone() * t.div_scalar(6.0).add_scalar(0.5).clamp(0.0, 1.0)
-        }),
+        "HardSwish" => unary(&a, |t| fast::hard_swish(t, 1.0)),
         "Clip" => one(ew::clip(&a)?),
         "Add" | "Sub" | "Mul" | "Div" | "Pow" | "Max" | "Min" | "Mod" | "Sum" | "Mean" => {
             one(ew::variadic(&a)?)

@@ -10,12 +10,12 @@ use super::model::{HostData, HostTensor};
 use super::value::{pad4, FloatValue, Node, Value};
 use crate::activation as fast;
 use crate::conv::conv2d;
-use crate::kernels::{broadcast_shape, conv_im2col, IM2COL_MAX_CHANNELS};
+use crate::kernels::{broadcast_shape, conv_im2col, pad_constant, IM2COL_MAX_CHANNELS};
 use crate::preprocess::resize_bilinear;
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use burn::tensor::activation;
 use burn::tensor::module::max_pool2d;
-use burn::tensor::ops::{ConvOptions, MaxPoolOptions, PadMode};
+use burn::tensor::ops::{ConvOptions, MaxPoolOptions};
 use burn::tensor::{Device, Tensor, TensorData};
 use std::collections::HashMap;
 
@@ -33,14 +33,12 @@ pub fn eval(
         "Conv2D" | "_FusedConv2D" | "DepthwiseConv2dNative" | "FusedDepthwiseConv2dNative" => {
             one(conv(node, conv_weight, dev, args)?)
         }
-        "Relu" => unary(dev, args, activation::relu),
-        "Relu6" => unary(dev, args, |t| t.clamp(0.0, 6.0)),
+        "Relu" => unary(dev, args, fast::relu),
+        "Relu6" => unary(dev, args, fast::relu6),
         // Made by `fuse::hard_swish` from Mul(Mul(x, c), Relu6(Add(x, 3))); scale = 6c.
         "HardSwish" => {
             let scale = attr_f(node, "scale").context("HardSwish without scale")?;
-            unary(dev, args, |t| {
-                t.clone().mul_scalar(scale) * activation::hard_sigmoid(t, 1.0 / 6.0, 0.5)
-            })
+            unary(dev, args, |t| fast::hard_swish(t, scale as f32))
         }
         "Sigmoid" => unary(dev, args, fast::sigmoid),
         "Tanh" => unary(dev, args, activation::tanh),
@@ -349,8 +347,8 @@ fn conv(
     };
     let y = match activation_op.as_deref() {
         None => y,
-        Some("Relu") => activation::relu(y),
-        Some("Relu6") => y.clamp(0.0, 6.0),
+        Some("Relu") => fast::relu(y),
+        Some("Relu6") => fast::relu6(y),
         Some("Sigmoid") => fast::sigmoid(y),
         Some("Elu") => activation::elu(y, 1.0),
         Some(_) => {
@@ -688,7 +686,7 @@ fn pad(dev: &Device, op: &str, args: &[&Value]) -> Result<FloatValue> {
         shape[k] += (pv[2 * k] + pv[2 * k + 1]) as usize;
     }
     Ok(FloatValue {
-        t: x.t.pad(pairs, PadMode::Constant(value)),
+        t: pad_constant(x.t, &pairs, value),
         shape,
         nchw: false,
     })
@@ -709,10 +707,17 @@ fn max_pool(dev: &Device, node: &Node, args: &[&Value]) -> Result<FloatValue> {
     let padding = attr_s(node, "padding").unwrap_or_else(|| "VALID".into());
     let ph = tf_padding(&padding, x.shape[1], k[0], s[0], 1)?;
     let pw = tf_padding(&padding, x.shape[2], k[1], s[1], 1)?;
-    let opts = MaxPoolOptions::new(k)
-        .with_stride(s)
-        .with_padding_pairs([ph, pw]);
-    Ok(FloatValue::from_nchw(max_pool2d(x.to_nchw(), opts)))
+    // Asymmetric padding (SAME at stride 2) with −∞ added here rather than by burn's `max_pool2d`,
+    // which builds that constant on the host on some backends (`kernels::pad_constant`).
+    let opts = MaxPoolOptions::new(k).with_stride(s);
+    let (x, opts) = match ph.0 == ph.1 && pw.0 == pw.1 {
+        true => (x.to_nchw(), opts.with_padding_pairs([ph, pw])),
+        false => (
+            pad_constant(x.to_nchw(), &[ph, pw], f32::NEG_INFINITY),
+            opts,
+        ),
+    };
+    Ok(FloatValue::from_nchw(max_pool2d(x, opts)))
 }
 
 fn resize(dev: &Device, node: &Node, args: &[&Value]) -> Result<FloatValue> {
