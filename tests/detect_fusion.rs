@@ -205,9 +205,10 @@ fn one_hard_swish_node_matches_the_plain_chain_on_its_kinks() {
         a.near_kink >= 4,
         "the inputs must probe both kinks closely: {a:?}"
     );
-    // At the kinks themselves both forms take the same side (clamp passes the gradient at its
-    // bounds in both), so the derivative is c·r + x·c there in both: exactly -3c at -3, 9c at 3.
-    for (k, want) in [(-3.0f32, -3.0 * C16), (3.0, 9.0 * C16)] {
+    // At the kinks themselves both forms take the same side, TensorFlow's (its ReLU6 passes no
+    // gradient at its bounds; ATen's hardswish_backward agrees), so the derivative is c·r there
+    // in both: 0 at -3 (r = 0), 6c at 3 (r = 6).
+    for (k, want) in [(-3.0f32, 0.0), (3.0, 6.0 * C16)] {
         let i = xs.iter().position(|&v| v == k).unwrap();
         for (name, g) in [("fused", &f.1), ("plain", &p.1)] {
             let got = g[i] / up[i];

@@ -4,8 +4,9 @@
 //! `Mul(X, c)`, `Add(X, 3)`, `Relu6`, `Mul`, i.e. four passes over memory, with `c` the float16
 //! nearest 1/6 (0.16662598, so `6c` is 0.99975586, not 1). [`hard_swish`] rewrites the final
 //! `Mul` into one `HardSwish` node reading `X` with attribute `scale = 6c`, evaluated as
-//! `(X * 6c) * hard_sigmoid(X)` with `hard_sigmoid(X) = clamp(X/6 + 1/2, 0, 1)`: the same
-//! function, in three passes. The bypassed nodes stay in the graph, so a caller that asks for one
+//! `6c · X · clamp(X/6 + 1/2, 0, 1)` by one fused kernel each way (`activation::hard_swish`):
+//! the same function, in one pass, with the chain's derivative at the kinks (TensorFlow's ReLU6
+//! passes no gradient at its bounds: 0 at −3, 6c at 3; `tests/detect_fusion.rs`). The bypassed nodes stay in the graph, so a caller that asks for one
 //! of them by name still gets it; they just no longer run for the others.
 
 use super::model::HostData;
