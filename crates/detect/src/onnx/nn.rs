@@ -9,7 +9,7 @@
 use super::args::{axis, broadcast, expand, Args};
 use super::value::{pad6, Dev, Host, Val, MAX_RANK};
 use crate::conv::conv2d;
-use crate::kernels::{conv_im2col, pad_constant, IM2COL_MAX_CHANNELS};
+use crate::kernels::pad_constant;
 use crate::nms::non_max_suppression as nms;
 use anyhow::{anyhow, bail, ensure, Result};
 use burn::tensor::module::{avg_pool2d, conv_transpose2d, max_pool2d};
@@ -98,30 +98,14 @@ pub fn conv(a: &Args) -> Result<Val> {
         Some(b) => Some(b.dev(a.dev)?.t.reshape([ws[0]])),
         None => None,
     };
-    // A stem with few input channels as im2col + one 1×1 convolution (as the TFJS executor
-    // does: burn's conv2d ran such a layer tap by tap); every other layer through
-    // `detect::conv::conv2d` (dense layers: tiled im2col + matrix products split over threads).
-    let stem = group == 1 && s[1] <= IM2COL_MAX_CHANNELS && ws[2] * ws[3] > 1;
-    let y = match stem {
-        true => conv_im2col(
-            xt.clone(),
-            wt.clone(),
-            bias.clone(),
-            win.stride,
-            win.dilation,
-            win.pads,
-        ),
-        false => None,
-    };
-    let y = match y {
-        Some(y) => y,
-        None => conv2d(
-            xt,
-            wt,
-            bias,
-            ConvOptions::new_with_padding(win.stride, win.pads, win.dilation, group),
-        ),
-    };
+    // Every layer through `detect::conv::conv2d` (dense layers: tiled im2col + matrix products
+    // split over threads), the RGB stem included.
+    let y = conv2d(
+        xt,
+        wt,
+        bias,
+        ConvOptions::new_with_padding(win.stride, win.pads, win.dilation, group),
+    );
     Ok(Val::D(Dev::from(y)?))
 }
 

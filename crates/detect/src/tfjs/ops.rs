@@ -10,7 +10,7 @@ use super::model::{HostData, HostTensor};
 use super::value::{pad4, FloatValue, Node, Value};
 use crate::activation as fast;
 use crate::conv::conv2d;
-use crate::kernels::{broadcast_shape, conv_im2col, pad_constant, IM2COL_MAX_CHANNELS};
+use crate::kernels::{broadcast_shape, pad_constant};
 use crate::preprocess::resize_bilinear;
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use burn::tensor::activation;
@@ -333,18 +333,10 @@ fn conv(
     if !fused.is_empty() && fused[0] != "BiasAdd" {
         bail!("fused_ops {fused:?} is not supported (BiasAdd first expected)");
     }
-    let im2col = !depthwise && channels <= IM2COL_MAX_CHANNELS && kh * kw > 1;
-    let y = match im2col {
-        true => conv_im2col(x.to_nchw(), w.clone(), bias.clone(), stride, dil, [ph, pw]),
-        false => None,
-    };
-    let y = match y {
-        Some(y) => y,
-        None => {
-            let options = ConvOptions::new_with_padding(stride, [ph, pw], dil, groups);
-            conv2d(x.to_nchw(), w, bias, options)
-        }
-    };
+    // Every layer through `detect::conv::conv2d`, the RGB stem included (its own im2col route,
+    // from before cac's dense convolution kernels, was 13–18% slower on Flex by then).
+    let options = ConvOptions::new_with_padding(stride, [ph, pw], dil, groups);
+    let y = conv2d(x.to_nchw(), w, bias, options);
     let y = match activation_op.as_deref() {
         None => y,
         Some("Relu") => fast::relu(y),
