@@ -45,8 +45,8 @@ pub struct Trainer<'a> {
     /// Ray-cast and shade the next iteration's views on another thread while this one's
     /// detectors run ([`Trainer::step`]): on by default when the device is not the host's CPU
     /// (a GPU leaves the cores idle). Off for Flex and libtorch's CPU: both compete for the same
-    /// cores, which measured no faster on Flex and 8% slower on libtorch (whose OpenMP threads
-    /// spin while the renderer's take their cores) on two cores (docs/attack.md).
+    /// cores, which measured no faster on Flex and 14% slower on libtorch (whose OpenMP threads
+    /// spin while the renderer's take their cores) on two cores (docs/detectors.md).
     pub plan_ahead: bool,
     /// The next iteration's views when planned ahead; `None` before the first step, when not
     /// planning ahead, and for 2D methods.

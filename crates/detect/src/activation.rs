@@ -118,7 +118,8 @@ mod composite {
     ) -> FloatTensor<B> {
         let dtype = burn::backend::get_or_init_device_settings::<B>(&x.device()).bool_dtype;
         let low = B::float_lower_equal_elem(x.clone(), (-3f32).into(), dtype);
-        let high = B::float_greater_equal_elem(x.clone(), 3f32.into(), dtype);
+        // Not below 3 (rather than at least 3), so NaN takes 1 and passes `g` as in ATen.
+        let high = B::bool_not(B::float_lower_elem(x.clone(), 3f32.into(), dtype));
         let d = B::float_add_scalar(B::float_div_scalar(x, 3f32.into()), 0.5f32.into());
         let d = B::float_mask_fill(d, high, 1f32.into());
         let d = B::float_mask_fill(d, low, 0f32.into());
@@ -316,12 +317,13 @@ impl Lane for HardSwish {
     }
     #[inline(always)]
     fn fg(self, x: f32, g: f32) -> f32 {
+        // In ATen's order, so NaN passes `g` through as there.
         let d = if x <= -3.0 {
             0.0
-        } else if x >= 3.0 {
-            1.0
-        } else {
+        } else if x < 3.0 {
             x / 3.0 + 0.5
+        } else {
+            1.0
         };
         g * self.0 * d
     }
@@ -340,10 +342,11 @@ impl Lane for ReluTo {
     }
     #[inline(always)]
     fn fg(self, x: f32, g: f32) -> f32 {
-        if x > 0.0 && x < self.0 {
-            g
-        } else {
+        // As ATen's threshold/hardtanh backward: NaN passes `g` through.
+        if x <= 0.0 || x >= self.0 {
             0.0
+        } else {
+            g
         }
     }
 }
@@ -675,6 +678,11 @@ mod tests {
             );
         }
         assert!(sigmoid_f32(f32::NAN).is_nan());
+        // NaN forward stays NaN; backward passes the gradient through as ATen's kernels do.
+        assert!(ReluTo(6.0).f(f32::NAN).is_nan() && HardSwish(1.7).f(f32::NAN).is_nan());
+        assert_eq!(ReluTo(6.0).fg(f32::NAN, 2.0), 2.0);
+        assert_eq!(ReluTo(f32::INFINITY).fg(f32::NAN, 2.0), 2.0);
+        assert_eq!(HardSwish(1.5).fg(f32::NAN, 2.0), 3.0);
         assert!(exp_f32(f32::NAN).is_nan());
         assert!(exp_f32(1e30).is_finite() && exp_f32(-1e30) > 0.0);
         // SiLU of a huge negative: about 0 (the clamp leaves sigmoid at 2.9e-39), never NaN.

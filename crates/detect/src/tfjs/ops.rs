@@ -684,7 +684,7 @@ fn pad(dev: &Device, op: &str, args: &[&Value]) -> Result<FloatValue> {
     })
 }
 
-/// (A max-pool as the maximum of the window's strided views, like `taps`, was tried: slower than
+/// (A max-pool as the maximum of the window's strided views was tried: slower than
 /// Flex's `max_pool2d`, 9.6 against 6.1 ms on NanoDet's pool.)
 fn max_pool(dev: &Device, node: &Node, args: &[&Value]) -> Result<FloatValue> {
     nhwc_only(node)?;
