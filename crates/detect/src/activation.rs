@@ -30,7 +30,7 @@ use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{unary, Backward, Ops, OpsKind};
 use burn::backend::autodiff::NodeId;
 use burn::backend::flex::{FlexTensor, Layout};
-use burn::backend::ops::{ActivationOps, FloatTensorOps};
+use burn::backend::ops::ActivationOps;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::TensorMetadata;
 use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, Flex};
@@ -46,18 +46,14 @@ pub(crate) trait ActivationKernels: Backend {
         Self::sigmoid(x)
     }
     fn act_sigmoid_backward(x: FloatTensor<Self>, g: FloatTensor<Self>) -> FloatTensor<Self> {
-        Self::sigmoid_backward(Self::sigmoid(x), g)
+        composite::sigmoid_backward::<Self>(x, g)
     }
     fn act_silu(x: FloatTensor<Self>) -> FloatTensor<Self> {
-        let s = Self::sigmoid(x.clone());
-        Self::float_mul(x, s)
+        composite::silu::<Self>(x)
     }
     /// `g · s · (1 + x · (1 − s))` with `s = sigmoid(x)`.
     fn act_silu_backward(x: FloatTensor<Self>, g: FloatTensor<Self>) -> FloatTensor<Self> {
-        let s = Self::sigmoid(x.clone());
-        let one_minus = Self::float_add_scalar(Self::float_neg(s.clone()), 1.0.into());
-        let inner = Self::float_add_scalar(Self::float_mul(x, one_minus), 1.0.into());
-        Self::float_mul(g, Self::float_mul(s, inner))
+        composite::silu_backward::<Self>(x, g)
     }
     fn act_leaky_relu(x: FloatTensor<Self>, slope: f32) -> FloatTensor<Self> {
         Self::leaky_relu(x, slope.into())
@@ -68,10 +64,7 @@ pub(crate) trait ActivationKernels: Backend {
         g: FloatTensor<Self>,
         slope: f32,
     ) -> FloatTensor<Self> {
-        let dtype = burn::backend::get_or_init_device_settings::<Self>(&x.device()).bool_dtype;
-        let neg = Self::float_lower_elem(x, 0f32.into(), dtype);
-        let scaled = Self::float_mul_scalar(g.clone(), slope.into());
-        Self::float_mask_where(g, neg, scaled)
+        composite::leaky_relu_backward::<Self>(x, g, slope)
     }
     /// `scale · x · clamp(x/6 + 1/2, 0, 1)`: `scale` times PyTorch's `hardswish` (MobileNetV3's
     /// activation as TFJS graphs spell it, fused by `tfjs::fuse::hard_swish`).
@@ -101,10 +94,40 @@ pub(crate) trait ActivationKernels: Backend {
     }
 }
 
-/// Hard swish and clamped ReLU composed of burn's ops, for any backend: the trait's default
-/// bodies, and Flex's route for what its kernels do not take (not f32).
+/// The activations composed of burn's ops, for any backend: the trait's default bodies, and
+/// Flex's route for what its kernels do not take (not f32).
 mod composite {
     use super::*;
+
+    pub(super) fn sigmoid_backward<B: Backend>(
+        x: FloatTensor<B>,
+        g: FloatTensor<B>,
+    ) -> FloatTensor<B> {
+        B::sigmoid_backward(B::sigmoid(x), g)
+    }
+    pub(super) fn silu<B: Backend>(x: FloatTensor<B>) -> FloatTensor<B> {
+        let s = B::sigmoid(x.clone());
+        B::float_mul(x, s)
+    }
+    pub(super) fn silu_backward<B: Backend>(
+        x: FloatTensor<B>,
+        g: FloatTensor<B>,
+    ) -> FloatTensor<B> {
+        let s = B::sigmoid(x.clone());
+        let one_minus = B::float_add_scalar(B::float_neg(s.clone()), 1.0.into());
+        let inner = B::float_add_scalar(B::float_mul(x, one_minus), 1.0.into());
+        B::float_mul(g, B::float_mul(s, inner))
+    }
+    pub(super) fn leaky_relu_backward<B: Backend>(
+        x: FloatTensor<B>,
+        g: FloatTensor<B>,
+        slope: f32,
+    ) -> FloatTensor<B> {
+        let dtype = burn::backend::get_or_init_device_settings::<B>(&x.device()).bool_dtype;
+        let neg = B::float_lower_elem(x, 0f32.into(), dtype);
+        let scaled = B::float_mul_scalar(g.clone(), slope.into());
+        B::float_mask_where(g, neg, scaled)
+    }
 
     pub(super) fn hard_swish<B: Backend>(x: FloatTensor<B>, scale: f32) -> FloatTensor<B> {
         let h = B::float_add_scalar(B::float_div_scalar(x.clone(), 6f32.into()), 0.5f32.into());
@@ -202,20 +225,20 @@ impl ActivationKernels for Flex {
         map1(x, Sigmoid, Flex::sigmoid)
     }
     fn act_sigmoid_backward(x: FlexTensor, g: FlexTensor) -> FlexTensor {
-        map2(x, g, SigmoidGrad, slow::sigmoid_backward)
+        map2(x, g, SigmoidGrad, composite::sigmoid_backward::<Flex>)
     }
     fn act_silu(x: FlexTensor) -> FlexTensor {
-        map1(x, Silu, slow::silu)
+        map1(x, Silu, composite::silu::<Flex>)
     }
     fn act_silu_backward(x: FlexTensor, g: FlexTensor) -> FlexTensor {
-        map2(x, g, SiluGrad, slow::silu_backward)
+        map2(x, g, SiluGrad, composite::silu_backward::<Flex>)
     }
     fn act_leaky_relu(x: FlexTensor, slope: f32) -> FlexTensor {
         map1(x, Leaky(slope), |x| Flex::leaky_relu(x, slope.into()))
     }
     fn act_leaky_relu_backward(x: FlexTensor, g: FlexTensor, slope: f32) -> FlexTensor {
         map2(x, g, Leaky(slope), |x, g| {
-            slow::leaky_relu_backward(x, g, slope)
+            composite::leaky_relu_backward::<Flex>(x, g, slope)
         })
     }
     fn act_hard_swish(x: FlexTensor, scale: f32) -> FlexTensor {
@@ -348,30 +371,6 @@ impl Lane for ReluTo {
         } else {
             g
         }
-    }
-}
-
-/// The composite default bodies on Flex, for what the fast path does not take (not f32).
-mod slow {
-    use super::*;
-    pub(crate) fn sigmoid_backward(x: FlexTensor, g: FlexTensor) -> FlexTensor {
-        Flex::sigmoid_backward(Flex::sigmoid(x), g)
-    }
-    pub(crate) fn silu(x: FlexTensor) -> FlexTensor {
-        let s = Flex::sigmoid(x.clone());
-        Flex::float_mul(x, s)
-    }
-    pub(crate) fn silu_backward(x: FlexTensor, g: FlexTensor) -> FlexTensor {
-        let s = Flex::sigmoid(x.clone());
-        let one_minus = Flex::float_add_scalar(Flex::float_neg(s.clone()), 1.0.into());
-        let inner = Flex::float_add_scalar(Flex::float_mul(x, one_minus), 1.0.into());
-        Flex::float_mul(g, Flex::float_mul(s, inner))
-    }
-    pub(crate) fn leaky_relu_backward(x: FlexTensor, g: FlexTensor, slope: f32) -> FlexTensor {
-        let dtype = burn::backend::get_or_init_device_settings::<Flex>(&x.device()).bool_dtype;
-        let neg = Flex::float_lower_elem(x, 0f32.into(), dtype);
-        let scaled = Flex::float_mul_scalar(g.clone(), slope.into());
-        Flex::float_mask_where(g, neg, scaled)
     }
 }
 
