@@ -49,20 +49,17 @@ fn conformance(arch: Arch, images: &[&str]) -> [f64; 5] {
 
         let (ps, pv) = npy(&data(&format!("{name}-{stem}-proposals.npy")));
         assert_eq!(out.proposals.len(), ps[0], "{name} {stem}: proposal count");
-        let mine: Vec<f32> = out.proposals.iter().flatten().copied().collect();
-        let dp = mine
-            .iter()
-            .zip(&pv)
-            .fold(0f64, |m, (a, b)| m.max((a - b).abs() as f64));
-        assert!(dp <= 1e-3, "{name} {stem}: proposals differ by {dp} px");
+        let (order, dp) = proposal_order(&out.proposals, &pv, &format!("{name} {stem}"));
         worst[2] = worst[2].max(dp);
 
         let (_, lv) = npy(&data(&format!("{name}-{stem}-class_logits.npy")));
-        let e = rel(&out.class_logits, &lv);
+        let (a, b) = paired_rows(&out.class_logits, &lv, &order);
+        let e = rel(&a, &b);
         assert!(e <= 1e-4, "{name} {stem}: class logits relative error {e}");
         worst[0] = worst[0].max(e);
         let (rs, rv) = npy(&data(&format!("{name}-{stem}-box_regression.npy")));
-        let e = rel(&out.box_regression[..rs[0] * rs[1]], &rv);
+        let (a, b) = paired_rows(&out.box_regression[..rs[0] * rs[1]], &rv, &order[..rs[0]]);
+        let e = rel(&a, &b);
         assert!(
             e <= 1e-4,
             "{name} {stem}: box regression relative error {e}"
@@ -99,6 +96,52 @@ fn conformance(arch: Arch, images: &[&str]) -> [f64; 5] {
         );
     }
     worst
+}
+
+/// Which of torchvision's proposals (`want`, 4 values each) each of ours is: the one at the same
+/// place, or, where two objectness scores tie to float rounding and the kernels' summation order
+/// ranks them the other way round (libtorch's channels-last convolutions do, as PyTorch builds
+/// do between themselves), one within 4 places of it; each box within 1e-3 px, one to one.
+/// Returns the order and the worst box difference (px).
+fn proposal_order(mine: &[[f32; 4]], want: &[f32], what: &str) -> (Vec<usize>, f64) {
+    let n = want.len() / 4;
+    let gap = |a: &[f32; 4], j: usize| {
+        a.iter()
+            .zip(&want[4 * j..4 * j + 4])
+            .fold(0f64, |m, (p, q)| m.max((p - q).abs() as f64))
+    };
+    let (mut used, mut order, mut worst) = (vec![false; n], Vec::new(), 0f64);
+    for (i, a) in mine.iter().enumerate() {
+        let near = (i.saturating_sub(4)..(i + 5).min(n)).filter(|&j| !used[j]);
+        let best = near
+            .map(|j| (gap(a, j), j))
+            .min_by(|p, q| p.0.total_cmp(&q.0));
+        let Some((d, j)) = best.filter(|&(d, _)| d <= 1e-3) else {
+            panic!("{what}: proposal {i} {a:?} is none of torchvision's near its place");
+        };
+        used[j] = true;
+        order.push(j);
+        worst = worst.max(d);
+    }
+    let moved = order.iter().enumerate().filter(|(i, j)| i != *j).count();
+    assert!(
+        moved <= n / 100,
+        "{what}: {moved} of {n} proposals out of place"
+    );
+    (order, worst)
+}
+
+/// Our rows of `mine` and torchvision's rows of `want` they are (row `i` of ours is row
+/// `order[i]` of torchvision's; both hold `order.len()` rows), leaving out a row whose match
+/// torchvision's file does not hold (it keeps the first rows only).
+fn paired_rows(mine: &[f32], want: &[f32], order: &[usize]) -> (Vec<f32>, Vec<f32>) {
+    let row = mine.len() / order.len();
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    for (i, &j) in order.iter().enumerate().filter(|(_, &j)| j < order.len()) {
+        a.extend_from_slice(&mine[i * row..(i + 1) * row]);
+        b.extend_from_slice(&want[j * row..(j + 1) * row]);
+    }
+    (a, b)
 }
 
 /// The same detections as torchvision's, in torchvision's order except where two scores lie

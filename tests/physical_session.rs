@@ -627,3 +627,89 @@ fn the_twin_lit_by_a_room_turns_the_object_not_the_room() {
         "{e}"
     );
 }
+
+/// `[twin.ibl]`: the rig file sets how finely the room's light is evaluated, as a training
+/// config's `[environment.ibl]` does. Order 0 without occlusion rays shades the object otherwise
+/// than the defaults (order 2, 4 rays) and leaves the room seen above it as it was; an order above 2
+/// or an unknown key is refused naming the rig file.
+#[test]
+fn the_twin_takes_its_room_light_knobs_from_the_rig_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let room = write_room(dir.path());
+    let room = room.to_str().unwrap();
+    let rig_with = |sub: &Path, knobs: &str| {
+        let p = rig_in_room(sub, Some(room), 90.0);
+        let mut text = std::fs::read_to_string(&p).unwrap();
+        text.push_str(knobs);
+        std::fs::write(&p, text).unwrap();
+        p
+    };
+    let frame = |rig: &Path| {
+        let rig = Arc::new(Rig::load(rig).unwrap());
+        let atlas = rig.renderer.scene.initial_atlas(64);
+        let twin = DigitalTwin::new(rig.clone(), &atlas, Box::new(|| Err("unused".into())), 1);
+        let pose = Pose {
+            angle_deg: 0.0,
+            horizontal_m: rig.horizontal_distance(1.5).unwrap(),
+        };
+        twin.render(pose, 0).unwrap()
+    };
+    let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let fine = frame(&rig_with(a.path(), ""));
+    let coarse = frame(&rig_with(
+        b.path(),
+        "[twin.ibl]\nsh_order = 0\nocclusion_rays = 0\n",
+    ));
+    let top = fine.mask_box.unwrap()[1].floor() as u32;
+    assert!(
+        top >= 4,
+        "the test view needs backdrop rows above the object"
+    );
+    let row_px = |f: &cac::physical::twin::TwinFrame, y0: u32, y1: u32| -> Vec<u8> {
+        (y0 * 96..y1 * 96)
+            .flat_map(|i| f.image.get_pixel(i % 96, i / 96).0)
+            .collect()
+    };
+    // The upper half of the rows above the object sees only the room; the table top further
+    // down is lit by the room too, so the knobs shade it as they shade the object.
+    assert_eq!(
+        row_px(&fine, 0, top / 2),
+        row_px(&coarse, 0, top / 2),
+        "the knobs changed the room behind the object"
+    );
+    let [x1, y1, x2, y2] = fine.mask_box.unwrap().map(|v| v as u32);
+    let object = |f: &cac::physical::twin::TwinFrame| -> Vec<u8> {
+        (y1..y2.min(72))
+            .flat_map(|y| (x1..x2.min(96)).map(move |x| (x, y)))
+            .flat_map(|(x, y)| f.image.get_pixel(x, y).0)
+            .collect()
+    };
+    let changed = object(&fine)
+        .iter()
+        .zip(object(&coarse))
+        .filter(|(p, q)| p.abs_diff(*q) > 2)
+        .count();
+    assert!(
+        changed > 30,
+        "order 0 without occlusion shades the object like order 2 with 4 rays ({changed} values differ)"
+    );
+    let c = tempfile::tempdir().unwrap();
+    let e = format!(
+        "{:#}",
+        Rig::load(&rig_with(c.path(), "[twin.ibl]\nsh_order = 3\n"))
+            .err()
+            .expect("order 3 refused")
+    );
+    assert!(
+        e.contains("rig.toml") && e.contains("twin.ibl") && e.contains("sh_order 3"),
+        "{e}"
+    );
+    let d = tempfile::tempdir().unwrap();
+    let e = format!(
+        "{:#}",
+        Rig::load(&rig_with(d.path(), "[twin.ibl]\nrays = 4\n"))
+            .err()
+            .expect("unknown key refused")
+    );
+    assert!(e.contains("rig.toml") && e.contains("rays"), "{e}");
+}

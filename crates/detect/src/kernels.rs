@@ -3,13 +3,18 @@
 //! layouts or attribute parsing (the executors' own).
 
 use anyhow::{bail, Result};
-use burn::tensor::Tensor;
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{unary, Backward, Ops};
+use burn::backend::tensor::FloatTensor;
+use burn::backend::TensorMetadata;
+use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, Flex};
+use burn::tensor::{Shape, Slice, Tensor};
 
 /// `x` with `pairs[i]` = (before, after) values of `value` added along its last `pairs.len()`
-/// axes, as burn's `pad` with `PadMode::Constant`. burn builds that constant on the host on
-/// backends without a native `full` (libtorch: a host buffer the size of the output, then a
-/// copy), which was most of NanoDet's pads there; zeros, a scalar add and a slice assignment stay
-/// on the device. The gradient is the slice of the output's.
+/// axes, as burn's `pad` with `PadMode::Constant`, through [`PadKernels`]. The gradient is the
+/// slice of the output's.
 pub fn pad_constant<const D: usize>(
     x: Tensor<D>,
     pairs: &[(usize, usize)],
@@ -20,22 +25,73 @@ pub fn pad_constant<const D: usize>(
         "{} padding pairs for a rank-{D} tensor",
         pairs.len()
     );
-    let dims = x.dims();
-    let first = D - pairs.len();
-    let (mut out, mut centre) = (dims, dims.map(|d| 0..d));
-    for (i, &(before, after)) in pairs.iter().enumerate() {
-        out[first + i] += before + after;
-        centre[first + i] = before..before + dims[first + i];
-    }
-    if out == dims {
+    if pairs.iter().all(|&(b, a)| b == 0 && a == 0) {
         return x;
     }
-    let base = Tensor::<D>::zeros(out, &x.device());
-    let base = match value == 0.0 {
-        true => base,
-        false => base.add_scalar(value),
-    };
-    base.slice_assign(centre, x)
+    let mut all = vec![(0, 0); D - pairs.len()];
+    all.extend_from_slice(pairs);
+    Tensor::from_dispatch(<Dispatch as PadKernels>::cac_pad(
+        x.into_dispatch(),
+        all,
+        value,
+    ))
+}
+
+/// Constant padding per backend: `pairs` holds one (before, after) pair for every axis. The
+/// default body is zeros, a scalar add and a slice assignment, all on the device: burn's own
+/// `pad` builds its constant on the host on backends without a native `full` (libtorch: a host
+/// buffer the size of the output, then a copy), which was most of NanoDet's pads there. libtorch
+/// pads with ATen's `constant_pad_nd`, which also keeps the input's memory format (channels
+/// last, `detect::libtorch`).
+#[backend_extension(Flex, Autodiff, Cube: cfg(feature = "gpu"), LibTorch: cfg(feature = "tch"))]
+pub(crate) trait PadKernels: Backend {
+    fn cac_pad(x: FloatTensor<Self>, pairs: Vec<(usize, usize)>, value: f32) -> FloatTensor<Self> {
+        let dims = x.shape().to_vec();
+        let out: Vec<usize> = dims
+            .iter()
+            .zip(&pairs)
+            .map(|(d, (b, a))| d + b + a)
+            .collect();
+        let base = Self::float_zeros(Shape::from(out), &x.device(), x.dtype().into());
+        let base = match value == 0.0 {
+            true => base,
+            false => Self::float_add_scalar(base, value.into()),
+        };
+        Self::float_slice_assign(base, &centre(&dims, &pairs), x)
+    }
+}
+
+/// The slices of a padded tensor that hold the input.
+fn centre(dims: &[usize], pairs: &[(usize, usize)]) -> Vec<Slice> {
+    dims.iter()
+        .zip(pairs)
+        .map(|(&d, &(b, _))| Slice::from(b..b + d))
+        .collect()
+}
+
+impl PadKernels for Flex {}
+
+#[cfg(feature = "gpu")]
+impl PadKernels for burn::backend::Cube {}
+
+/// The pad as an autodiff op: the gradient is the centre of the output's.
+#[derive(Debug)]
+struct Pad(Vec<Slice>);
+
+impl<B: Backend> Backward<B, 1> for Pad {
+    type State = ();
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        unary::<B, _>(ops.parents, ops.node, grads, |g| B::float_slice(g, &self.0));
+    }
+}
+
+impl<B: Backend + PadKernels, C: CheckpointStrategy> PadKernels for Autodiff<B, C> {
+    fn cac_pad(x: FloatTensor<Self>, pairs: Vec<(usize, usize)>, value: f32) -> FloatTensor<Self> {
+        let op = Pad(centre(&x.shape(), &pairs));
+        let prep = op.prepare::<C>([x.node()]).compute_bound();
+        prep.stateless(B::cac_pad(x.into_primitive(), pairs, value))
+    }
 }
 
 /// numpy's broadcast of two shapes (aligned at the last axis; a 1 stretches).

@@ -105,6 +105,9 @@ pub struct TwinSettings {
     pub hdri_rotation_deg: f32,
     /// The room's exposure in stops (its radiance × 2^stops).
     pub hdri_exposure_stops: f32,
+    /// How finely the room's light is evaluated (`[twin.ibl]`: `sh_order`, `occlusion_rays`;
+    /// the training config's `[environment.ibl]` knobs, with their defaults).
+    pub ibl: cac_render::ibl::IblSettings,
 }
 
 impl Default for TwinSettings {
@@ -123,6 +126,7 @@ impl Default for TwinSettings {
             hdri: None,
             hdri_rotation_deg: 0.0,
             hdri_exposure_stops: 0.0,
+            ibl: Default::default(),
         }
     }
 }
@@ -204,6 +208,7 @@ impl RigConfig {
         if !(t.hdri_rotation_deg.abs() <= 720.0 && t.hdri_exposure_stops.abs() <= 20.0) {
             bail!("twin: hdri_rotation_deg must be within ±720 and hdri_exposure_stops within ±20");
         }
+        t.ibl.check().context("twin.ibl")?;
         Ok(())
     }
 }

@@ -7,7 +7,7 @@
 
 use super::camera::{CameraError, Frame, FrameSource};
 use super::rig::Rig;
-use cac_render::ibl::{self, IblSettings, ImageLight};
+use cac_render::ibl::{self, ImageLight};
 use cac_render::{Backdrop, Background, Ground, Lighting};
 use cac_scene::Texture;
 use glam::Vec2;
@@ -83,7 +83,7 @@ impl DigitalTwin {
                     t.hdri_rotation_deg + pose.angle_deg as f32,
                     t.hdri_exposure_stops,
                     t.ground.map(|c| c.map(ibl::srgb_decode)),
-                    IblSettings::default(),
+                    t.ibl,
                 )),
             },
             None => Lighting {

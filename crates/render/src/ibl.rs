@@ -387,6 +387,20 @@ impl Default for IblSettings {
     }
 }
 
+impl IblSettings {
+    /// Refuses orders above 2 and more than 1024 occlusion rays, naming the values.
+    pub fn check(&self) -> anyhow::Result<()> {
+        if self.sh_order > 2 || self.occlusion_rays > 1024 {
+            anyhow::bail!(
+                "sh_order {} must be 0, 1 or 2 and occlusion_rays {} at most 1024",
+                self.sh_order,
+                self.occlusion_rays
+            );
+        }
+        Ok(())
+    }
+}
+
 /// An environment as one view's light: the map, turned and scaled, over an optional ground.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ImageLight {

@@ -186,13 +186,7 @@ impl EnvConfig {
         check_range("sun_elevation_deg", self.sun_elevation_deg, 0.0, 90.0)?;
         check_range("hdri_rotation_deg", self.hdri_rotation_deg, -720.0, 720.0)?;
         check_range("hdri_exposure_stops", self.hdri_exposure_stops, -20.0, 20.0)?;
-        if self.ibl.sh_order > 2 || self.ibl.occlusion_rays > 1024 {
-            bail!(
-                "environment.ibl: sh_order {} must be 0, 1 or 2 and occlusion_rays {} at most 1024",
-                self.ibl.sh_order,
-                self.ibl.occlusion_rays
-            );
-        }
+        self.ibl.check().context("environment.ibl")?;
         for (n, v) in [
             ("translate", self.translate),
             ("light_add", self.light_add),
