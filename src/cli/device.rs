@@ -79,11 +79,6 @@ impl Backend {
         }
     }
 
-    /// Whether it computes on a GPU.
-    pub fn is_gpu(self) -> bool {
-        matches!(self, Backend::TorchCuda | Backend::Wgpu)
-    }
-
     /// Its inference device (no gradient tracking).
     #[allow(deprecated)] // burn 0.22 marks LibTorch deprecated: chosen all the same (docs/detectors.md)
     pub fn device(self) -> burn::tensor::Device {
@@ -142,11 +137,6 @@ pub fn backend() -> Backend {
             std::process::exit(2)
         })
     })
-}
-
-/// Whether the device in use is a GPU (`CAC_DEVICE=gpu` or `cuda`).
-pub fn is_gpu() -> bool {
-    backend().is_gpu()
 }
 
 /// The inference device (no gradient tracking).

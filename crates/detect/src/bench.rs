@@ -281,12 +281,13 @@ impl FrcnnRow {
 }
 
 /// Times the three torchvision Faster R-CNN models (synthetic weights), fastest of `runs`, beside
-/// PyTorch run by `python` on `torch` (`(threads, "cpu" | "cuda")`); `on_row` sees the table
-/// after each row; returns the CSV table.
+/// PyTorch run by `python` with `threads` threads: like against like, on the CPU beside a backend
+/// that computes on the host's cores and on CUDA beside a GPU backend (one PyTorch run per model
+/// and kind); `on_row` sees the table after each row; returns the CSV table.
 pub fn frcnn_models(
     runs: usize,
     python: &str,
-    torch: (usize, &str),
+    threads: usize,
     backends: &[BenchDevice],
     on_row: &mut dyn FnMut(&Table),
 ) -> Result<Table> {
@@ -295,6 +296,7 @@ pub fn frcnn_models(
         "backend",
         "input",
         "threads",
+        "torch_device",
         "forward_ms",
         "forward_backward_ms",
         "torch_forward_ms",
@@ -303,11 +305,22 @@ pub fn frcnn_models(
         "backward_over_torch",
     ]);
     for name in super::frcnn::MODELS {
-        let mut peer = None;
+        let mut peers: Vec<(&str, Option<(f64, f64)>)> = Vec::new();
         for b in backends {
             let ((w, h), fwd, bwd) =
                 frcnn_forward_backward_ms(name, runs, &b.inference, &b.training)?;
-            let peer = *peer.get_or_insert_with(|| torch_ms(python, name, torch, runs, (h, w)));
+            let device = match crate::computes_on_host(&b.inference) {
+                true => "cpu",
+                false => "cuda",
+            };
+            let peer = match peers.iter().find(|(d, _)| *d == device) {
+                Some(&(_, p)) => p,
+                None => {
+                    let p = torch_ms(python, name, (threads, device), runs, (h, w));
+                    peers.push((device, p));
+                    p
+                }
+            };
             let row = FrcnnRow {
                 name,
                 input: (w, h),
@@ -320,7 +333,8 @@ pub fn frcnn_models(
                 name.to_string(),
                 b.name.clone(),
                 format!("{w}x{h}"),
-                torch.0.to_string(),
+                threads.to_string(),
+                device.to_string(),
                 format!("{fwd:.2}"),
                 format!("{bwd:.2}"),
                 na(row.torch.map(|t| t.0), 2),
