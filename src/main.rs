@@ -46,9 +46,11 @@ fn quiet_when_stdout_closes() {
 
 fn main() {
     tune_allocator();
-    // Before any thread starts: it sets a process environment variable libtorch reads.
+    // Safety: no other thread exists yet (it sets a process environment variable).
     #[cfg(feature = "tch")]
-    cac::detect::prefer_huge_pages_for_libtorch();
+    unsafe {
+        cac::detect::prefer_huge_pages_for_libtorch()
+    };
     quiet_when_stdout_closes();
     // Per-op timings of every detector graph run, on stderr (docs/detectors.md).
     cac::detect::exec::set_profiling(std::env::var_os("CAC_PROFILE_GRAPH").is_some());

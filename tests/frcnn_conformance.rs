@@ -101,7 +101,9 @@ fn conformance(arch: Arch, images: &[&str]) -> [f64; 5] {
 /// Which of torchvision's proposals (`want`, 4 values each) each of ours is: the one at the same
 /// place, or, where two objectness scores tie to float rounding and the kernels' summation order
 /// ranks them the other way round (libtorch's channels-last convolutions do, as PyTorch builds
-/// do between themselves), one within 4 places of it; each box within 1e-3 px, one to one.
+/// do between themselves), one within 4 places of it; each box within 1e-3 px, one to one, and
+/// at most 1 % of them (at least one swapped pair) out of place. The oracle's files hold no
+/// objectness scores, so the tie itself is not checked.
 /// Returns the order and the worst box difference (px).
 fn proposal_order(mine: &[[f32; 4]], want: &[f32], what: &str) -> (Vec<usize>, f64) {
     let n = want.len() / 4;
@@ -125,7 +127,7 @@ fn proposal_order(mine: &[[f32; 4]], want: &[f32], what: &str) -> (Vec<usize>, f
     }
     let moved = order.iter().enumerate().filter(|(i, j)| i != *j).count();
     assert!(
-        moved <= n / 100,
+        moved <= (n / 100).max(2),
         "{what}: {moved} of {n} proposals out of place"
     );
     (order, worst)

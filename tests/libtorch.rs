@@ -131,9 +131,7 @@ fn libtorch_activation_kernels_match_flex_at_the_extremes() {
     let acts: [(&str, Act); 6] = [
         ("sigmoid", detect::activation::sigmoid),
         ("silu", detect::activation::silu),
-        ("leaky_relu", |x| {
-            burn::tensor::activation::leaky_relu(x, 0.1)
-        }),
+        ("leaky_relu", |x| detect::activation::leaky_relu(x, 0.1)),
         ("hard_swish", |x| detect::activation::hard_swish(x, 1.7)),
         ("relu", detect::activation::relu),
         ("relu6", detect::activation::relu6),
@@ -157,6 +155,47 @@ fn libtorch_activation_kernels_match_flex_at_the_extremes() {
             worst <= 1e-5,
             "{name}: libtorch and Flex differ by {worst:e}"
         );
+    }
+}
+
+/// Constant pads on libtorch (ATen's `pad`, which lists the pairs from the last axis backwards)
+/// equal Flex's (zeros, a scalar add, a slice assignment), a different pair on every axis, for 0,
+/// a value and −∞, on a channels-last input too; the gradient is the output gradient's centre on
+/// both.
+#[test]
+fn libtorch_pads_match_flex_on_every_axis() {
+    let run = |dev: &Device, pairs: &[(usize, usize)], value: f32, channels_last: bool| {
+        let train = Device::autodiff(dev.clone());
+        // Channels-last memory: an NHWC tensor seen as NCHW through a permutation (a view on
+        // both backends).
+        let (x, xin) = match channels_last {
+            true => {
+                let x = seeded([2, 5, 4, 3], 11, (-1.0, 1.0), &train).require_grad();
+                (x.clone(), x.permute([0, 3, 1, 2]))
+            }
+            false => {
+                let x = seeded([2, 3, 5, 4], 11, (-1.0, 1.0), &train).require_grad();
+                (x.clone(), x)
+            }
+        };
+        let y = detect::kernels::pad_constant(xin, pairs, value);
+        let n: usize = y.dims().iter().product();
+        let ramp: Vec<f32> = (0..n).map(|i| (i % 97) as f32 * 0.01).collect();
+        let up = Tensor::<4>::from_data(TensorData::new(ramp, y.dims()), &train);
+        let finite = y.clone().clamp(-1e6, 1e6);
+        let g = x.grad(&(finite * up).sum().backward()).unwrap();
+        (y.dims(), host(y), host(g))
+    };
+    for pairs in [vec![(1, 0), (0, 2), (2, 1), (3, 0)], vec![(0, 1), (2, 0)]] {
+        for value in [0.0f32, 2.5, f32::NEG_INFINITY] {
+            for cl in [false, true] {
+                let (df, yf, gf) = run(&flex(), &pairs, value, cl);
+                let (dt, yt, gt) = run(&torch(), &pairs, value, cl);
+                assert_eq!(df, dt, "{pairs:?}");
+                assert_eq!(yf, yt, "pairs {pairs:?}, value {value}, channels-last {cl}");
+                assert!(max_abs(&gf, &gt) <= 1e-6, "gradient, pairs {pairs:?}");
+            }
+        }
     }
 }
 

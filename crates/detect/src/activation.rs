@@ -58,7 +58,7 @@ pub(crate) trait ActivationKernels: Backend {
     fn act_leaky_relu(x: FloatTensor<Self>, slope: f32) -> FloatTensor<Self> {
         Self::leaky_relu(x, slope.into())
     }
-    /// `g` where `x ≥ 0`, `slope · g` where `x < 0`.
+    /// `g` where `x > 0`, `slope · g` elsewhere (ATen's rule: the slope at 0 and for NaN).
     fn act_leaky_relu_backward(
         x: FloatTensor<Self>,
         g: FloatTensor<Self>,
@@ -124,9 +124,9 @@ mod composite {
         slope: f32,
     ) -> FloatTensor<B> {
         let dtype = burn::backend::get_or_init_device_settings::<B>(&x.device()).bool_dtype;
-        let neg = B::float_lower_elem(x, 0f32.into(), dtype);
+        let pos = B::float_greater_elem(x, 0f32.into(), dtype);
         let scaled = B::float_mul_scalar(g.clone(), slope.into());
-        B::float_mask_where(g, neg, scaled)
+        B::float_mask_where(scaled, pos, g)
     }
 
     pub(super) fn hard_swish<B: Backend>(x: FloatTensor<B>, scale: f32) -> FloatTensor<B> {
@@ -185,8 +185,8 @@ pub fn silu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
     Tensor::from_dispatch(<Dispatch as ActivationKernels>::act_silu(x.into_dispatch()))
 }
 
-/// `x` where `x ≥ 0`, `slope · x` elsewhere.
-pub(crate) fn leaky_relu<const D: usize>(x: Tensor<D>, slope: f32) -> Tensor<D> {
+/// `x` where `x ≥ 0`, `slope · x` elsewhere; its gradient takes the slope at 0 (as ATen does).
+pub fn leaky_relu<const D: usize>(x: Tensor<D>, slope: f32) -> Tensor<D> {
     Tensor::from_dispatch(<Dispatch as ActivationKernels>::act_leaky_relu(
         x.into_dispatch(),
         slope,
@@ -325,10 +325,11 @@ impl Lane for Leaky {
     }
     #[inline(always)]
     fn fg(self, x: f32, g: f32) -> f32 {
-        if x < 0.0 {
-            self.0 * g
-        } else {
+        // ATen's rule: the slope at x = 0 and for NaN as well.
+        if x > 0.0 {
             g
+        } else {
+            self.0 * g
         }
     }
 }
@@ -682,6 +683,12 @@ mod tests {
         assert_eq!(ReluTo(6.0).fg(f32::NAN, 2.0), 2.0);
         assert_eq!(ReluTo(f32::INFINITY).fg(f32::NAN, 2.0), 2.0);
         assert_eq!(HardSwish(1.5).fg(f32::NAN, 2.0), 3.0);
+        // Leaky ReLU takes the slope at 0 and for NaN, as ATen's `leaky_relu_backward` does.
+        assert!(Leaky(0.1).f(f32::NAN).is_nan());
+        assert_eq!(Leaky(0.25).fg(0.0, 2.0), 0.5);
+        assert_eq!(Leaky(0.25).fg(-0.0, 2.0), 0.5);
+        assert_eq!(Leaky(0.25).fg(f32::NAN, 2.0), 0.5);
+        assert_eq!(Leaky(0.25).fg(1e-30, 2.0), 2.0);
         assert!(exp_f32(f32::NAN).is_nan());
         assert!(exp_f32(1e30).is_finite() && exp_f32(-1e30) > 0.0);
         // SiLU of a huge negative: about 0 (the clamp leaves sigmoid at 2.9e-39), never NaN.

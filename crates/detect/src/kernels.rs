@@ -1,6 +1,7 @@
 //! What both graph executors (TFJS and ONNX) compute the same way: numpy broadcasting of two
-//! shapes ([`broadcast_shape`]) and constant padding on the device ([`pad_constant`]). Not here:
-//! layouts or attribute parsing (the executors' own).
+//! shapes ([`broadcast_shape`]) and constant padding on the device ([`pad_constant`], through the
+//! [`PadKernels`] backend extension and its autodiff op). Not here: layouts or attribute parsing
+//! (the executors' own).
 
 use anyhow::{bail, Result};
 use burn::backend::autodiff::checkpoint::base::Checkpointer;

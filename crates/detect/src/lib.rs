@@ -408,8 +408,8 @@ pub fn computes_on_host(device: &Device) -> bool {
     }
 }
 
-/// The variable libtorch's CPU allocator reads once, at its first allocation: set, it backs every
-/// block of 2 MiB or more with transparent huge pages (`madvise(MADV_HUGEPAGE)`, 2 MiB aligned).
+/// The variable libtorch's CPU allocator reads once, at its first allocation: set, it advises
+/// transparent huge pages (`madvise(MADV_HUGEPAGE)`) for every block of 2 MiB or more.
 pub const TORCH_HUGE_PAGES_VAR: &str = "THP_MEM_ALLOC_ENABLE";
 
 static HUGE_PAGES_SET_HERE: std::sync::atomic::AtomicBool =
@@ -420,11 +420,13 @@ static HUGE_PAGES_SET_HERE: std::sync::atomic::AtomicBool =
 /// detectors spent a tenth of their time in page faults (3.1 million in a `cac bench detect` on
 /// libtorch, 0.38 million with huge pages; CenterNet and NanoDet forward+backward 5–9 % faster,
 /// the attack's iteration 6 %; docs/detectors.md). Flex allocates through Rust's allocator, which
-/// the binary tunes apart. Call it first thing in `main`, before any thread starts: it sets a
-/// process environment variable. Nothing else changes without the `tch` feature.
-pub fn prefer_huge_pages_for_libtorch() {
+/// the binary tunes apart. Nothing else changes without the `tch` feature.
+///
+/// # Safety
+/// It sets a process environment variable: call it before any other thread exists (first thing
+/// in `main`), as `std::env::set_var` requires.
+pub unsafe fn prefer_huge_pages_for_libtorch() {
     if std::env::var_os(TORCH_HUGE_PAGES_VAR).is_none() {
-        // Safety of the edit: `main` calls this before it starts a thread.
         std::env::set_var(TORCH_HUGE_PAGES_VAR, "1");
         HUGE_PAGES_SET_HERE.store(true, std::sync::atomic::Ordering::Relaxed);
     }

@@ -4,9 +4,9 @@
 //! gradient as burn's transposed convolution, which libtorch also runs on oneDNN) in PyTorch's
 //! channels-last memory format, and ATen's constant pad, which keeps that format.
 //!
-//! Built only with the `tch` feature. The autodiff implementations of [`ActivationKernels`] and
-//! [`ConvKernels`] (in their modules) call these for the inner backend, so a gradient through
-//! libtorch costs what it costs in PyTorch.
+//! Built only with the `tch` feature. The autodiff implementations of [`ActivationKernels`],
+//! [`ConvKernels`] and [`PadKernels`] (in their modules) call these for the inner backend, so a
+//! gradient through libtorch costs what it costs in PyTorch.
 
 // burn 0.22 marks its LibTorch backend deprecated (it steers users to CubeCL backends, whose CPU
 // and CUDA builds download LLVM at build time and fail offline): chosen here all the same, as the
@@ -82,7 +82,7 @@ impl ActivationKernels for LibTorch {
 impl ConvKernels for LibTorch {
     fn cac_conv2d(x: TchTensor, w: TchTensor, options: ConvOptions<2>) -> TchTensor {
         let (x, options) = pad_asymmetric(x, options);
-        LibTorch::conv2d(channels_last(x), channels_last(w), None, options)
+        LibTorch::conv2d(channels_last(x), w, None, options)
     }
     fn cac_conv2d_x_backward(
         x: TchTensor,
@@ -90,7 +90,7 @@ impl ConvKernels for LibTorch {
         g: TchTensor,
         options: ConvOptions<2>,
     ) -> TchTensor {
-        let (w, g) = (channels_last(w), channels_last(g));
+        let g = channels_last(g);
         if !options.is_asymmetric() {
             return LibTorch::conv2d_x_backward(x, w, g, options);
         }
@@ -110,7 +110,7 @@ impl ConvKernels for LibTorch {
         options: ConvOptions<2>,
     ) -> TchTensor {
         let (x, options) = pad_asymmetric(x, options);
-        LibTorch::conv2d_weight_backward(channels_last(x), w, channels_last(g), options)
+        LibTorch::conv2d_weight_backward(x, w, g, options)
     }
 }
 
@@ -129,8 +129,10 @@ fn pad_asymmetric(x: TchTensor, options: ConvOptions<2>) -> (TchTensor, ConvOpti
 
 /// `t` (4-D) with its channels innermost in memory (PyTorch's `channels_last`), the same tensor
 /// where it already is. oneDNN's convolutions run in that layout (2–4× faster than NCHW for
-/// CenterNet's depthwise layers, measured in PyTorch 2.9 on the 2-core machine), and ATen's
-/// elementwise ops, pads, pools and gradients keep it, so a graph converts its input once.
+/// CenterNet's depthwise layers, measured in PyTorch 2.9 on the 2-core machine; ATen takes the
+/// layout from the input, reordering the weight itself), and ATen's elementwise ops, pads, pools
+/// and gradients keep it, so a graph converts its input once. The weight gradient (which burn
+/// computes with the batch and channel axes swapped) is left as it comes.
 fn channels_last(t: TchTensor) -> TchTensor {
     if is_channels_last(&t.tensor) {
         return t;
