@@ -180,6 +180,7 @@ fn occlusion_never_adds_light_and_darkens_the_underside() {
             IblSettings {
                 sh_order: 2,
                 occlusion_rays: 0,
+                prefilter_levels: 1,
             },
         ),
         &c,
@@ -192,6 +193,7 @@ fn occlusion_never_adds_light_and_darkens_the_underside() {
             IblSettings {
                 sh_order: 2,
                 occlusion_rays: 16,
+                prefilter_levels: 1,
             },
         ),
         &c,
@@ -321,7 +323,8 @@ fn bad_environments_are_clear_errors_naming_the_file() {
         Environment::new(EnvConfig {
             ibl: IblSettings {
                 sh_order: 3,
-                occlusion_rays: 4
+                occlusion_rays: 4,
+                prefilter_levels: 1,
             },
             ..EnvConfig::default()
         })

@@ -8,7 +8,8 @@
 //! residual's first three bands), over the upper and the lower hemisphere apart so that a ground
 //! plane can replace the lower one with its own lit radiance. The body's occlusion of the
 //! residual is a directional visibility ratio from `occlusion_rays` cosine-distributed rays
-//! against the BVH; glossy reflections read a box-prefiltered copy of the residual.
+//! against the BVH; glossy reflections read a box-prefiltered copy of the residual (one level,
+//! or a chain that rougher parts read blurrier levels of: `IblSettings::prefilter_levels`).
 //!
 //! Directions follow Blender's world mapping as `eval::blender` sets it up (the map's up is
 //! cac's +Y, turned about it by `rotation_deg`), so Cycles and cac see the same world.
@@ -99,13 +100,17 @@ pub struct EnvironmentMap {
     pub sh_lower: Sh9,
     /// The coefficients of a radiance of 1 over the lower hemisphere (what a ground replaces).
     pub sh_lower_unit: [f32; 9],
-    /// The residual box-filtered by [`REFLECTION_DOWNSAMPLE`] on each side (glossy reflections).
-    reflection: Vec<[f32; 3]>,
-    reflection_width: usize,
+    /// The residual box-filtered by [`REFLECTION_DOWNSAMPLE`] on each side, then halved per
+    /// side level by level ([`REFLECTION_LEVELS`] levels, each with its width): what glossy
+    /// reflections read, blurrier for rougher parts.
+    reflections: Vec<(Vec<[f32; 3]>, usize)>,
 }
 
-/// How much smaller, per side, the map that glossy reflections read is.
+/// How much smaller, per side, the sharpest map that glossy reflections read is.
 pub const REFLECTION_DOWNSAMPLE: usize = 8;
+
+/// Levels of the reflection chain (the sharpest, then each half as wide as the one before).
+pub const REFLECTION_LEVELS: usize = 6;
 
 /// Luminance of linear Rec. 709 RGB.
 fn luminance(c: [f32; 3]) -> f32 {
@@ -328,15 +333,12 @@ impl EnvironmentMap {
             }
         }
         let f = REFLECTION_DOWNSAMPLE;
-        let (rw, rh) = ((w / f).max(1), (h / f).max(1));
-        let mut reflection = vec![[0.0f32; 3]; rw * rh];
-        for (i, t) in residual.iter().enumerate() {
-            let (x, y) = ((i % w) * rw / w, (i / w) * rh / h);
-            let r = &mut reflection[y * rw + x];
-            let k = (rw * rh) as f32 / (w * h) as f32;
-            for c in 0..3 {
-                r[c] += t[c] * k;
-            }
+        let mut reflections = vec![box_filter(&residual, w, h, (w / f).max(1), (h / f).max(1))];
+        while reflections.len() < REFLECTION_LEVELS {
+            let (prev, pw) = reflections.last().expect("the sharpest level");
+            let ph = prev.len() / pw;
+            let next = box_filter(prev, *pw, ph, (pw / 2).max(1), (ph / 2).max(1));
+            reflections.push(next);
         }
         Ok(EnvironmentMap {
             path,
@@ -347,8 +349,7 @@ impl EnvironmentMap {
             sh_upper,
             sh_lower,
             sh_lower_unit,
-            reflection,
-            reflection_width: rw,
+            reflections,
         })
     }
 
@@ -357,11 +358,38 @@ impl EnvironmentMap {
         lookup(&self.radiance, self.width, self.height, d)
     }
 
-    /// The prefiltered residual in map-frame direction `d` (what glossy parts reflect).
-    pub fn reflection_at(&self, d: Vec3) -> [f32; 3] {
-        let rh = self.reflection.len() / self.reflection_width;
-        lookup(&self.reflection, self.reflection_width, rh, d)
+    /// The prefiltered residual at `level` of the reflection chain (0: the sharpest; clamped to
+    /// the last) in map-frame direction `d` (what glossy parts reflect).
+    pub fn reflection_at(&self, d: Vec3, level: usize) -> [f32; 3] {
+        let (texels, rw) = &self.reflections[level.min(self.reflections.len() - 1)];
+        lookup(texels, *rw, texels.len() / rw, d)
     }
+
+    /// The angle (radians) a texel of the sharpest reflection level spans in elevation.
+    fn reflection_texel_angle(&self) -> f32 {
+        let (texels, rw) = &self.reflections[0];
+        PI / (texels.len() / rw) as f32
+    }
+}
+
+/// `src` (`w x h`) averaged into `ow x oh` boxes (each source texel into the box it falls in).
+fn box_filter(
+    src: &[[f32; 3]],
+    w: usize,
+    h: usize,
+    ow: usize,
+    oh: usize,
+) -> (Vec<[f32; 3]>, usize) {
+    let mut out = vec![[0.0f32; 3]; ow * oh];
+    let k = (ow * oh) as f32 / (w * h) as f32;
+    for (i, t) in src.iter().enumerate() {
+        let (x, y) = ((i % w) * ow / w, (i / w) * oh / h);
+        let r = &mut out[y * ow + x];
+        for c in 0..3 {
+            r[c] += t[c] * k;
+        }
+    }
+    (out, ow)
 }
 
 /// The default sun threshold: texels brighter than 20 × the map's mean luminance.
@@ -376,6 +404,9 @@ pub struct IblSettings {
     pub sh_order: usize,
     /// Rays per shading sample that find the body's occlusion of the residual (0: unoccluded).
     pub occlusion_rays: usize,
+    /// Levels of the reflection chain glossy parts choose from by their roughness (1: every part
+    /// reads the sharpest, 1/8 per side; up to [`REFLECTION_LEVELS`], each half as wide).
+    pub prefilter_levels: usize,
 }
 
 impl Default for IblSettings {
@@ -383,12 +414,14 @@ impl Default for IblSettings {
         IblSettings {
             sh_order: 2,
             occlusion_rays: 4,
+            prefilter_levels: 1,
         }
     }
 }
 
 impl IblSettings {
-    /// Refuses orders above 2 and more than 1024 occlusion rays, naming the values.
+    /// Refuses orders above 2, more than 1024 occlusion rays and prefilter levels outside
+    /// 1..=[`REFLECTION_LEVELS`], naming the values.
     pub fn check(&self) -> anyhow::Result<()> {
         if self.sh_order > 2 || self.occlusion_rays > 1024 {
             anyhow::bail!(
@@ -397,7 +430,25 @@ impl IblSettings {
                 self.occlusion_rays
             );
         }
+        if !(1..=REFLECTION_LEVELS).contains(&self.prefilter_levels) {
+            anyhow::bail!(
+                "prefilter_levels {} must be within 1..={REFLECTION_LEVELS}",
+                self.prefilter_levels
+            );
+        }
         Ok(())
+    }
+
+    /// The reflection level a part of Blinn-Phong exponent `shininess` reads: the one whose
+    /// texels span about its lobe's width, `sqrt(2 / (n + 2))` radians (GGX's α for the
+    /// roughness the Blender job gives the part, `(2 / (n + 2))^¼`); 0 with one level.
+    pub fn reflection_level(&self, shininess: f32, texel_angle: f32) -> usize {
+        if self.prefilter_levels <= 1 {
+            return 0;
+        }
+        let lobe = (2.0 / (shininess.max(0.0) + 2.0)).sqrt();
+        let level = (lobe / texel_angle).log2().round();
+        (level.max(0.0) as usize).min(self.prefilter_levels - 1)
     }
 }
 
@@ -496,14 +547,18 @@ impl ImageLight {
         l.map(|v| srgb_encode(v * self.strength))
     }
 
-    /// What a glossy part reflects along world direction `r` (display value per channel): the
-    /// lit ground below the horizon when there is one, the prefiltered residual above.
-    pub fn reflected(&self, r: Vec3) -> [f32; 3] {
+    /// What a glossy part of Blinn-Phong exponent `shininess` reflects along world direction
+    /// `r` (display value per channel): the lit ground below the horizon when there is one, the
+    /// prefiltered residual above, at the level its roughness picks ([`IblSettings`]).
+    pub fn reflected(&self, r: Vec3, shininess: f32) -> [f32; 3] {
+        let level = self
+            .settings
+            .reflection_level(shininess, self.map.reflection_texel_angle());
         let l = match self.ground_radiance() {
             Some(g) if r.y < 0.0 => g,
             _ => self
                 .map
-                .reflection_at(self.to_map(r))
+                .reflection_at(self.to_map(r), level)
                 .map(|v| v * self.strength),
         };
         l.map(srgb_encode)
@@ -625,6 +680,71 @@ mod tests {
             worst0 > 3.0 * worst,
             "order 0 ({worst0}) should be far coarser than order 2"
         );
+    }
+
+    /// The reflection chain: every level keeps the residual's mean (a box filter moves light,
+    /// it does not make or lose it); a narrow bright patch spreads and dims level by level; and
+    /// the level a part reads follows its roughness (one level: always the sharpest).
+    #[test]
+    fn rougher_parts_read_blurrier_levels_of_an_energy_keeping_chain() {
+        let (w, h) = (256usize, 128usize);
+        let mut rad = vec![[0.2f32; 3]; w * h];
+        // A 4×4-texel patch 4× the background (under the sun threshold, so it stays residual).
+        for y in 60..64 {
+            for x in 100..104 {
+                rad[y * w + x] = [0.8; 3];
+            }
+        }
+        let m = EnvironmentMap::from_radiance("p".into(), w, h, rad, 1e9).unwrap();
+        let mean = |(t, _): &(Vec<[f32; 3]>, usize)| {
+            t.iter().map(|c| c[0] as f64).sum::<f64>() / t.len() as f64
+        };
+        assert_eq!(m.reflections.len(), REFLECTION_LEVELS);
+        let m0 = mean(&m.reflections[0]);
+        let peak = texel_dir(101, 61, w, h);
+        let mut last = f32::INFINITY;
+        for (k, level) in m.reflections.iter().enumerate() {
+            assert!(
+                (mean(level) - m0).abs() < 1e-5 * m0,
+                "level {k} mean {}",
+                mean(level)
+            );
+            let p = m.reflection_at(peak, k)[0];
+            assert!(p <= last + 1e-6 && p > 0.2, "level {k}: {p} after {last}");
+            last = p;
+        }
+        assert!(
+            last < m.reflection_at(peak, 0)[0] * 0.7,
+            "the patch did not spread"
+        );
+        let texel = m.reflection_texel_angle();
+        let chain = IblSettings {
+            prefilter_levels: REFLECTION_LEVELS,
+            ..IblSettings::default()
+        };
+        let levels: Vec<usize> = [1000.0, 120.0, 40.0, 16.0, 8.0, 1.0]
+            .iter()
+            .map(|&n| chain.reflection_level(n, texel))
+            .collect();
+        assert!(levels.windows(2).all(|p| p[0] <= p[1]), "{levels:?}");
+        assert!(levels[0] < levels[5], "{levels:?}");
+        assert!(levels.iter().all(|&l| l < REFLECTION_LEVELS));
+        let one = IblSettings::default();
+        assert!([1000.0, 40.0, 1.0]
+            .iter()
+            .all(|&n| one.reflection_level(n, texel) == 0));
+        assert!(IblSettings {
+            prefilter_levels: 0,
+            ..one
+        }
+        .check()
+        .is_err());
+        assert!(IblSettings {
+            prefilter_levels: REFLECTION_LEVELS + 1,
+            ..one
+        }
+        .check()
+        .is_err());
     }
 
     #[test]

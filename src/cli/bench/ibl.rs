@@ -67,11 +67,11 @@ pub fn run(a: Args) -> Result<()> {
         "{} free views per environment, {}² px, cac {} spp, Cycles {} spp; MAE in 8-bit levels (object: pixels both renderers cover fully)",
         job.views, a.size, a.samples, a.blender_samples
     );
-    println!("environment  sh_order  rays  shade_ms  object_vs_cycles  image_vs_cycles  object_vs_finest  object_px");
+    println!("environment  sh_order  rays  prefilter  shade_ms  object_vs_cycles  image_vs_cycles  object_vs_finest  object_px");
     let t = ibl_bench::run(&job, &device::inference(), &mut |r| {
         println!(
-            "{:<12} {:>8} {:>5} {:>9} {:>17} {:>16} {:>17} {:>10}",
-            r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7]
+            "{:<12} {:>8} {:>5} {:>10} {:>9} {:>17} {:>16} {:>17} {:>10}",
+            r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8]
         )
     })?;
     cac::io::write_atomic(&a.csv, t.csv().as_bytes())?;

@@ -1,5 +1,6 @@
 //! Image-based lighting's knobs against Cycles (`cac bench ibl`): the object lit by an HDR
-//! environment in cac's renderer at each spherical-harmonic order and number of occlusion rays,
+//! environment in cac's renderer at each spherical-harmonic order, number of occlusion rays and
+//! number of reflection prefilter levels,
 //! its error in 8-bit levels against Cycles rendering the same views with the same map, and
 //! against cac's own finest setting (the knob's own convergence), with its shading time per
 //! view. One [`Table`] row per environment and setting; asserts nothing.
@@ -12,7 +13,7 @@ use cac_core::report::timer::Stopwatch;
 use cac_core::report::Table;
 use cac_render::config::SceneConfig;
 use cac_render::environment::{self, Brightness, Condition, Environment};
-use cac_render::ibl::IblSettings;
+use cac_render::ibl::{IblSettings, REFLECTION_LEVELS};
 use cac_render::{RenderPlan, Renderer};
 use cac_scene::Texture;
 
@@ -29,19 +30,31 @@ pub struct IblBenchJob {
     pub blender: BlenderSettings,
 }
 
-/// The settings measured: each order at 16 rays, each ray count at order 2, and the reference.
+/// The settings measured: each order at 16 rays, each ray count at order 2 (one reflection
+/// level), the default with the whole reflection chain, and the reference.
 pub fn settings() -> Vec<IblSettings> {
-    let s = |sh_order, occlusion_rays| IblSettings {
+    let s = |sh_order, occlusion_rays, prefilter_levels| IblSettings {
         sh_order,
         occlusion_rays,
+        prefilter_levels,
     };
-    vec![s(0, 16), s(1, 16), s(2, 0), s(2, 4), s(2, 16), s(2, 64)]
+    vec![
+        s(0, 16, 1),
+        s(1, 16, 1),
+        s(2, 0, 1),
+        s(2, 4, 1),
+        s(2, 16, 1),
+        s(2, 64, 1),
+        s(2, 4, REFLECTION_LEVELS),
+    ]
 }
 
-/// cac's finest setting, the reference each knob converges to.
+/// cac's finest setting of the converging knobs (order, rays), the reference each converges to;
+/// one reflection level, so the chain's row says how far it moves the image.
 pub const REFERENCE: IblSettings = IblSettings {
     sh_order: 2,
     occlusion_rays: 256,
+    prefilter_levels: 1,
 };
 
 /// Mean absolute difference (8-bit levels, over channels) of `a` and `b` over the pixels `keep`
@@ -88,6 +101,7 @@ pub fn run(job: &IblBenchJob, dev: &Device, on_row: &mut dyn FnMut(&[String])) -
         "environment",
         "sh_order",
         "occlusion_rays",
+        "prefilter_levels",
         "shade_ms_per_view",
         "object_mae_cycles",
         "image_mae_cycles",
@@ -131,6 +145,7 @@ pub fn run(job: &IblBenchJob, dev: &Device, on_row: &mut dyn FnMut(&[String])) -
                 world.name(),
                 s.sh_order.to_string(),
                 s.occlusion_rays.to_string(),
+                s.prefilter_levels.to_string(),
                 format!("{ms:.0}"),
                 format!("{:.2}", obj / npx.max(1) as f64),
                 format!("{:.2}", img / v),
