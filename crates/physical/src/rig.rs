@@ -105,8 +105,9 @@ pub struct TwinSettings {
     pub hdri_rotation_deg: f32,
     /// The room's exposure in stops (its radiance × 2^stops).
     pub hdri_exposure_stops: f32,
-    /// How finely the room's light is evaluated (`[twin.ibl]`: `sh_order`, `occlusion_rays`;
-    /// the training config's `[environment.ibl]` knobs, with their defaults).
+    /// How finely the room's light is evaluated (`[twin.ibl]`: `sh_order`, `occlusion_rays`,
+    /// `prefilter_levels`; the training config's `[environment.ibl]` knobs, with their
+    /// defaults); used only with `hdri`.
     pub ibl: cac_render::ibl::IblSettings,
 }
 

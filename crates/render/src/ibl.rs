@@ -372,7 +372,8 @@ impl EnvironmentMap {
     }
 }
 
-/// `src` (`w x h`) averaged into `ow x oh` boxes (each source texel into the box it falls in).
+/// `src` (`w x h`) averaged into `ow x oh` boxes (each source texel into the box it falls in,
+/// each box divided by the texels it got, so a constant map stays constant at any size).
 fn box_filter(
     src: &[[f32; 3]],
     w: usize,
@@ -380,13 +381,17 @@ fn box_filter(
     ow: usize,
     oh: usize,
 ) -> (Vec<[f32; 3]>, usize) {
+    let index = |i: usize| ((i / w) * oh / h) * ow + (i % w) * ow / w;
+    let mut count = vec![0u32; ow * oh];
+    for i in 0..src.len() {
+        count[index(i)] += 1;
+    }
     let mut out = vec![[0.0f32; 3]; ow * oh];
-    let k = (ow * oh) as f32 / (w * h) as f32;
     for (i, t) in src.iter().enumerate() {
-        let (x, y) = ((i % w) * ow / w, (i / w) * oh / h);
-        let r = &mut out[y * ow + x];
+        let b = index(i);
+        let k = 1.0 / count[b] as f32;
         for c in 0..3 {
-            r[c] += t[c] * k;
+            out[b][c] += t[c] * k;
         }
     }
     (out, ow)
@@ -682,9 +687,28 @@ mod tests {
         );
     }
 
-    /// The reflection chain: every level keeps the residual's mean (a box filter moves light,
-    /// it does not make or lose it); a narrow bright patch spreads and dims level by level; and
-    /// the level a part reads follows its roughness (one level: always the sharpest).
+    /// A constant map stays constant on every level of the chain whatever its size, also where
+    /// the boxes do not divide it evenly (2000×1000 halves to odd sides; 100×50 reaches 1 px
+    /// early; 36×18).
+    #[test]
+    fn a_constant_map_is_constant_on_every_reflection_level() {
+        for (w, h) in [(2000usize, 1000usize), (100, 50), (36, 18), (1024, 512)] {
+            let m = EnvironmentMap::from_radiance("c".into(), w, h, vec![[0.7; 3]; w * h], 1e9)
+                .unwrap();
+            for (k, (texels, rw)) in m.reflections.iter().enumerate() {
+                for (i, t) in texels.iter().enumerate() {
+                    assert!(
+                        t.iter().all(|v| (v - 0.7).abs() < 1e-5),
+                        "{w}x{h} level {k} ({rw} wide) texel {i}: {t:?}"
+                    );
+                }
+            }
+        }
+    }
+
+    /// The reflection chain: every level keeps the residual's texel mean; a narrow bright patch
+    /// spreads and dims level by level; and the level a part reads follows its roughness (one
+    /// level: always the sharpest).
     #[test]
     fn rougher_parts_read_blurrier_levels_of_an_energy_keeping_chain() {
         let (w, h) = (256usize, 128usize);
@@ -729,6 +753,11 @@ mod tests {
         assert!(levels.windows(2).all(|p| p[0] <= p[1]), "{levels:?}");
         assert!(levels[0] < levels[5], "{levels:?}");
         assert!(levels.iter().all(|&l| l < REFLECTION_LEVELS));
+        // Blender's 1024×512 maps: the sharpest level's texels span π/64; the pickup's body paint
+        // (n = 40) reads 1/32 (level 2), its glass (n = 120) 1/16 (level 1).
+        let blender = std::f32::consts::PI / 64.0;
+        assert_eq!(chain.reflection_level(40.0, blender), 2);
+        assert_eq!(chain.reflection_level(120.0, blender), 1);
         let one = IblSettings::default();
         assert!([1000.0, 40.0, 1.0]
             .iter()

@@ -20,7 +20,7 @@ pub fn bench(runs: usize, python: &str, backends: &[BenchDevice]) -> Result<Tabl
     })?;
     if rows.rows.iter().flatten().any(|c| c == "n/a") {
         eprintln!(
-            "note: PyTorch columns are n/a where `{python} -c 'import torch, torchvision'` fails"
+            "note: PyTorch columns are n/a where `{python} -c 'import torch, torchvision'` fails, or, beside a GPU backend, where that torch has no CUDA"
         );
     }
     Ok(rows)
