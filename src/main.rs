@@ -49,7 +49,7 @@ fn main() {
     // Safety: no other thread exists yet (it sets a process environment variable).
     #[cfg(feature = "tch")]
     unsafe {
-        cac::detect::prefer_huge_pages_for_libtorch()
+        cac::detect::torch_env::prefer_huge_pages()
     };
     quiet_when_stdout_closes();
     // Per-op timings of every detector graph run, on stderr (docs/detectors.md).

@@ -657,14 +657,6 @@ fn the_twin_takes_its_room_light_knobs_from_the_rig_file() {
     };
     let a = tempfile::tempdir().unwrap();
     let fine = frame(&rig_with(a.path(), ""));
-    let fine_levels = |d: &Path| {
-        Rig::load(&d.join("rig.toml"))
-            .unwrap()
-            .config
-            .twin
-            .ibl
-            .prefilter_levels
-    };
     let top = fine.mask_box.unwrap()[1].floor() as u32;
     assert!(
         top >= 4,
@@ -706,41 +698,27 @@ fn the_twin_takes_its_room_light_knobs_from_the_rig_file() {
     }
     // The reflection chain's effect on shading is `render::ibl`'s unit test (on this 64×32 room
     // every part reads the sharpest level anyway); here: the rig carries and checks it.
-    let p = tempfile::tempdir().unwrap();
-    let chain = Rig::load(&rig_with(p.path(), "[twin.ibl]\nprefilter_levels = 6\n")).unwrap();
-    assert_eq!(chain.config.twin.ibl.prefilter_levels, 6);
-    assert_eq!(fine_levels(a.path()), 1, "the default is one level");
-    let z = tempfile::tempdir().unwrap();
-    let e = format!(
-        "{:#}",
-        Rig::load(&rig_with(z.path(), "[twin.ibl]\nprefilter_levels = 0\n"))
-            .err()
-            .expect("no level refused")
-    );
-    assert!(
-        e.contains("twin.ibl") && e.contains("prefilter_levels 0"),
-        "{e}"
-    );
-    let c = tempfile::tempdir().unwrap();
-    let e = format!(
-        "{:#}",
-        Rig::load(&rig_with(c.path(), "[twin.ibl]\nsh_order = 3\n"))
-            .err()
-            .expect("order 3 refused")
-    );
-    assert!(
-        e.contains("rig.toml") && e.contains("twin.ibl") && e.contains("sh_order 3"),
-        "{e}"
-    );
-    let d = tempfile::tempdir().unwrap();
-    let e = format!(
-        "{:#}",
-        Rig::load(&rig_with(d.path(), "[twin.ibl]\nrays = 4\n"))
-            .err()
-            .expect("unknown key refused")
-    );
-    assert!(
-        e.contains("rig.toml") && e.contains("unknown field `rays`"),
-        "{e}"
-    );
+    let levels = |knobs: &str| {
+        let d = tempfile::tempdir().unwrap();
+        let rig = Rig::load(&rig_with(d.path(), knobs)).unwrap();
+        rig.config.twin.ibl.prefilter_levels
+    };
+    assert_eq!(levels(""), 1, "the default is one level");
+    assert_eq!(levels("[twin.ibl]\nprefilter_levels = 6\n"), 6);
+    // Bad knobs are refused naming the rig file and what is wrong.
+    for (knobs, says) in [
+        (
+            "[twin.ibl]\nprefilter_levels = 0\n",
+            "twin.ibl: prefilter_levels 0",
+        ),
+        ("[twin.ibl]\nsh_order = 3\n", "twin.ibl: sh_order 3"),
+        ("[twin.ibl]\nrays = 4\n", "unknown field `rays`"),
+    ] {
+        let d = tempfile::tempdir().unwrap();
+        let e = match Rig::load(&rig_with(d.path(), knobs)) {
+            Ok(_) => panic!("{knobs:?} accepted"),
+            Err(e) => format!("{e:#}"),
+        };
+        assert!(e.contains("rig.toml") && e.contains(says), "{knobs:?}: {e}");
+    }
 }

@@ -111,7 +111,7 @@ pub(crate) fn torch_ms(
 ) -> Option<(f64, f64)> {
     let script = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
         .join("tools/torchvision_oracle.py");
-    let out = crate::peer_command(python)
+    let out = crate::torch_env::peer_command(python)
         .arg(script)
         .args(["--bench", model, "--threads", &threads.to_string()])
         .args(["--iters", &runs.to_string(), "--size", &format!("{h}x{w}")])
@@ -369,7 +369,7 @@ pub(crate) fn ort_ms(
     std::fs::write(&feed, serde_json::to_vec(&v).ok()?).ok()?;
     let script =
         Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../..")).join("tools/onnx/ort_run.py");
-    let out = crate::peer_command(python)
+    let out = crate::torch_env::peer_command(python)
         .arg(script)
         .arg(model)
         .arg(&feed)
@@ -509,7 +509,7 @@ fn onnx_torch_ms(
     let script =
         Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../..")).join("tools/torch_bench.py");
     let dims = shape.map(|d| d.to_string()).join(",");
-    let out = crate::peer_command(python)
+    let out = crate::torch_env::peer_command(python)
         .arg(script)
         .arg("onnx")
         .arg(model)
@@ -662,7 +662,7 @@ fn torch_activation_ms(
 ) -> Option<std::collections::HashMap<String, (f64, f64)>> {
     let script =
         Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../..")).join("tools/torch_bench.py");
-    let out = crate::peer_command(python)
+    let out = crate::torch_env::peer_command(python)
         .arg(script)
         .args(["ops", "--shape", shape, "--threads", &threads.to_string()])
         .args(["--runs", &runs.to_string()])

@@ -12,7 +12,8 @@
 //!
 //! Images go in as `[B, 3, H, W]` floats in [0, 1] on any device; the detector resizes them
 //! inside (differentiably), so gradients of any output reach the input image.
-//! [`bench`] times detectors (and their TFJS and PyTorch references) for `cac bench detect`;
+//! [`bench`] times detectors (and their TFJS and PyTorch references) for `cac bench detect`
+//! (its Python peers run without the libtorch settings [`torch_env`] gives cac's own process);
 //! [`draw`] draws detections into an image.
 
 // The kernel modules name burn's LibTorch backend in `tch` builds, which burn 0.22 marks deprecated.
@@ -38,6 +39,7 @@ pub mod preprocess;
 pub mod raw;
 pub mod spec;
 pub mod tfjs;
+pub mod torch_env;
 
 use anyhow::Result;
 use burn::tensor::{Device, Tensor};
@@ -406,40 +408,6 @@ pub fn computes_on_host(device: &Device) -> bool {
         #[allow(unreachable_patterns)]
         _ => false,
     }
-}
-
-/// The variable libtorch's CPU allocator reads once, at its first allocation: set, it advises
-/// transparent huge pages (`madvise(MADV_HUGEPAGE)`) for every block of 2 MiB or more.
-pub const TORCH_HUGE_PAGES_VAR: &str = "THP_MEM_ALLOC_ENABLE";
-
-static HUGE_PAGES_SET_HERE: std::sync::atomic::AtomicBool =
-    std::sync::atomic::AtomicBool::new(false);
-
-/// Asks libtorch's CPU allocator for transparent huge pages unless the user's environment already
-/// says (`THP_MEM_ALLOC_ENABLE`). Each op's output is fresh memory, so with 4 KiB pages the
-/// detectors spent a tenth of their time in page faults (3.1 million in a `cac bench detect` on
-/// libtorch, 0.38 million with huge pages; CenterNet and NanoDet forward+backward 5–9 % faster,
-/// the attack's iteration 6 %; docs/detectors.md). Flex allocates through Rust's allocator, which
-/// the binary tunes apart. Nothing else changes without the `tch` feature.
-///
-/// # Safety
-/// It sets a process environment variable: call it before any other thread exists (first thing
-/// in `main`), as `std::env::set_var` requires.
-pub unsafe fn prefer_huge_pages_for_libtorch() {
-    if std::env::var_os(TORCH_HUGE_PAGES_VAR).is_none() {
-        std::env::set_var(TORCH_HUGE_PAGES_VAR, "1");
-        HUGE_PAGES_SET_HERE.store(true, std::sync::atomic::Ordering::Relaxed);
-    }
-}
-
-/// A Python peer (PyTorch, onnxruntime) as its users run it: without the huge-page setting cac
-/// gave its own libtorch, unless the user set it (then both have it).
-pub(crate) fn peer_command(python: impl AsRef<std::ffi::OsStr>) -> std::process::Command {
-    let mut c = std::process::Command::new(python);
-    if HUGE_PAGES_SET_HERE.load(std::sync::atomic::Ordering::Relaxed) {
-        c.env_remove(TORCH_HUGE_PAGES_VAR);
-    }
-    c
 }
 
 #[cfg(test)]

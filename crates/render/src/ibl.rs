@@ -444,14 +444,14 @@ impl IblSettings {
         Ok(())
     }
 
-    /// The reflection level a part of Blinn-Phong exponent `shininess` reads: the one whose
-    /// texels span about its lobe's width, `sqrt(2 / (n + 2))` radians (GGX's α for the
-    /// roughness the Blender job gives the part, `(2 / (n + 2))^¼`); 0 with one level.
-    pub fn reflection_level(&self, shininess: f32, texel_angle: f32) -> usize {
+    /// The reflection level a part of GGX roughness `roughness` reads
+    /// ([`cac_scene::Material::roughness`]): the one whose texels span about its lobe's width,
+    /// α = roughness² radians; 0 with one level.
+    pub fn reflection_level(&self, roughness: f32, texel_angle: f32) -> usize {
         if self.prefilter_levels <= 1 {
             return 0;
         }
-        let lobe = (2.0 / (shininess.max(0.0) + 2.0)).sqrt();
+        let lobe = roughness * roughness;
         let level = (lobe / texel_angle).log2().round();
         (level.max(0.0) as usize).min(self.prefilter_levels - 1)
     }
@@ -552,13 +552,13 @@ impl ImageLight {
         l.map(|v| srgb_encode(v * self.strength))
     }
 
-    /// What a glossy part of Blinn-Phong exponent `shininess` reflects along world direction
-    /// `r` (display value per channel): the lit ground below the horizon when there is one, the
+    /// What a glossy part of GGX roughness `roughness` reflects along world direction `r`
+    /// (display value per channel): the lit ground below the horizon when there is one, the
     /// prefiltered residual above, at the level its roughness picks ([`IblSettings`]).
-    pub fn reflected(&self, r: Vec3, shininess: f32) -> [f32; 3] {
+    pub fn reflected(&self, r: Vec3, roughness: f32) -> [f32; 3] {
         let level = self
             .settings
-            .reflection_level(shininess, self.map.reflection_texel_angle());
+            .reflection_level(roughness, self.map.reflection_texel_angle());
         let l = match self.ground_radiance() {
             Some(g) if r.y < 0.0 => g,
             _ => self
@@ -742,13 +742,18 @@ mod tests {
             "the patch did not spread"
         );
         let texel = m.reflection_texel_angle();
+        let rough = |n: f32| {
+            let mut mat = cac_scene::Material::plain("m", [0.5; 3]);
+            mat.shininess = n;
+            mat.roughness()
+        };
         let chain = IblSettings {
             prefilter_levels: REFLECTION_LEVELS,
             ..IblSettings::default()
         };
         let levels: Vec<usize> = [1000.0, 120.0, 40.0, 16.0, 8.0, 1.0]
             .iter()
-            .map(|&n| chain.reflection_level(n, texel))
+            .map(|&n| chain.reflection_level(rough(n), texel))
             .collect();
         assert!(levels.windows(2).all(|p| p[0] <= p[1]), "{levels:?}");
         assert!(levels[0] < levels[5], "{levels:?}");
@@ -756,12 +761,12 @@ mod tests {
         // Blender's 1024×512 maps: the sharpest level's texels span π/64; the pickup's body paint
         // (n = 40) reads 1/32 (level 2), its glass (n = 120) 1/16 (level 1).
         let blender = std::f32::consts::PI / 64.0;
-        assert_eq!(chain.reflection_level(40.0, blender), 2);
-        assert_eq!(chain.reflection_level(120.0, blender), 1);
+        assert_eq!(chain.reflection_level(rough(40.0), blender), 2);
+        assert_eq!(chain.reflection_level(rough(120.0), blender), 1);
         let one = IblSettings::default();
         assert!([1000.0, 40.0, 1.0]
             .iter()
-            .all(|&n| one.reflection_level(n, texel) == 0));
+            .all(|&n| one.reflection_level(rough(n), texel) == 0));
         assert!(IblSettings {
             prefilter_levels: 0,
             ..one

@@ -289,7 +289,7 @@ impl Shader<'_> {
             let fresnel = 0.04 + 0.96 * (1.0 - cos).powi(5);
             let r = sm.dir - n * 2.0 * sm.dir.dot(n);
             let env = match &self.ibl {
-                Some(i) => i.light.reflected(r, mat.shininess),
+                Some(i) => i.light.reflected(r, mat.roughness()),
                 None => environment_colour(self.backdrop, self.light, self.image_mean, r),
             };
             add(base, env, gloss * fresnel * self.inv_s);

@@ -116,6 +116,13 @@ pub struct Material {
 }
 
 impl Material {
+    /// The GGX roughness of the Blinn-Phong exponent: `(2 / (n + 2))^¼`, whose α = roughness² =
+    /// `sqrt(2 / (n + 2))` is the lobe's width in radians. The Blender job gives Cycles this
+    /// roughness, and the image-based light picks a part's reflection blur by its α.
+    pub fn roughness(&self) -> f32 {
+        (2.0 / (self.shininess.max(0.0) + 2.0)).powf(0.25)
+    }
+
     pub fn plain(name: &str, base_color: [f32; 3]) -> Self {
         Material {
             name: name.into(),

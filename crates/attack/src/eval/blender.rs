@@ -428,7 +428,7 @@ impl<'a> Job<'a> {
         obj_write::write_obj(&scene, dir, "object")?;
         let mut materials = serde_json::Map::new();
         for (m, &p) in scene.materials.iter().zip(&scene.paintable) {
-            let rough = (2.0 / (m.shininess.max(0.0) + 2.0)).powf(0.25);
+            let rough = m.roughness();
             materials.insert(
                 m.name.clone(),
                 json!({
