@@ -38,6 +38,29 @@ fn seeded(shape: [usize; 4], seed: u64, (lo, hi): (f32, f32), dev: &Device) -> T
     Tensor::from_data(TensorData::new(v, shape), dev)
 }
 
+/// A seeded leaf of NCHW shape `dims` on `train` (an autodiff device), and the NCHW tensor an op
+/// reads: the leaf itself, or with `channels_last` an NHWC leaf seen as NCHW through a
+/// permutation (channels-last memory, a view on both backends).
+fn leaf(
+    dims: [usize; 4],
+    seed: u64,
+    range: (f32, f32),
+    train: &Device,
+    channels_last: bool,
+) -> (Tensor<4>, Tensor<4>) {
+    let [n, c, h, w] = dims;
+    match channels_last {
+        true => {
+            let x = seeded([n, h, w, c], seed, range, train).require_grad();
+            (x.clone(), x.permute([0, 3, 1, 2]))
+        }
+        false => {
+            let x = seeded(dims, seed, range, train).require_grad();
+            (x.clone(), x)
+        }
+    }
+}
+
 fn max_abs(a: &[f32], b: &[f32]) -> f32 {
     assert_eq!(a.len(), b.len());
     a.iter()
@@ -166,18 +189,7 @@ fn libtorch_activation_kernels_match_flex_at_the_extremes() {
 fn libtorch_pads_match_flex_on_every_axis() {
     let run = |dev: &Device, pairs: &[(usize, usize)], value: f32, channels_last: bool| {
         let train = Device::autodiff(dev.clone());
-        // Channels-last memory: an NHWC tensor seen as NCHW through a permutation (a view on
-        // both backends).
-        let (x, xin) = match channels_last {
-            true => {
-                let x = seeded([2, 5, 4, 3], 11, (-1.0, 1.0), &train).require_grad();
-                (x.clone(), x.permute([0, 3, 1, 2]))
-            }
-            false => {
-                let x = seeded([2, 3, 5, 4], 11, (-1.0, 1.0), &train).require_grad();
-                (x.clone(), x)
-            }
-        };
+        let (x, xin) = leaf([2, 3, 5, 4], 11, (-1.0, 1.0), &train, channels_last);
         let y = detect::kernels::pad_constant(xin, pairs, value);
         let n: usize = y.dims().iter().product();
         let ramp: Vec<f32> = (0..n).map(|i| (i % 97) as f32 * 0.01).collect();
@@ -195,6 +207,99 @@ fn libtorch_pads_match_flex_on_every_axis() {
                 assert_eq!(yf, yt, "pairs {pairs:?}, value {value}, channels-last {cl}");
                 assert!(max_abs(&gf, &gt) <= 1e-6, "gradient, pairs {pairs:?}");
             }
+        }
+    }
+}
+
+/// The detectors' feature up-scalings on libtorch (ATen's bilinear up-sampling, `detect::upscale`)
+/// equal Flex's phase path, values and input gradients, for TensorFlow's legacy and half-pixel
+/// formulas, 2×, 4× and unequal factors, on NCHW and channels-last inputs.
+#[test]
+fn libtorch_upscalings_match_flex_for_both_tensorflow_formulas() {
+    let run = |dev: &Device, dims: [usize; 4], k: [usize; 2], half: bool, channels_last: bool| {
+        let train = Device::autodiff(dev.clone());
+        let [n, c, h, w] = dims;
+        let (x, xin) = leaf(dims, 5, (-3.0, 3.0), &train, channels_last);
+        let (oh, ow) = (h * k[0], w * k[1]);
+        let y = detect::preprocess::resize_bilinear(xin, 2, 3, oh, ow, false, half);
+        let up = seeded([n, c, oh, ow], 6, (-1.0, 1.0), &train);
+        let g = x.grad(&(y.clone() * up).sum().backward()).unwrap();
+        (y.dims(), host(y), host(g))
+    };
+    for (dims, k) in [
+        ([1, 8, 6, 5], [2, 2]),
+        ([2, 3, 4, 7], [4, 2]),
+        ([1, 4, 3, 3], [1, 8]),
+    ] {
+        for half in [false, true] {
+            for cl in [false, true] {
+                let what = format!("{dims:?} k {k:?} half-pixel {half} channels-last {cl}");
+                let (df, yf, gf) = run(&flex(), dims, k, half, cl);
+                let (dt, yt, gt) = run(&torch(), dims, k, half, cl);
+                assert_eq!(df, dt, "{what}");
+                assert!(max_abs(&yf, &yt) <= 1e-6, "values, {what}");
+                assert!(max_abs(&gf, &gt) <= 1e-5, "gradient, {what}");
+            }
+        }
+    }
+}
+
+/// Broadcast addition and multiplication on libtorch (one ATen `sum` over the broadcast axes of
+/// a gradient, `detect::broadcast`) equal Flex's (burn's reduction), values and both operands'
+/// gradients: a bias, a squeeze-and-excitation scale, a row, both operands broadcast, on NCHW
+/// and channels-last maps; so does the mean over several axes (one ATen `mean`) and its
+/// gradient.
+#[test]
+fn libtorch_broadcast_gradients_match_flex() {
+    let run = |dev: &Device, xs: [usize; 4], ys: [usize; 4], mul: bool, channels_last: bool| {
+        let train = Device::autodiff(dev.clone());
+        let (x, xin) = leaf(xs, 21, (-2.0, 2.0), &train, channels_last);
+        let y = seeded(ys, 22, (-2.0, 2.0), &train).require_grad();
+        let z = match mul {
+            true => detect::broadcast::mul(xin, y.clone()),
+            false => detect::broadcast::add(xin, y.clone()),
+        };
+        let up = seeded(z.dims(), 23, (-1.0, 1.0), &train);
+        let grads = (z.clone() * up).sum().backward();
+        let (gx, gy) = (x.grad(&grads).unwrap(), y.grad(&grads).unwrap());
+        (host(z), host(gx), host(gy))
+    };
+    let cases = [
+        ([2, 6, 5, 4], [1, 6, 1, 1]),
+        ([2, 6, 5, 4], [2, 6, 1, 1]),
+        ([1, 6, 5, 4], [1, 1, 1, 4]),
+        ([1, 6, 1, 4], [2, 6, 5, 1]),
+    ];
+    for (xs, ys) in cases {
+        for mul in [false, true] {
+            for cl in [false, true] {
+                let what = format!("{xs:?} {ys:?} mul {mul} channels-last {cl}");
+                let (zf, gxf, gyf) = run(&flex(), xs, ys, mul, cl);
+                let (zt, gxt, gyt) = run(&torch(), xs, ys, mul, cl);
+                assert!(max_abs(&zf, &zt) <= 1e-6, "values, {what}");
+                assert!(max_abs(&gxf, &gxt) <= 1e-5, "x gradient, {what}");
+                assert!(max_abs(&gyf, &gyt) <= 1e-5, "y gradient, {what}");
+            }
+        }
+    }
+    let mean = |dev: &Device, dims: &[usize], channels_last: bool| {
+        let train = Device::autodiff(dev.clone());
+        let (x, xin) = leaf([2, 5, 6, 7], 24, (-2.0, 2.0), &train, channels_last);
+        let z = detect::broadcast::mean_dims(xin, dims);
+        let up = seeded(z.dims(), 25, (-1.0, 1.0), &train);
+        let g = x.grad(&(z.clone() * up).sum().backward()).unwrap();
+        (z.dims(), host(z), host(g))
+    };
+    for dims in [vec![2, 3], vec![1], vec![0, 2, 3]] {
+        for cl in [false, true] {
+            let (df, zf, gf) = mean(&flex(), &dims, cl);
+            let (dt, zt, gt) = mean(&torch(), &dims, cl);
+            assert_eq!(df, dt, "mean over {dims:?}");
+            assert!(
+                max_abs(&zf, &zt) <= 1e-6,
+                "mean over {dims:?}, channels-last {cl}"
+            );
+            assert!(max_abs(&gf, &gt) <= 1e-6, "gradient, mean over {dims:?}");
         }
     }
 }

@@ -79,7 +79,7 @@ pub(crate) fn conv2d(
 /// `y + b` with `b` one value per channel (axis 1).
 pub(crate) fn add_bias(y: Tensor<4>, b: Tensor<1>) -> Tensor<4> {
     let c = b.dims()[0];
-    y + b.reshape([1, c, 1, 1])
+    crate::broadcast::add(y, b.reshape([1, c, 1, 1]))
 }
 
 #[cfg(feature = "gpu")]

@@ -20,6 +20,8 @@
 #[cfg_attr(feature = "tch", allow(deprecated))]
 pub mod activation;
 pub mod bench;
+#[cfg_attr(feature = "tch", allow(deprecated))]
+pub mod broadcast;
 pub mod centernet;
 #[cfg_attr(feature = "tch", allow(deprecated))]
 pub mod conv;
@@ -40,6 +42,25 @@ pub mod raw;
 pub mod spec;
 pub mod tfjs;
 pub mod torch_env;
+#[cfg_attr(feature = "tch", allow(deprecated))]
+mod upscale;
+
+/// Seeded inputs for the unit tests of the kernel modules.
+#[cfg(test)]
+pub(crate) mod testing {
+    use burn::tensor::{Device, Tensor, TensorData};
+    use rand::{Rng, SeedableRng};
+
+    /// A uniform tensor in ±`bound` from `seed` (host values: the device's generator is shared
+    /// by parallel tests).
+    pub fn seeded(dims: [usize; 4], seed: u64, bound: f32, dev: &Device) -> Tensor<4> {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let v: Vec<f32> = (0..dims.iter().product::<usize>())
+            .map(|_| rng.random_range(-bound..bound))
+            .collect();
+        Tensor::from_data(TensorData::new(v, dims), dev)
+    }
+}
 
 use anyhow::Result;
 use burn::tensor::{Device, Tensor};

@@ -2,10 +2,11 @@
 //! activations (sigmoid, SiLU, leaky ReLU, hard swish, ReLU and ReLU6: one ATen call forward and
 //! one backward, as PyTorch's autograd runs them), its convolution (oneDNN forward; the input
 //! gradient as burn's transposed convolution, which libtorch also runs on oneDNN) in PyTorch's
-//! channels-last memory format, and ATen's constant pad, which keeps that format.
+//! channels-last memory format, ATen's constant pad, which keeps that format, and its bilinear
+//! up-sampling for the detectors' feature pyramids (`crate::upscale`), which keeps it too.
 //!
 //! Built only with the `tch` feature. The autodiff implementations of [`ActivationKernels`],
-//! [`ConvKernels`] and [`PadKernels`] (in their modules) call these for the inner backend, so a
+//! [`ConvKernels`], [`PadKernels`] and [`UpscaleKernels`] (in their modules) call these for the inner backend, so a
 //! gradient through libtorch costs what it costs in PyTorch.
 
 // burn 0.22 marks its LibTorch backend deprecated (it steers users to CubeCL backends, whose CPU
@@ -14,8 +15,10 @@
 #![allow(deprecated)]
 
 use crate::activation::ActivationKernels;
+use crate::broadcast::BroadcastKernels;
 use crate::conv::ConvKernels;
 use crate::kernels::PadKernels;
+use crate::upscale::UpscaleKernels;
 use burn::backend::libtorch::TchTensor;
 use burn::backend::ops::ModuleOps;
 use burn::backend::LibTorch;
@@ -94,10 +97,15 @@ impl ConvKernels for LibTorch {
         if !options.is_asymmetric() {
             return LibTorch::conv2d_x_backward(x, w, g, options);
         }
-        let [_, _, h, wd] = x.shape().dims();
-        let [(top, _), (left, _)] = options.padding;
-        let (x, options) = pad_asymmetric(x, options);
-        let grad = LibTorch::conv2d_x_backward(x, w, g, options).tensor;
+        let [n, c, h, wd] = x.shape().dims();
+        let [(top, bottom), (left, right)] = options.padding;
+        // burn's input gradient reads only the input's shape: the padded input's, as a
+        // zero-stride view of one zero instead of a padded copy.
+        let padded = [n, c, h + top + bottom, wd + left + right].map(|d| d as i64);
+        let zero = tch::Tensor::zeros([1], (x.tensor.kind(), x.tensor.device()));
+        let like = TchTensor::new(zero.expand(padded, false));
+        let options = ConvOptions::new(options.stride, [0, 0], options.dilation, options.groups);
+        let grad = LibTorch::conv2d_x_backward(like, w, g, options).tensor;
         TchTensor::new(
             grad.narrow(2, top as i64, h as i64)
                 .narrow(3, left as i64, wd as i64),
@@ -168,5 +176,74 @@ impl PadKernels for LibTorch {
             .flat_map(|&(b, a)| [b as i64, a as i64])
             .collect();
         TchTensor::new(x.tensor.pad(pad, "constant", value as f64))
+    }
+}
+
+/// ATen's `upsample_bilinear2d` (one pass, channels-last in and out), the legacy formula's end
+/// samples by `replication_pad2d`; backward their two backward kernels, as PyTorch's autograd
+/// runs them.
+impl UpscaleKernels for LibTorch {
+    fn cac_upscales_natively(_x: &TchTensor) -> bool {
+        true
+    }
+    fn cac_upscale(x: TchTensor, k: [usize; 2], legacy: bool) -> TchTensor {
+        let [_, _, h, w] = x.shape().dims();
+        let size = interpolated(h, w, k, legacy);
+        let y = x.tensor.upsample_bilinear2d(size, legacy, None, None);
+        TchTensor::new(match legacy {
+            true => y.replication_pad2d(end_pad(k)),
+            false => y,
+        })
+    }
+    fn cac_upscale_backward(
+        g: TchTensor,
+        input: [usize; 4],
+        k: [usize; 2],
+        legacy: bool,
+    ) -> TchTensor {
+        let size = interpolated(input[2], input[3], k, legacy);
+        let g = match legacy {
+            true => {
+                // The pad's input, for its shape and layout: a view of the gradient.
+                let like = g.tensor.narrow(2, 0, size[0]).narrow(3, 0, size[1]);
+                like.replication_pad2d_backward(&g.tensor, end_pad(k))
+            }
+            false => g.tensor,
+        };
+        let input = input.map(|d| d as i64);
+        let dx = tch::Tensor::upsample_bilinear2d_backward(&g, size, input, legacy, None, None);
+        TchTensor::new(dx)
+    }
+}
+
+/// The interpolated size of `crate::upscale`'s formulas: `k(n − 1) + 1` (legacy) or `k n`.
+fn interpolated(h: usize, w: usize, k: [usize; 2], legacy: bool) -> [i64; 2] {
+    let samples = |n: usize, k: usize| match legacy {
+        true => k * (n - 1) + 1,
+        false => k * n,
+    } as i64;
+    [samples(h, k[0]), samples(w, k[1])]
+}
+
+/// `replication_pad2d`'s (left, right, top, bottom) for the legacy formula's end samples.
+fn end_pad(k: [usize; 2]) -> [i64; 4] {
+    [0, k[1] as i64 - 1, 0, k[0] as i64 - 1]
+}
+
+/// One ATen `sum` or `mean` over all the axes (burn-tch reduces one axis at a time); the mean's
+/// gradient is one multiplication of the expanded gradient, as PyTorch's autograd computes it.
+impl BroadcastKernels for LibTorch {
+    fn cac_sum_dims(x: TchTensor, dims: Vec<usize>) -> TchTensor {
+        let dims: Vec<i64> = dims.iter().map(|&d| d as i64).collect();
+        TchTensor::new(x.tensor.sum_dim_intlist(dims, true, x.tensor.kind()))
+    }
+    fn cac_mean_dims(x: TchTensor, dims: Vec<usize>) -> TchTensor {
+        let dims: Vec<i64> = dims.iter().map(|&d| d as i64).collect();
+        TchTensor::new(x.tensor.mean_dim(dims, true, x.tensor.kind()))
+    }
+    fn cac_mean_dims_backward(g: TchTensor, shape: Vec<usize>, dims: Vec<usize>) -> TchTensor {
+        let n: usize = dims.iter().map(|&d| shape[d]).product();
+        let shape: Vec<i64> = shape.iter().map(|&d| d as i64).collect();
+        TchTensor::new(g.tensor.expand(shape, false) * (1.0 / n as f64))
     }
 }

@@ -5,8 +5,11 @@
 //! source image; an integer up-scaling whose table is a shift per phase (the detectors' 2×
 //! feature up-sampling) runs as shifted slices and an interleave instead, with the same lerp
 //! and the same values. Index and weight tables are computed in f64 like tfjs-cpu; the lerps
-//! run in f32 on the device (tfjs-cpu runs them in f64 and rounds once: ~1 ulp apart).
+//! run in f32 on the device (tfjs-cpu runs them in f64 and rounds once: ~1 ulp apart). Where
+//! the backend has a fast interpolation kernel of its own (libtorch), power-of-two up-scalings
+//! run on it instead ([`crate::upscale`]).
 
+use crate::upscale::{native_factors, upscale, Formula};
 use burn::tensor::{Device, Int, Tensor, TensorData};
 
 /// Source indices (floor, ceil) and fractional weights of one resized axis, tfjs-cpu formula.
@@ -42,7 +45,7 @@ pub(crate) fn resize_table(
 
 /// Bilinear resize of the axes `h_axis`, `w_axis` of a rank-4 tensor to `(out_h, out_w)`,
 /// with TF `align_corners` / `half_pixel_centers` semantics (tfjs-cpu index formula).
-pub(crate) fn resize_bilinear(
+pub fn resize_bilinear(
     x: Tensor<4>,
     h_axis: usize,
     w_axis: usize,
@@ -51,6 +54,13 @@ pub(crate) fn resize_bilinear(
     align_corners: bool,
     half_pixel_centers: bool,
 ) -> Tensor<4> {
+    if let Some(formula) = Formula::of(align_corners, half_pixel_centers) {
+        if (h_axis, w_axis) == (2, 3) {
+            if let Some(k) = native_factors(&x, out_h, out_w) {
+                return upscale(x, k, formula);
+            }
+        }
+    }
     let x = resize_axis(x, w_axis, out_w, align_corners, half_pixel_centers);
     resize_axis(x, h_axis, out_h, align_corners, half_pixel_centers)
 }

@@ -9,6 +9,7 @@
 use super::model::{HostData, HostTensor};
 use super::value::{pad4, FloatValue, Node, Value};
 use crate::activation as fast;
+use crate::broadcast;
 use crate::conv::conv2d;
 use crate::kernels::{broadcast_shape, pad_constant};
 use crate::preprocess::resize_bilinear;
@@ -400,9 +401,9 @@ fn binary(dev: &Device, op: &str, a: &Value, b: &Value) -> Result<Value> {
         _ => {
             let (x, y) = (phys(a)?, phys(b)?);
             match op {
-                "Add" | "AddV2" => x + y,
+                "Add" | "AddV2" => broadcast::add(x, y),
                 "Sub" => x - y,
-                "Mul" => x * y,
+                "Mul" => broadcast::mul(x, y),
                 "RealDiv" | "Div" => x / y,
                 "Maximum" => x.max_pair(y),
                 _ => x.min_pair(y),
@@ -505,7 +506,7 @@ fn mean(dev: &Device, node: &Node, args: &[&Value]) -> Result<FloatValue> {
     } else {
         axes.iter().map(|a| a + off).collect()
     };
-    let t = x.t.mean_dims(&phys);
+    let t = broadcast::mean_dims(x.t, &phys);
     if x.nchw {
         let mut shape = x.shape.clone();
         for &a in &axes {
