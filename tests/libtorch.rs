@@ -226,6 +226,16 @@ fn libtorch_upscalings_match_flex_for_both_tensorflow_formulas() {
         let g = x.grad(&(y.clone() * up).sum().backward()).unwrap();
         (y.dims(), host(y), host(g))
     };
+    // The comparison is between two paths: libtorch takes ATen's kernel, Flex the phases.
+    let probe = |dev: &Device| seeded([1, 2, 6, 5], 0, (0.0, 1.0), dev);
+    assert_eq!(
+        detect::upscale::native_factors(&probe(&torch()), 12, 10),
+        Some([2, 2])
+    );
+    assert_eq!(
+        detect::upscale::native_factors(&probe(&flex()), 12, 10),
+        None
+    );
     for (dims, k) in [
         ([1, 8, 6, 5], [2, 2]),
         ([2, 3, 4, 7], [4, 2]),
@@ -300,6 +310,36 @@ fn libtorch_broadcast_gradients_match_flex() {
                 "mean over {dims:?}, channels-last {cl}"
             );
             assert!(max_abs(&gf, &gt) <= 1e-6, "gradient, mean over {dims:?}");
+        }
+    }
+}
+
+/// A convolution with TensorFlow's SAME padding at stride 2 (one more row and column after than
+/// before, and the reverse) on libtorch equals Flex's, values and input gradient: libtorch's
+/// input gradient runs on a zero-stride stand-in of the padded input's shape, not a padded copy.
+#[test]
+fn libtorch_asymmetrically_padded_convolutions_match_flex() {
+    use burn::tensor::ops::ConvOptions;
+    let run = |dev: &Device, padding: [(usize, usize); 2], groups: usize, channels_last: bool| {
+        let train = Device::autodiff(dev.clone());
+        let (x, xin) = leaf([2, 4, 9, 8], 31, (-1.0, 1.0), &train, channels_last);
+        let w = seeded([6, 4 / groups, 3, 3], 32, (-0.5, 0.5), &train);
+        let options = ConvOptions::new_with_padding([2, 2], padding, [1, 1], groups);
+        let y = detect::conv::conv2d(xin, w, None, options);
+        let up = seeded(y.dims(), 33, (-1.0, 1.0), &train);
+        let g = x.grad(&(y.clone() * up).sum().backward()).unwrap();
+        (y.dims(), host(y), host(g))
+    };
+    for padding in [[(0, 1), (0, 1)], [(1, 0), (0, 1)], [(0, 2), (1, 0)]] {
+        for groups in [1, 2] {
+            for cl in [false, true] {
+                let what = format!("padding {padding:?}, groups {groups}, channels-last {cl}");
+                let (df, yf, gf) = run(&flex(), padding, groups, cl);
+                let (dt, yt, gt) = run(&torch(), padding, groups, cl);
+                assert_eq!(df, dt, "{what}");
+                assert!(max_abs(&yf, &yt) <= 1e-5, "values, {what}");
+                assert!(max_abs(&gf, &gt) <= 1e-5, "gradient, {what}");
+            }
         }
     }
 }

@@ -22,7 +22,11 @@ use burn::tensor::{Shape, Tensor};
 /// `x + y` with numpy broadcasting (equal ranks); the gradient of a broadcast operand is one
 /// reduction.
 pub fn add<const D: usize>(x: Tensor<D>, y: Tensor<D>) -> Tensor<D> {
-    match x.dims() == y.dims() {
+    let (xs, ys) = (x.dims(), y.dims());
+    if let Err(e) = crate::kernels::broadcast_shape(&xs, &ys) {
+        panic!("add: {e}");
+    }
+    match xs == ys {
         true => x + y,
         false => Tensor::from_dispatch(<Dispatch as BroadcastKernels>::cac_add(
             x.into_dispatch(),
@@ -34,7 +38,11 @@ pub fn add<const D: usize>(x: Tensor<D>, y: Tensor<D>) -> Tensor<D> {
 /// `x · y` with numpy broadcasting (equal ranks); the gradient of a broadcast operand is one
 /// reduction.
 pub fn mul<const D: usize>(x: Tensor<D>, y: Tensor<D>) -> Tensor<D> {
-    match x.dims() == y.dims() {
+    let (xs, ys) = (x.dims(), y.dims());
+    if let Err(e) = crate::kernels::broadcast_shape(&xs, &ys) {
+        panic!("mul: {e}");
+    }
+    match xs == ys {
         true => x * y,
         false => Tensor::from_dispatch(<Dispatch as BroadcastKernels>::cac_mul(
             x.into_dispatch(),
@@ -43,14 +51,22 @@ pub fn mul<const D: usize>(x: Tensor<D>, y: Tensor<D>) -> Tensor<D> {
     }
 }
 
-/// `x` averaged over `dims` (each kept with length 1), in one reduction where the backend has
-/// one; the same values as burn's `mean_dims`.
+/// `x` averaged over `dims` (each kept with length 1; an axis listed twice counts once), in one
+/// reduction where the backend has one; on Flex the same values as burn's `mean_dims`.
 pub fn mean_dims<const D: usize>(x: Tensor<D>, dims: &[usize]) -> Tensor<D> {
+    assert!(
+        dims.iter().all(|&d| d < D),
+        "axes {dims:?} of a rank-{D} tensor"
+    );
+    // In the order given (burn's reduction order), each axis once.
+    let mut dims = dims.to_vec();
+    let mut seen = [false; D];
+    dims.retain(|&d| !std::mem::replace(&mut seen[d], true));
     match dims.is_empty() {
         true => x,
         false => Tensor::from_dispatch(<Dispatch as BroadcastKernels>::cac_mean_dims(
             x.into_dispatch(),
-            dims.to_vec(),
+            dims,
         )),
     }
 }
@@ -137,20 +153,19 @@ struct Mul {
 }
 
 impl<B: Backend + BroadcastKernels> Backward<B, 2> for Mul {
-    type State = (NodeId, NodeId);
+    /// Each operand, kept only where the other one needs a gradient (as burn's own `mul`).
+    type State = (Option<NodeId>, Option<NodeId>);
 
     fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, cp: &mut Checkpointer) {
-        let (x, y): (FloatTensor<B>, FloatTensor<B>) = (
-            cp.retrieve_node_output(ops.state.0),
-            cp.retrieve_node_output(ops.state.1),
-        );
+        let x: Option<FloatTensor<B>> = ops.state.0.map(|n| cp.retrieve_node_output(n));
+        let y: Option<FloatTensor<B>> = ops.state.1.map(|n| cp.retrieve_node_output(n));
         let [xs, ys] = self.shapes;
         binary::<B, _, _>(
             ops.parents,
             ops.node,
             grads,
-            |g| reduce_to::<B>(B::float_mul(g, y), &xs),
-            |g| reduce_to::<B>(B::float_mul(g, x), &ys),
+            |g| reduce_to::<B>(B::float_mul(g, y.expect("kept for x's gradient")), &xs),
+            |g| reduce_to::<B>(B::float_mul(g, x.expect("kept for y's gradient")), &ys),
         );
     }
 }
@@ -196,7 +211,11 @@ impl<B: Backend + BroadcastKernels, C: CheckpointStrategy> BroadcastKernels for 
             .stateful()
         {
             OpsKind::Tracked(mut prep) => {
-                let state = (prep.checkpoint(&x), prep.checkpoint(&y));
+                let (x_tracked, y_tracked) = (x.is_tracked(), y.is_tracked());
+                let state = (
+                    y_tracked.then(|| prep.checkpoint(&x)),
+                    x_tracked.then(|| prep.checkpoint(&y)),
+                );
                 prep.finish(state, B::cac_mul(x.into_primitive(), y.into_primitive()))
             }
             OpsKind::UnTracked(prep) => {
@@ -231,6 +250,10 @@ mod tests {
             assert_eq!(got.into_data(), want.into_data(), "{dims:?}");
             assert_eq!(gg.into_data(), gw.into_data(), "gradient, {dims:?}");
         }
+        // An axis listed twice is averaged once.
+        let x = seeded([2, 3, 5, 7], 9, 2.0, &dev);
+        let (got, want) = (mean_dims(x.clone(), &[2, 3, 2]), x.mean_dims(&[2, 3]));
+        assert_eq!(got.into_data(), want.into_data());
     }
 
     /// Values and both gradients are burn's own broadcast ops' to the bit (Flex keeps burn's

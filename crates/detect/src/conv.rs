@@ -62,7 +62,7 @@ pub(crate) trait ConvKernels: Backend {
 /// `conv2d` of NCHW `x` with OIHW `w` (and a bias per output channel), through
 /// [`ConvKernels`]: this module's kernels for dense and depthwise layers on Flex, burn's for
 /// the rest.
-pub(crate) fn conv2d(
+pub fn conv2d(
     x: Tensor<4>,
     w: Tensor<4>,
     bias: Option<Tensor<1>>,

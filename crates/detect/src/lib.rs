@@ -43,7 +43,7 @@ pub mod spec;
 pub mod tfjs;
 pub mod torch_env;
 #[cfg_attr(feature = "tch", allow(deprecated))]
-mod upscale;
+pub mod upscale;
 
 /// Seeded inputs for the unit tests of the kernel modules.
 #[cfg(test)]

@@ -231,7 +231,8 @@ fn end_pad(k: [usize; 2]) -> [i64; 4] {
 }
 
 /// One ATen `sum` or `mean` over all the axes (burn-tch reduces one axis at a time); the mean's
-/// gradient is one multiplication of the expanded gradient, as PyTorch's autograd computes it.
+/// gradient is the expanded gradient times `1/n`, in one pass (PyTorch's autograd divides by
+/// `n`: at most an ulp apart).
 impl BroadcastKernels for LibTorch {
     fn cac_sum_dims(x: TchTensor, dims: Vec<usize>) -> TchTensor {
         let dims: Vec<i64> = dims.iter().map(|&d| d as i64).collect();

@@ -60,7 +60,7 @@ impl Formula {
 /// The factors `[kh, kw]` when `[h, w] → [out_h, out_w]` is a power-of-two up-scaling on each
 /// axis (1 allowed) that interpolation reproduces exactly, and the backend of `x` runs it on its
 /// own kernel ([`UpscaleKernels::cac_upscales_natively`]); `None` otherwise.
-pub(crate) fn native_factors(x: &Tensor<4>, out_h: usize, out_w: usize) -> Option<[usize; 2]> {
+pub fn native_factors(x: &Tensor<4>, out_h: usize, out_w: usize) -> Option<[usize; 2]> {
     let [_, _, h, w] = x.dims();
     let k = factors([h, w], [out_h, out_w])?;
     let x = x.clone().into_dispatch();
@@ -88,8 +88,9 @@ pub(crate) fn upscale(x: Tensor<4>, k: [usize; 2], formula: Formula) -> Tensor<4
 }
 
 /// Up-scaling per backend. The default bodies are burn's `interpolate` (and its backward) with
-/// the legacy formula's end samples as slices: correct on every backend (tested on Flex against
-/// the phase path), used where `cac_upscales_natively` says so.
+/// the legacy formula's end samples as slices: a reference that is correct on every backend
+/// (tested on Flex against the phase path); they run only where a backend says it up-scales
+/// natively without overriding them, which none does today.
 #[backend_extension(Flex, Autodiff, Cube: cfg(feature = "gpu"), LibTorch: cfg(feature = "tch"))]
 pub(crate) trait UpscaleKernels: Backend {
     /// Whether the detectors' up-scalings should run here rather than on the phase path.
@@ -257,7 +258,8 @@ mod tests {
         assert_eq!(factors([16, 16], [24, 32]), None); // not a multiple
         assert_eq!(factors([16, 16], [8, 32]), None); // a down-scaling
         assert_eq!(factors([1, 16], [2, 32]), None); // one sample: the phase path's clamp
-                                                     // Flex keeps the phase path whatever the shape.
+
+        // Flex keeps the phase path whatever the shape.
         let dev = Device::from(burn::backend::FlexDevice);
         assert_eq!(
             native_factors(&seeded([1, 1, 4, 4], 0, 2.0, &dev), 8, 8),
