@@ -721,15 +721,8 @@ impl<B: Backend + ConvKernels, C: CheckpointStrategy> ConvKernels for Autodiff<B
 #[cfg(test)]
 mod tests {
     use super::*;
-    use burn::tensor::{Device, TensorData};
-
-    fn seeded(shape: [usize; 4], seed: u64, dev: &Device) -> Tensor<4> {
-        use rand::{Rng, SeedableRng};
-        let mut r = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-        let n = shape.iter().product();
-        let v: Vec<f32> = (0..n).map(|_| r.random_range(-1.0..1.0)).collect();
-        Tensor::from_data(TensorData::new(v, shape), dev)
-    }
+    use crate::testing::seeded;
+    use burn::tensor::Device;
 
     fn max_rel(a: Tensor<4>, b: Tensor<4>) -> f32 {
         let (a, b) = (
@@ -764,9 +757,9 @@ mod tests {
         // TensorFlow's SAME padding of a stride-2 layer: one more row and column at the end.
         let cases = cases.chain([([1, 3, 12, 13], [4, 3, 3, 3], asymmetric)]);
         for (k, (xs, ws, options)) in cases.enumerate() {
-            let x0 = seeded(xs, 10 + k as u64, &dev);
-            let w0 = seeded(ws, 20 + k as u64, &dev);
-            let bias = seeded([1, 1, 1, ws[0]], 30 + k as u64, &dev).reshape([ws[0]]);
+            let x0 = seeded(xs, 10 + k as u64, 1.0, &dev);
+            let w0 = seeded(ws, 20 + k as u64, 1.0, &dev);
+            let bias = seeded([1, 1, 1, ws[0]], 30 + k as u64, 1.0, &dev).reshape([ws[0]]);
             let run = |fast: bool| {
                 let (x, w) = (x0.clone().require_grad(), w0.clone().require_grad());
                 let y = if fast {
@@ -779,7 +772,7 @@ mod tests {
                         options.clone(),
                     )
                 };
-                let weights = seeded(y.dims(), 99, &dev);
+                let weights = seeded(y.dims(), 99, 1.0, &dev);
                 let grads = (y.clone() * weights).sum().backward();
                 (y, x.grad(&grads).unwrap(), w.grad(&grads).unwrap())
             };
@@ -829,8 +822,8 @@ mod tests {
             ),
         ];
         for (k, (xs, ws, options)) in cases.into_iter().enumerate() {
-            let x0 = seeded(xs, 40 + k as u64, &dev);
-            let w0 = seeded(ws, 50 + k as u64, &dev);
+            let x0 = seeded(xs, 40 + k as u64, 1.0, &dev);
+            let w0 = seeded(ws, 50 + k as u64, 1.0, &dev);
             let run = |fast: bool| {
                 let (x, w) = (x0.clone().require_grad(), w0.clone().require_grad());
                 let y = if fast {
@@ -838,7 +831,7 @@ mod tests {
                 } else {
                     burn::tensor::module::conv2d(x.clone(), w.clone(), None, options.clone())
                 };
-                let weights = seeded(y.dims(), 98, &dev);
+                let weights = seeded(y.dims(), 98, 1.0, &dev);
                 let grads = (y.clone() * weights).sum().backward();
                 (y, x.grad(&grads).unwrap(), w.grad(&grads).unwrap())
             };
@@ -860,10 +853,10 @@ mod tests {
     #[test]
     fn inference_and_grouped_convolutions_agree() {
         let dev = Device::from(burn::backend::FlexDevice);
-        let x = seeded([1, 4, 12, 12], 1, &dev);
+        let x = seeded([1, 4, 12, 12], 1, 1.0, &dev);
         for (w, groups) in [
-            (seeded([6, 4, 3, 3], 2, &dev), 1),
-            (seeded([4, 1, 3, 3], 3, &dev), 4),
+            (seeded([6, 4, 3, 3], 2, 1.0, &dev), 1),
+            (seeded([4, 1, 3, 3], 3, 1.0, &dev), 4),
         ] {
             let o = ConvOptions::new([1, 1], [1, 1], [1, 1], groups);
             let a = conv2d(x.clone(), w.clone(), None, o.clone());

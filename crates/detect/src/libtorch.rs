@@ -18,7 +18,7 @@ use crate::activation::ActivationKernels;
 use crate::broadcast::BroadcastKernels;
 use crate::conv::ConvKernels;
 use crate::kernels::PadKernels;
-use crate::upscale::UpscaleKernels;
+use crate::upscale::{interpolated, UpscaleKernels};
 use burn::backend::libtorch::TchTensor;
 use burn::backend::ops::ModuleOps;
 use burn::backend::LibTorch;
@@ -188,7 +188,7 @@ impl UpscaleKernels for LibTorch {
     }
     fn cac_upscale(x: TchTensor, k: [usize; 2], legacy: bool) -> TchTensor {
         let [_, _, h, w] = x.shape().dims();
-        let size = interpolated(h, w, k, legacy);
+        let size = interpolated([h, w], k, legacy).map(|d| d as i64);
         let y = x.tensor.upsample_bilinear2d(size, legacy, None, None);
         TchTensor::new(match legacy {
             true => y.replication_pad2d(end_pad(k)),
@@ -201,7 +201,7 @@ impl UpscaleKernels for LibTorch {
         k: [usize; 2],
         legacy: bool,
     ) -> TchTensor {
-        let size = interpolated(input[2], input[3], k, legacy);
+        let size = interpolated([input[2], input[3]], k, legacy).map(|d| d as i64);
         let g = match legacy {
             true => {
                 // The pad's input, for its shape and layout: a view of the gradient.
@@ -214,15 +214,6 @@ impl UpscaleKernels for LibTorch {
         let dx = tch::Tensor::upsample_bilinear2d_backward(&g, size, input, legacy, None, None);
         TchTensor::new(dx)
     }
-}
-
-/// The interpolated size of `crate::upscale`'s formulas: `k(n − 1) + 1` (legacy) or `k n`.
-fn interpolated(h: usize, w: usize, k: [usize; 2], legacy: bool) -> [i64; 2] {
-    let samples = |n: usize, k: usize| match legacy {
-        true => k * (n - 1) + 1,
-        false => k * n,
-    } as i64;
-    [samples(h, k[0]), samples(w, k[1])]
 }
 
 /// `replication_pad2d`'s (left, right, top, bottom) for the legacy formula's end samples.

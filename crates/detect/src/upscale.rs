@@ -101,7 +101,7 @@ pub(crate) trait UpscaleKernels: Backend {
     fn cac_upscale(x: FloatTensor<Self>, k: [usize; 2], legacy: bool) -> FloatTensor<Self> {
         let formula = formula(legacy);
         let [_, _, h, w] = x.shape().dims();
-        let size = [formula.samples(h, k[0]), formula.samples(w, k[1])];
+        let size = interpolated([h, w], k, legacy);
         let y = Self::interpolate(x, size, formula.options());
         match formula {
             Formula::Legacy => repeat_last::<Self>(repeat_last::<Self>(y, 2, k[0]), 3, k[1]),
@@ -116,10 +116,7 @@ pub(crate) trait UpscaleKernels: Backend {
         legacy: bool,
     ) -> FloatTensor<Self> {
         let formula = formula(legacy);
-        let size = [
-            formula.samples(input[2], k[0]),
-            formula.samples(input[3], k[1]),
-        ];
+        let size = interpolated([input[2], input[3]], k, legacy);
         let g = match formula {
             Formula::Legacy => sum_last::<Self>(sum_last::<Self>(g, 2, size[0]), 3, size[1]),
             Formula::HalfPixel => g,
@@ -128,6 +125,13 @@ pub(crate) trait UpscaleKernels: Backend {
         let like = Self::float_zeros(Shape::from(input), &g.device(), g.dtype().into());
         Self::interpolate_backward(like, g, size, formula.options())
     }
+}
+
+/// The size `[h, w]` is interpolated to for an up-scaling by `k` (the formula's `samples`),
+/// for the default bodies and the backends' own kernels alike.
+pub(crate) fn interpolated([h, w]: [usize; 2], k: [usize; 2], legacy: bool) -> [usize; 2] {
+    let formula = formula(legacy);
+    [formula.samples(h, k[0]), formula.samples(w, k[1])]
 }
 
 fn formula(legacy: bool) -> Formula {
