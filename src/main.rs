@@ -59,6 +59,21 @@ fn main() {
         cac::detect::fetch::set_cache_root(d.into());
     }
     let args = cli::Cli::parse();
+    // onnxruntime for users' ONNX detectors' forward passes that need no gradient: the path of
+    // its shared library, `auto` for the one of python3's onnxruntime package, or `off`.
+    // After parsing, so that `--help` answers whatever the variable holds.
+    if let Some(v) = std::env::var_os("CAC_ONNXRUNTIME").filter(|v| !v.is_empty() && v != "off") {
+        match cac::detect::onnx::runtime::enable(&v.to_string_lossy()) {
+            Ok(lib) => eprintln!(
+                "ONNX detectors' forward passes without gradient run on onnxruntime ({})",
+                lib.display()
+            ),
+            Err(e) => {
+                eprintln!("error: CAC_ONNXRUNTIME: {e:#}");
+                std::process::exit(2);
+            }
+        }
+    }
     if let Err(e) = cli::run(args) {
         eprintln!("error: {e:#}");
         std::process::exit(1);

@@ -12,7 +12,10 @@
 //! bad files are refused naming the file, node and op; the CLI (`cac models inspect`, `cac
 //! detect`, `cac train`, `cac eval`) takes `onnx:MODEL.onnx`.
 
+mod onnx_fixtures;
 mod support;
+
+use onnx_fixtures::{fixtures, has_ultralytics, manifest, Entry};
 
 use burn::tensor::{Tensor, TensorData};
 use cac::detect::onnx::{self, Dev, Host, OnnxDetector, Val};
@@ -21,7 +24,6 @@ use serde::Deserialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::sync::OnceLock;
 
 #[derive(Deserialize, Clone)]
 struct T {
@@ -41,101 +43,6 @@ fn read(path: &Path) -> BTreeMap<String, T> {
 fn write(path: &Path, name: &str, shape: &[usize], data: &[f32]) {
     let v = serde_json::json!({ name: { "shape": shape, "data": data } });
     std::fs::write(path, serde_json::to_vec(&v).unwrap()).unwrap();
-}
-
-#[derive(Deserialize)]
-struct Entry {
-    name: String,
-    file: String,
-    kind: String,
-    opset: i64,
-    outputs: Vec<String>,
-    /// How far onnxruntime's own output moves with float rounding (the ultralytics exports).
-    #[serde(default)]
-    noise: f64,
-    /// How a file that selects its boxes inside selects them (`topk`, `nms`).
-    #[serde(default)]
-    selects: String,
-}
-
-#[derive(Deserialize)]
-struct Manifest {
-    models: Vec<Entry>,
-}
-
-/// The fixtures folder, built once per script version (None: skipped outside CI).
-fn fixtures() -> Option<&'static Path> {
-    static F: OnceLock<Option<PathBuf>> = OnceLock::new();
-    F.get_or_init(|| {
-        if !support::require(
-            "python3",
-            &["-c", "import onnx, onnxruntime, numpy"],
-            "python3 with onnx and onnxruntime (pip install, as .ci/run does)",
-        ) {
-            return None;
-        }
-        let script = support::root().join("tools/onnx/make_models.py");
-        let tv = support::root().join("tools/onnx/export_torchvision.py");
-        let mut text = std::fs::read(&script).unwrap();
-        text.extend(std::fs::read(support::root().join("tools/onnx/ort_run.py")).unwrap());
-        text.extend(std::fs::read(&tv).unwrap());
-        use sha2::Digest;
-        let stamp = format!("{:x}", sha2::Sha256::digest(&text));
-        let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("onnx-fixtures");
-        let stamp_file = dir.join("stamp");
-        if std::fs::read_to_string(&stamp_file).ok().as_deref() != Some(stamp.as_str()) {
-            let _ = std::fs::remove_dir_all(&dir);
-            let out = Command::new("python3")
-                .arg(&script)
-                .arg(&dir)
-                .output()
-                .unwrap();
-            assert!(
-                out.status.success(),
-                "make_models.py failed:\n{}{}",
-                String::from_utf8_lossy(&out.stdout),
-                String::from_utf8_lossy(&out.stderr)
-            );
-            // torchvision's SSDlite as its dense pre-NMS export (where torch is installed), its
-            // --check: torchvision's own detections are rows of the dense output.
-            if dir.join("yolov8n.onnx").is_file() {
-                let out = Command::new("python3")
-                    .arg(&tv)
-                    .args([
-                        "ssdlite",
-                        dir.join("ssdlite.onnx").to_str().unwrap(),
-                        "--check",
-                    ])
-                    .output()
-                    .unwrap();
-                assert!(
-                    out.status.success(),
-                    "export_torchvision.py failed:\n{}{}",
-                    String::from_utf8_lossy(&out.stdout),
-                    String::from_utf8_lossy(&out.stderr)
-                );
-            }
-            std::fs::write(&stamp_file, &stamp).unwrap();
-        }
-        Some(dir)
-    })
-    .as_deref()
-}
-
-fn manifest(dir: &Path) -> Manifest {
-    serde_json::from_slice(&std::fs::read(dir.join("manifest.json")).unwrap()).unwrap()
-}
-
-/// The ultralytics exports must be there under CI.
-fn has_ultralytics(dir: &Path) -> bool {
-    let ok = dir.join("yolov8n.onnx").is_file();
-    if !ok {
-        support::missing(
-            "ultralytics' YOLOv8n export",
-            "pip install torch ultralytics onnxslim, as .ci/run does",
-        );
-    }
-    ok
 }
 
 /// The fixtures with the torch-built models (ultralytics, torchvision) and the shared folder of

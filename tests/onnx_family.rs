@@ -9,6 +9,7 @@
 //! table is printed and written to `$CARGO_TARGET_TMPDIR/onnx-family/conformance.md`
 //! (docs/detectors.md shows one run).
 
+mod onnx_fixtures;
 mod support;
 
 use burn::tensor::{Tensor, TensorData};
@@ -18,7 +19,6 @@ use serde::Deserialize;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 #[derive(Deserialize)]
 struct T {
@@ -58,30 +58,10 @@ fn family() -> Option<PathBuf> {
     ) {
         return None;
     }
-    let tools = support::root().join("tools/onnx");
-    let mut text = Vec::new();
-    for f in ["make_family.py", "make_models.py", "ort_run.py"] {
-        text.extend(std::fs::read(tools.join(f)).unwrap());
-    }
-    use sha2::Digest;
-    let stamp = format!("{:x}", sha2::Sha256::digest(&text));
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("onnx-family");
-    if std::fs::read_to_string(dir.join("stamp")).ok().as_deref() != Some(stamp.as_str()) {
-        let _ = std::fs::remove_dir_all(&dir);
-        let out = Command::new("python3")
-            .arg(tools.join("make_family.py"))
-            .arg(&dir)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "make_family.py failed:\n{}{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
-        std::fs::write(dir.join("stamp"), &stamp).unwrap();
-    }
-    Some(dir)
+    let scripts = ["make_family.py", "make_models.py", "ort_run.py"];
+    Some(onnx_fixtures::built_once("onnx-family", &scripts, |dir| {
+        onnx_fixtures::python("make_family.py", &[dir.as_os_str()])
+    }))
 }
 
 /// What a row must come to: it runs (with a config, where its refusal said to write one), or

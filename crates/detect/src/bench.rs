@@ -403,6 +403,10 @@ pub struct OnnxRow {
     pub backward_ms: f64,
     pub ort_ms: Option<f64>,
     pub torch_ms: Option<(f64, f64)>,
+    /// `detect` (pre-processing, graph, decoding, NMS) on cac's executor and, where it was
+    /// enabled, with onnxruntime running the graph ([`super::onnx::runtime`]).
+    pub detect_ms: f64,
+    pub detect_runtime_ms: Option<f64>,
 }
 
 impl OnnxRow {
@@ -440,6 +444,9 @@ pub fn onnx_models(
         "torch_forward_ms",
         "torch_forward_backward_ms",
         "forward_backward_over_torch",
+        "detect_ms",
+        "detect_onnxruntime_ms",
+        "detect_onnxruntime_over_ort",
     ]);
     for f in files {
         let spec = format!("onnx:{f}");
@@ -458,7 +465,19 @@ pub fn onnx_models(
                 let _ = v[0].dev(inference)?.t.sum().into_scalar::<f32>();
                 Ok(())
             })?;
-            let (fwd, bwd) = forward_backward_ms(&det, runs, x, training)?;
+            let (fwd, bwd) = forward_backward_ms(&det, runs, x.clone(), training)?;
+            use super::onnx::Engine;
+            let detect = |engine| {
+                time(runs, || {
+                    det.detect_with(x.clone(), engine)?;
+                    Ok(())
+                })
+            };
+            let detect_ms = detect(Engine::Executor)?;
+            let detect_runtime_ms = match det.engine() {
+                Engine::Runtime => Some(detect(Engine::Runtime)?),
+                Engine::Executor => None,
+            };
             let (ort, torch) = *peers.get_or_insert_with(|| {
                 (
                     ort_ms(python, &path, &input, [1, 3, h, w], threads, runs.max(3)),
@@ -473,6 +492,8 @@ pub fn onnx_models(
                 backward_ms: bwd,
                 ort_ms: ort,
                 torch_ms: torch,
+                detect_ms,
+                detect_runtime_ms,
             };
             let (rf, rb) = row.ratios();
             rows.row([
@@ -489,6 +510,9 @@ pub fn onnx_models(
                 na(row.torch_ms.map(|t| t.0), 2),
                 na(row.torch_ms.map(|t| t.1), 2),
                 na(row.torch_ms.map(|t| bwd / t.1), 4),
+                format!("{detect_ms:.2}"),
+                na(detect_runtime_ms, 2),
+                na(detect_runtime_ms.zip(ort).map(|(d, o)| d / o), 4),
             ]);
             on_row(&rows);
         }

@@ -93,6 +93,20 @@ fn bench_onnx(a: &DetectBench) -> Result<()> {
         false => a.threads.clone(),
     };
     let backends = super::backends(&a.backends)?;
+    // `detect` with onnxruntime running the graph, beside cac's executor: the library of
+    // CAC_ONNXRUNTIME, else the one of --python's onnxruntime package.
+    use cac::detect::onnx::runtime;
+    if runtime::enabled().is_none() {
+        if let Some(lib) = runtime::find_in_python(&a.python) {
+            if let Err(e) = runtime::enable(&lib.display().to_string()) {
+                eprintln!("detect_onnxruntime_ms n/a: {e:#}");
+            }
+        }
+    }
+    match runtime::enabled() {
+        Some(lib) => println!("onnxruntime for detect: {}", lib.display()),
+        None => println!("onnxruntime for detect: none (detect_onnxruntime_ms n/a)"),
+    }
     let mut all: Option<cac::report::Table> = None;
     for threads in counts {
         println!(

@@ -2,7 +2,8 @@
 //! recognised at all? P@0.5, mean best confidence and targeted success of NanoDet and CenterNet
 //! for each mesh × texture × renderer × viewpoint set × brightness. Viewpoint sets: `street`
 //! (12-ish azimuths, elevation 5–15°, distance ratio 1.5, the demo's evaluation views), `free`
-//! (the config's free viewpoint distribution) and `hemisphere` (the same with elevation 0–90°).
+//! (the config's free viewpoint distribution), `rv` (its restricted one: side views) and
+//! `hemisphere` (the free one with elevation 0–90°).
 //! Photometric transforms are off unless asked for. With the Blender renderer every view is also
 //! re-rendered by Cycles at the same camera and lighting ([`super::blender`]). Rows come out one
 //! at a time (they are slow) and as two tables: one row per combination, one per view.
@@ -25,7 +26,11 @@ use std::path::PathBuf;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum ViewSet {
     Street,
+    /// The protocol's free viewpoint distribution (`fv` in `cac eval`).
     Free,
+    /// The protocol's restricted one: side views only (`rv` in `cac eval`).
+    #[value(name = "rv", alias = "restricted")]
+    Restricted,
     Hemisphere,
 }
 
@@ -182,6 +187,9 @@ pub(crate) fn views(
     let conds = match set {
         ViewSet::Street => return Ok(street_views(n, 1.5, b)),
         ViewSet::Free => Environment::new(env_cfg)?.sample_n(n, ViewpointSet::Free, b, seed),
+        ViewSet::Restricted => {
+            Environment::new(env_cfg)?.sample_n(n, ViewpointSet::Restricted, b, seed)
+        }
         ViewSet::Hemisphere => {
             env_cfg.elevation_deg = [0.0, 90.0];
             Environment::new(env_cfg)?.sample_n(n, ViewpointSet::Free, b, seed)

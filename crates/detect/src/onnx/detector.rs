@@ -17,6 +17,7 @@
 use super::config::OnnxConfig;
 use super::graph::OnnxGraph;
 use super::model::{Dim, Model};
+use super::runtime;
 use super::value::{Dev, Val};
 use crate::labels::COCO80;
 use crate::nms::class_aware_nms;
@@ -27,6 +28,15 @@ use anyhow::{anyhow, bail, ensure, Context, Result};
 use burn::tensor::{activation, Device, Tensor, TensorData};
 use std::collections::BTreeMap;
 use std::path::Path;
+
+/// What runs the graph of a forward pass that needs no gradient.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Engine {
+    /// cac's own executor ([`OnnxGraph`]), which also runs every gradient.
+    Executor,
+    /// onnxruntime ([`runtime`]), where it was enabled when the detector was loaded.
+    Runtime,
+}
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Head {
@@ -62,6 +72,11 @@ pub struct OnnxDetector {
     taps: Vec<usize>,
     /// The exported graph takes a batch of exactly one.
     batch_one: bool,
+    /// The file in onnxruntime, where [`runtime::enable`] was called before loading and the
+    /// head's outputs are the file's own (f32 ones).
+    runtime: Option<runtime::Session>,
+    /// The file, as errors name it.
+    file: String,
 }
 
 impl OnnxDetector {
@@ -184,6 +199,13 @@ impl OnnxDetector {
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "onnx".into());
+        let exported = |n: &str| graph.graph_outputs().iter().any(|o| o.name == n);
+        let runtime = match runtime::enabled() {
+            Some(_) if probe.iter().all(|n| exported(n)) => {
+                runtime::Session::open(path, &input_io.name, &probe)?
+            }
+            _ => None,
+        };
         Ok(OnnxDetector {
             graph,
             name,
@@ -195,7 +217,77 @@ impl OnnxDetector {
             classes,
             taps,
             batch_one,
+            runtime,
+            file: src,
         })
+    }
+
+    /// What [`Detector::detect`] runs the graph on.
+    pub fn engine(&self) -> Engine {
+        match self.runtime {
+            Some(_) => Engine::Runtime,
+            None => Engine::Executor,
+        }
+    }
+
+    /// [`Detector::detect`] with the graph run by `engine` (cac's executor where onnxruntime
+    /// was not enabled): class-aware NMS over the candidates, then the kept boxes clipped to
+    /// the image (as ultralytics clips them after its NMS).
+    pub fn detect_with(&self, images: Tensor<4>, engine: Engine) -> Result<Vec<Vec<Detection>>> {
+        let [_, _, ih, iw] = check_images(&images)?;
+        let c = self.candidates_with(images.detach(), engine)?;
+        let [b, n, k] = c.scores.dims();
+        let boxes = to_vec(&c.boxes)?;
+        let scores = to_vec(&c.scores)?;
+        let cfg = &self.config;
+        let mut out = Vec::with_capacity(b);
+        for i in 0..b {
+            let mut cand: Vec<(usize, f32, [f32; 4])> = Vec::new();
+            for j in 0..n {
+                let row = &scores[(i * n + j) * k..(i * n + j + 1) * k];
+                let bx: [f32; 4] = std::array::from_fn(|q| boxes[(i * n + j) * 4 + q]);
+                for (c, &s) in row.iter().enumerate() {
+                    if s.is_finite() && s as f64 > cfg.score_threshold {
+                        cand.push((c, s, bx));
+                    }
+                }
+            }
+            // Class-aware NMS (a box suppresses only its own class, as ultralytics' offsets do).
+            let yx: Vec<[f32; 4]> = cand
+                .iter()
+                .map(|(_, _, b)| [b[1], b[0], b[3], b[2]])
+                .collect();
+            let sc: Vec<f32> = cand.iter().map(|c| c.1).collect();
+            let cls: Vec<usize> = cand.iter().map(|c| c.0).collect();
+            let keep = class_aware_nms(
+                &yx,
+                &sc,
+                &cls,
+                cfg.max_detections,
+                cfg.iou_threshold,
+                cfg.score_threshold,
+            );
+            out.push(
+                keep.into_iter()
+                    .map(|q| {
+                        let (c, score, [x1, y1, x2, y2]) = cand[q];
+                        let (w, h) = (iw as f32, ih as f32);
+                        Detection {
+                            class_id: c,
+                            label: self.classes[c],
+                            score,
+                            bbox: [
+                                x1.clamp(0.0, w),
+                                y1.clamp(0.0, h),
+                                x2.clamp(0.0, w),
+                                y2.clamp(0.0, h),
+                            ],
+                        }
+                    })
+                    .collect(),
+            );
+        }
+        Ok(out)
     }
 
     pub fn config(&self) -> &OnnxConfig {
@@ -254,8 +346,9 @@ impl OnnxDetector {
         Ok((x, geo))
     }
 
-    /// The dense output `[B, N, K]` (rows per candidate) and its pre-sigmoid version.
-    fn dense(&self, x: Tensor<4>) -> Result<(Tensor<3>, Tensor<3>)> {
+    /// The dense output `[B, N, K]` (rows per candidate) and its pre-sigmoid version, from the
+    /// `engine` (onnxruntime gives no pre-sigmoid values: the probabilities twice).
+    fn dense(&self, x: Tensor<4>, engine: Engine) -> Result<(Tensor<3>, Tensor<3>)> {
         let b = x.dims()[0];
         let chunks: Vec<Tensor<4>> = if self.batch_one && b > 1 {
             (0..b).map(|i| x.clone().narrow(0, i, 1)).collect()
@@ -265,47 +358,97 @@ impl OnnxDetector {
         let mut probs = Vec::new();
         let mut pre = Vec::new();
         for c in chunks {
-            let feed = [(self.input.as_str(), Val::D(Dev::from(c)?))];
-            let names: Vec<&str> = std::iter::once(self.output.as_str())
-                .chain(self.config.boxes.as_deref())
-                .collect();
-            let (main, alt) = self.graph.run_tapped(&feed, &names, &self.taps)?;
-            let as3 = |v: &Val| -> Result<Tensor<3>> {
-                let d = v.dev(&self.graph.device)?;
-                ensure!(
-                    d.rank() == 3,
-                    "output {:?} has shape {:?}",
-                    self.output,
-                    d.shape
-                );
-                let t: Tensor<3> = d.t.clone().reshape([d.shape[0], d.shape[1], d.shape[2]]);
-                Ok(if self.head == Head::V8 {
-                    t.swap_dims(1, 2)
-                } else {
-                    t
-                })
+            let (p, l) = match (&self.runtime, engine) {
+                (Some(rt), Engine::Runtime) => {
+                    let p = self.dense_runtime(rt, c)?;
+                    (p.clone(), p)
+                }
+                _ => self.dense_executor(c)?,
             };
-            // Split: the boxes joined in front of the scores, as the yolov8 head has them.
-            let join = |scores: &Val| -> Result<Tensor<3>> {
-                let t = as3(scores)?;
-                Ok(match self.head {
-                    Head::Split => Tensor::cat(vec![as3(&main[1])?, t], 2),
-                    _ => t,
-                })
-            };
-            let p = join(&main[0])?;
-            pre.push(match alt.first() {
-                Some(a) => join(a)?,
-                None => p.clone(),
-            });
             probs.push(p);
+            pre.push(l);
         }
         Ok((Tensor::cat(probs, 0), Tensor::cat(pre, 0)))
     }
 
-    fn candidates_with(&self, images: Tensor<4>) -> Result<Candidates> {
+    /// The dense output `name` `[B, A, N]` (or `[B, N, K]`) as rows per candidate `[B, N, K]`.
+    fn rows(&self, name: &str, shape: &[usize], t: Tensor<3>) -> Result<Tensor<3>> {
+        ensure!(
+            shape.len() == 3,
+            "{}: output {name:?} has shape {shape:?}; a dense [B, A, N] output is expected",
+            self.file
+        );
+        Ok(if self.head == Head::V8 {
+            t.swap_dims(1, 2)
+        } else {
+            t
+        })
+    }
+
+    /// Split: the boxes joined in front of the scores, as the yolov8 head has them.
+    fn joined(&self, scores: Tensor<3>, boxes: Option<Tensor<3>>) -> Result<Tensor<3>> {
+        Ok(match (self.head, boxes) {
+            (Head::Split, Some(b)) => Tensor::cat(vec![b, scores], 2),
+            (Head::Split, None) => bail!("{}: the split head has no boxes output", self.file),
+            _ => scores,
+        })
+    }
+
+    /// [`Self::dense`] of one chunk on cac's executor, with the tapped pre-sigmoid values.
+    fn dense_executor(&self, c: Tensor<4>) -> Result<(Tensor<3>, Tensor<3>)> {
+        let feed = [(self.input.as_str(), Val::D(Dev::from(c)?))];
+        let names: Vec<&str> = std::iter::once(self.output.as_str())
+            .chain(self.config.boxes.as_deref())
+            .collect();
+        let (main, alt) = self.graph.run_tapped(&feed, &names, &self.taps)?;
+        let as3 = |name: &str, v: &Val| -> Result<Tensor<3>> {
+            let d = v.dev(&self.graph.device)?;
+            let shape = d.shape.clone();
+            let t = match shape[..] {
+                [a, b, c] => d.t.clone().reshape([a, b, c]),
+                _ => Tensor::zeros([0, 0, 0], &self.graph.device),
+            };
+            self.rows(name, &shape, t)
+        };
+        let boxes = match (self.head, &self.config.boxes) {
+            (Head::Split, Some(name)) => Some(as3(name, &main[1])?),
+            _ => None,
+        };
+        let p = self.joined(as3(&self.output, &main[0])?, boxes.clone())?;
+        let l = match alt.first() {
+            Some(a) => self.joined(as3(&self.output, a)?, boxes)?,
+            None => p.clone(),
+        };
+        Ok((p, l))
+    }
+
+    /// [`Self::dense`]'s probabilities of one chunk, run by onnxruntime.
+    fn dense_runtime(&self, rt: &runtime::Session, c: Tensor<4>) -> Result<Tensor<3>> {
+        let dev = c.device();
+        let shape = c.dims();
+        let outs = rt.run(crate::to_vec(&c)?, &shape)?;
+        let names = std::iter::once(&self.output).chain(&self.config.boxes);
+        let mut t = Vec::with_capacity(outs.len());
+        for (name, (s, v)) in names.zip(outs) {
+            let x = match s[..] {
+                [a, b, c] => Tensor::<3>::from_data(TensorData::new(v, [a, b, c]), &dev),
+                _ => Tensor::zeros([0, 0, 0], &dev),
+            };
+            t.push(self.rows(name, &s, x)?);
+        }
+        let mut t = t.into_iter();
+        let scores = t
+            .next()
+            .with_context(|| format!("{}: onnxruntime returned no output", self.file))?;
+        self.joined(scores, t.next())
+    }
+
+    /// [`Detector::candidates`] with the graph run by `engine` (cac's executor where onnxruntime
+    /// was not enabled; onnxruntime's candidates carry no gradient, and their logits are those
+    /// of the probabilities it outputs).
+    pub fn candidates_with(&self, images: Tensor<4>, engine: Engine) -> Result<Candidates> {
         let (x, geo) = self.network_input(images)?;
-        let (p, l) = self.dense(x)?;
+        let (p, l) = self.dense(x, engine)?;
         let [b, n, k] = p.dims();
         let col = |t: &Tensor<3>, i: usize| t.clone().narrow(2, i, 1);
         let (c0, c1, c2, c3) = (col(&p, 0), col(&p, 1), col(&p, 2), col(&p, 3));
@@ -336,7 +479,13 @@ impl OnnxDetector {
         let skip = if self.head == Head::V5 { 5 } else { 4 };
         let cls_p = p.clone().narrow(2, skip, k - skip);
         let cls_l = l.clone().narrow(2, skip, k - skip);
-        let mode = self.config.scores.as_str();
+        // onnxruntime returns the probabilities only: read them as such.
+        let remapped =
+            self.config.scores == "sigmoid" && engine == Engine::Runtime && self.runtime.is_some();
+        let mode = match remapped {
+            true => "probabilities",
+            false => self.config.scores.as_str(),
+        };
         // Log-probabilities of each class's score, for the logits of a product.
         let logit_of_prob = |q: Tensor<3>| {
             let q = q.clamp(1e-30, 1.0 - 1e-7);
@@ -353,6 +502,12 @@ impl OnnxDetector {
                 let obj_l = col(&l, 4);
                 if mode == "probabilities" {
                     let s = cls_p * obj_p.expand([b, n, k - skip]);
+                    // Read from onnxruntime's probabilities in place of the sigmoids' inputs:
+                    // capped as the executor caps exp(log σ(o) + log σ(c)).
+                    let s = match remapped {
+                        true => s.clamp_max(1.0 - 1e-7),
+                        false => s,
+                    };
                     (s.clone(), logit_of_prob(s))
                 } else {
                     // log p = log σ(o) + log σ(c); logit = log p − log(1 − p).
@@ -760,65 +915,11 @@ impl Detector for OnnxDetector {
         self.size
     }
     fn candidates(&self, images: Tensor<4>) -> Result<Candidates> {
-        self.candidates_with(images)
+        self.candidates_with(images, Engine::Executor)
     }
-    /// Class-aware NMS over the candidates, then the kept boxes clipped to the image (as
-    /// ultralytics clips them after its NMS).
+    /// [`OnnxDetector::detect_with`] on the detector's [`OnnxDetector::engine`].
     fn detect(&self, images: Tensor<4>) -> Result<Vec<Vec<Detection>>> {
-        let [_, _, ih, iw] = check_images(&images)?;
-        let c = self.candidates_with(images.detach())?;
-        let [b, n, k] = c.scores.dims();
-        let boxes = to_vec(&c.boxes)?;
-        let scores = to_vec(&c.scores)?;
-        let cfg = &self.config;
-        let mut out = Vec::with_capacity(b);
-        for i in 0..b {
-            let mut cand: Vec<(usize, f32, [f32; 4])> = Vec::new();
-            for j in 0..n {
-                let row = &scores[(i * n + j) * k..(i * n + j + 1) * k];
-                let bx: [f32; 4] = std::array::from_fn(|q| boxes[(i * n + j) * 4 + q]);
-                for (c, &s) in row.iter().enumerate() {
-                    if s.is_finite() && s as f64 > cfg.score_threshold {
-                        cand.push((c, s, bx));
-                    }
-                }
-            }
-            // Class-aware NMS (a box suppresses only its own class, as ultralytics' offsets do).
-            let yx: Vec<[f32; 4]> = cand
-                .iter()
-                .map(|(_, _, b)| [b[1], b[0], b[3], b[2]])
-                .collect();
-            let sc: Vec<f32> = cand.iter().map(|c| c.1).collect();
-            let cls: Vec<usize> = cand.iter().map(|c| c.0).collect();
-            let keep = class_aware_nms(
-                &yx,
-                &sc,
-                &cls,
-                cfg.max_detections,
-                cfg.iou_threshold,
-                cfg.score_threshold,
-            );
-            out.push(
-                keep.into_iter()
-                    .map(|q| {
-                        let (c, score, [x1, y1, x2, y2]) = cand[q];
-                        let (w, h) = (iw as f32, ih as f32);
-                        Detection {
-                            class_id: c,
-                            label: self.classes[c],
-                            score,
-                            bbox: [
-                                x1.clamp(0.0, w),
-                                y1.clamp(0.0, h),
-                                x2.clamp(0.0, w),
-                                y2.clamp(0.0, h),
-                            ],
-                        }
-                    })
-                    .collect(),
-            );
-        }
-        Ok(out)
+        self.detect_with(images, self.engine())
     }
     fn raw(&self, image: Tensor<4>) -> Result<RawDump> {
         let [b, _, h, w] = check_images(&image)?;

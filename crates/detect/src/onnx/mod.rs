@@ -4,6 +4,8 @@
 //! [`args`] is what an op reads, [`ops`] dispatches to [`elementwise`], [`shape`], [`nn`] and
 //! [`transformer`] (the op semantics as burn ops), [`graph`] plans and runs, [`config`] is the
 //! TOML config and the `onnx:` spec, and [`detector`] the [`crate::Detector`] with its heads.
+//! Where the edge enabled it, [`runtime`] runs the forward passes that need no gradient in
+//! onnxruntime instead.
 //!
 //! The TFJS importer ([`crate::tfjs`]) is the other executor, of the same design; both
 //! lower their graphs to burn tensor ops on the caller's device and share pre-processing, NMS,
@@ -20,12 +22,13 @@ pub mod model;
 pub mod nn;
 pub mod ops;
 pub mod proto;
+pub mod runtime;
 pub mod shape;
 pub mod transformer;
 pub mod value;
 
 pub use config::{parse_spec, OnnxConfig};
-pub use detector::OnnxDetector;
+pub use detector::{Engine, OnnxDetector};
 pub use graph::OnnxGraph;
 pub use model::Model;
 pub use value::{Dev, Host, Val};
