@@ -235,7 +235,7 @@ impl OnnxDetector {
     /// the image (as ultralytics clips them after its NMS).
     pub fn detect_with(&self, images: Tensor<4>, engine: Engine) -> Result<Vec<Vec<Detection>>> {
         let [_, _, ih, iw] = check_images(&images)?;
-        let c = self.candidates_with(images.detach(), engine)?;
+        let c = self.scored(images.detach(), engine, false)?;
         let [b, n, k] = c.scores.dims();
         let boxes = to_vec(&c.boxes)?;
         let scores = to_vec(&c.scores)?;
@@ -447,6 +447,13 @@ impl OnnxDetector {
     /// was not enabled; onnxruntime's candidates carry no gradient, and their logits are those
     /// of the probabilities it outputs).
     pub fn candidates_with(&self, images: Tensor<4>, engine: Engine) -> Result<Candidates> {
+        self.scored(images, engine, true)
+    }
+
+    /// [`Self::candidates_with`]; without `with_logits` (detection needs none) the logits of
+    /// probabilities are not computed (a log and a log1p over every score): the field holds the
+    /// scores.
+    fn scored(&self, images: Tensor<4>, engine: Engine, with_logits: bool) -> Result<Candidates> {
         let (x, geo) = self.network_input(images)?;
         let (p, l) = self.dense(x, engine)?;
         let [b, n, k] = p.dims();
@@ -487,9 +494,12 @@ impl OnnxDetector {
             false => self.config.scores.as_str(),
         };
         // Log-probabilities of each class's score, for the logits of a product.
-        let logit_of_prob = |q: Tensor<3>| {
-            let q = q.clamp(1e-30, 1.0 - 1e-7);
-            q.clone().log() - q.neg().log1p()
+        let logit_of_prob = |q: Tensor<3>| match with_logits {
+            true => {
+                let q = q.clamp(1e-30, 1.0 - 1e-7);
+                q.clone().log() - q.neg().log1p()
+            }
+            false => q,
         };
         let (scores, logits) = match (self.head, mode) {
             (Head::V8 | Head::Split, "logits") => {
@@ -519,7 +529,10 @@ impl OnnxDetector {
                     let logp = activation::log_sigmoid(lc)
                         + activation::log_sigmoid(lo).expand([b, n, k - skip]);
                     let p1 = logp.clone().exp().clamp_max(1.0 - 1e-7);
-                    let logits = logp - p1.clone().neg().log1p();
+                    let logits = match with_logits {
+                        true => logp - p1.clone().neg().log1p(),
+                        false => p1.clone(),
+                    };
                     (p1, logits)
                 }
             }
