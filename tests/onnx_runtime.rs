@@ -5,8 +5,9 @@
 //! Checked: with the runtime enabled, each detector export's candidates from onnxruntime equal
 //! those of cac's executor within the model's float noise on a seeded, letterboxed batch of two
 //! (a file exported for batch 1 runs image by image), and so do the detections; the logits read
-//! from onnxruntime's probabilities give them back; a file whose head is cut out before a
-//! selection inside it stays on the executor; gradients never leave the executor; a missing or
+//! from onnxruntime's probabilities against the executor's; a file whose head is cut out before
+//! a selection inside it, or whose input is float16, stays on the executor; gradients never
+//! leave the executor; a missing or
 //! broken library is refused naming the file, through the library and the command line; the
 //! command line's detections agree with the runtime on and off.
 
@@ -321,4 +322,46 @@ fn the_command_line_detects_alike_with_the_runtime_on_and_off() {
     covered(&off, &on, 0.05, 1e-3, 0.5)
         .and_then(|_| covered(&on, &off, 0.05, 1e-3, 0.5))
         .unwrap_or_else(|m| panic!("{m}\noff {off:?}\non {on:?}"));
+}
+
+#[test]
+fn a_file_with_an_fp16_input_stays_on_the_executor() {
+    let Some(dir) = fixtures() else { return };
+    if !enable() {
+        return;
+    }
+    // The anchor-based fixture behind a float16 graph input (a Cast to float32 first), as an
+    // fp16 export's input is: onnxruntime would want f16 data; cac's executor runs it in f32.
+    let tmp = tempfile::tempdir().unwrap();
+    let half = tmp.path().join("half_input.onnx");
+    let script = "import onnx, sys\n\
+        from onnx import helper, TensorProto\n\
+        m = onnx.load(sys.argv[1])\n\
+        i = m.graph.input[0]\n\
+        name = i.name\n\
+        i.name = name + '_f16'\n\
+        i.type.tensor_type.elem_type = TensorProto.FLOAT16\n\
+        m.graph.node.insert(0, helper.make_node('Cast', [i.name], [name], to=TensorProto.FLOAT))\n\
+        onnx.checker.check_model(m)\n\
+        onnx.save(m, sys.argv[2])\n";
+    let st = std::process::Command::new("python3")
+        .args(["-c", script])
+        .arg(dir.join("yolov5_anchor.onnx"))
+        .arg(&half)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let det = OnnxDetector::load(&half, None, &support::device()).unwrap();
+    assert_eq!(det.engine(), Engine::Executor);
+    let plain =
+        OnnxDetector::load(&dir.join("yolov5_anchor.onnx"), None, &support::device()).unwrap();
+    assert_eq!(plain.engine(), Engine::Runtime);
+    // The same detections as the f32 file on the executor (the Cast is exact on f32 data).
+    let x = batch(1, 160, 160, 11, &support::device());
+    let (a, b) = (
+        det.detect(x.clone()).unwrap(),
+        plain.detect_with(x, Engine::Executor).unwrap(),
+    );
+    assert_eq!(a[0].len(), b[0].len());
+    covered(&a[0], &b[0], 0.25, 1e-6, 1e-4).unwrap();
 }
