@@ -7,7 +7,8 @@
 //! (a file exported for batch 1 runs image by image), and so do the detections; the logits read
 //! from onnxruntime's probabilities against the executor's; a file whose head is cut out before
 //! a selection inside it, or whose input is float16, stays on the executor; gradients never
-//! leave the executor; a missing or
+//! leave the executor; a file onnxruntime refuses, or that lacks the named input or output, is
+//! refused naming it; a missing or
 //! broken library is refused naming the file, through the library and the command line; the
 //! command line's detections agree with the runtime on and off.
 
@@ -18,6 +19,7 @@ use burn::tensor::{Tensor, TensorData};
 use cac::detect::onnx::{runtime, Engine, OnnxDetector};
 use cac::detect::{Detection, Detector};
 use onnx_fixtures::{fixtures, has_ultralytics, manifest};
+use std::path::Path;
 
 /// Opens python3's onnxruntime library for this process (false: skipped outside CI).
 fn enable() -> bool {
@@ -351,10 +353,12 @@ fn a_file_with_an_fp16_input_stays_on_the_executor() {
         .status()
         .unwrap();
     assert!(st.success());
-    let det = OnnxDetector::load(&half, None, &support::device()).unwrap();
+    let low = tmp.path().join("low.toml");
+    std::fs::write(&low, "score_threshold = 0.05\n").unwrap();
+    let det = OnnxDetector::load(&half, Some(&low), &support::device()).unwrap();
     assert_eq!(det.engine(), Engine::Executor);
-    let plain =
-        OnnxDetector::load(&dir.join("yolov5_anchor.onnx"), None, &support::device()).unwrap();
+    let plain = dir.join("yolov5_anchor.onnx");
+    let plain = OnnxDetector::load(&plain, Some(&low), &support::device()).unwrap();
     assert_eq!(plain.engine(), Engine::Runtime);
     // The same detections as the f32 file on the executor (the Cast is exact on f32 data).
     let x = batch(1, 160, 160, 11, &support::device());
@@ -362,6 +366,31 @@ fn a_file_with_an_fp16_input_stays_on_the_executor() {
         det.detect(x.clone()).unwrap(),
         plain.detect_with(x, Engine::Executor).unwrap(),
     );
+    assert!(!a[0].is_empty(), "no detections to compare");
     assert_eq!(a[0].len(), b[0].len());
-    covered(&a[0], &b[0], 0.25, 1e-6, 1e-4).unwrap();
+    covered(&a[0], &b[0], 0.05, 1e-6, 1e-4).unwrap();
+}
+
+#[test]
+fn a_file_onnxruntime_refuses_is_named_and_a_missing_head_output_too() {
+    let Some(dir) = fixtures() else { return };
+    if !enable() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let junk = tmp.path().join("junk.onnx");
+    std::fs::write(&junk, b"not a protobuf").unwrap();
+    let file = dir.join("yolov5_anchor.onnx");
+    let cases: [(&Path, &str, &str, &str); 3] = [
+        (&junk, "images", "output0", "refuses"),
+        (&file, "images", "no_such_output", "no_such_output"),
+        (&file, "no_such_input", "output0", "no_such_input"),
+    ];
+    for (path, input, output, why) in cases {
+        let e = runtime::Session::open(path, input, &[output])
+            .err()
+            .unwrap();
+        let e = format!("{e:#}");
+        assert!(e.contains(path.to_str().unwrap()) && e.contains(why), "{e}");
+    }
 }

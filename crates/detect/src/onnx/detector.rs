@@ -371,18 +371,23 @@ impl OnnxDetector {
         Ok((Tensor::cat(probs, 0), Tensor::cat(pre, 0)))
     }
 
-    /// The dense output `name` `[B, A, N]` (or `[B, N, K]`) as rows per candidate `[B, N, K]`.
-    fn rows(&self, name: &str, shape: &[usize], t: Tensor<3>) -> Result<Tensor<3>> {
-        ensure!(
-            shape.len() == 3,
-            "{}: output {name:?} has shape {shape:?}; a dense [B, A, N] output is expected",
-            self.file
-        );
-        Ok(if self.head == Head::V8 {
-            t.swap_dims(1, 2)
-        } else {
-            t
-        })
+    /// The shape of the dense output `name`, which must be `[B, A, N]` (or `[B, N, K]`).
+    fn dense_dims(&self, name: &str, shape: &[usize]) -> Result<[usize; 3]> {
+        match shape[..] {
+            [a, b, c] => Ok([a, b, c]),
+            _ => bail!(
+                "{}: output {name:?} has shape {shape:?}; a dense [B, A, N] output is expected",
+                self.file
+            ),
+        }
+    }
+
+    /// A dense output as rows per candidate `[B, N, K]`.
+    fn rows(&self, t: Tensor<3>) -> Tensor<3> {
+        match self.head {
+            Head::V8 => t.swap_dims(1, 2),
+            _ => t,
+        }
     }
 
     /// Split: the boxes joined in front of the scores, as the yolov8 head has them.
@@ -403,12 +408,8 @@ impl OnnxDetector {
         let (main, alt) = self.graph.run_tapped(&feed, &names, &self.taps)?;
         let as3 = |name: &str, v: &Val| -> Result<Tensor<3>> {
             let d = v.dev(&self.graph.device)?;
-            let shape = d.shape.clone();
-            let t = match shape[..] {
-                [a, b, c] => d.t.clone().reshape([a, b, c]),
-                _ => Tensor::zeros([0, 0, 0], &self.graph.device),
-            };
-            self.rows(name, &shape, t)
+            let dims = self.dense_dims(name, &d.shape)?;
+            Ok(self.rows(d.t.clone().reshape(dims)))
         };
         let boxes = match (self.head, &self.config.boxes) {
             (Head::Split, Some(name)) => Some(as3(name, &main[1])?),
@@ -430,11 +431,8 @@ impl OnnxDetector {
         let names = std::iter::once(&self.output).chain(&self.config.boxes);
         let mut t = Vec::with_capacity(outs.len());
         for (name, (s, v)) in names.zip(outs) {
-            let x = match s[..] {
-                [a, b, c] => Tensor::<3>::from_data(TensorData::new(v, [a, b, c]), &dev),
-                _ => Tensor::zeros([0, 0, 0], &dev),
-            };
-            t.push(self.rows(name, &s, x)?);
+            let dims = self.dense_dims(name, &s)?;
+            t.push(self.rows(Tensor::from_data(TensorData::new(v, dims), &dev)));
         }
         let mut t = t.into_iter();
         let scores = t

@@ -112,11 +112,6 @@ impl Session {
         Ok(f32_io.then_some(s))
     }
 
-    /// The ONNX file.
-    pub fn file(&self) -> &Path {
-        &self.file
-    }
-
     /// The outputs (shape, values) in the order given to [`Session::open`], for the input
     /// `values` of `shape` (row-major f32).
     pub fn run(&self, values: Vec<f32>, shape: &[usize]) -> Result<Vec<(Vec<usize>, Vec<f32>)>> {
@@ -175,7 +170,13 @@ mod imp {
             .with_config_entry("session.force_spinning_stop", "1")
             .map_err(err)?
             .commit_from_file(file)
-            .map_err(|e| anyhow!("{}: onnxruntime refuses the file: {e}", file.display()))
+            .map_err(|e| {
+                anyhow!(
+                    "{}: onnxruntime refuses the file: {e} (without onnxruntime enabled, \
+                     cac's own executor runs it)",
+                    file.display()
+                )
+            })
     }
 
     impl Inner {
