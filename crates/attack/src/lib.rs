@@ -37,7 +37,7 @@ pub use baselines::Method;
 use burn::tensor::Tensor;
 use cac_detect::Detector;
 use cac_render::environment::{Brightness, Condition, Environment, ViewpointSet};
-use loss::{ClassSet, Goal, ProposalRule};
+use loss::{ClassSet, Goal, ProposalRule, TargetLoss};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -106,6 +106,13 @@ pub struct AttackConfig {
     /// docs/attack.md).
     #[arg(long, default_value_t = 1.0)]
     pub image_power: f32,
+    /// The target class's term in every proposal: `bce` (−log σ(z), which stops pulling once
+    /// the source model is sure) or `logit` (−z, which does not: the targeted-transfer loss of
+    /// Zhao et al. 2021). The other classes are suppressed by their BCE either way (--method cac
+    /// only; docs/attack.md).
+    // Runs written before the setting existed used the BCE (the default).
+    #[arg(long, value_enum, default_value_t = TargetLoss::Bce)]
+    pub target_loss: TargetLoss,
     /// Share of the training views drawn within 30° of the front or the back (free viewpoints;
     /// default: azimuth uniform, a share of 1/3; the evaluation's views stay uniform;
     /// [`cac_render::environment::azimuth_with_front_back_share`]).
@@ -230,7 +237,10 @@ impl AttackConfig {
         }
         let t = cac_detect::labels::resolve(&self.target, classes, model)
             .context("the attack's target class (--target)")?;
-        Ok(Goal::Targeted(t))
+        Ok(match self.target_loss {
+            TargetLoss::Bce => Goal::Targeted(t),
+            TargetLoss::Logit => Goal::TargetedLogit(t),
+        })
     }
 
     pub fn validate(&self) -> Result<()> {
@@ -255,6 +265,23 @@ impl AttackConfig {
                 self.method.name(),
                 self.proposals.name()
             );
+        }
+        if self.target_loss == TargetLoss::Logit {
+            if self.method != Method::Cac || self.hide {
+                bail!(
+                    "--target-loss logit is CAC's targeted loss: it needs --method cac without --hide \
+                     (got {}{})",
+                    self.method.name(),
+                    if self.hide { " with --hide" } else { "" }
+                );
+            }
+            if self.image_power != 1.0 {
+                bail!(
+                    "--target-loss logit is unbounded below: it has no power mean over images \
+                     (--image-power {} needs --target-loss bce)",
+                    self.image_power
+                );
+            }
         }
         if let Some(share) = self.front_back_share {
             if !(0.0..=1.0).contains(&share) {
@@ -468,6 +495,52 @@ mod tests {
             ("all", ProposalRule::TopN)
         );
         assert_eq!((old.scales, old.image_power, old.lr), (1, 1.0, 0.02));
+        assert_eq!(
+            (d.target_loss, old.target_loss),
+            (TargetLoss::Bce, TargetLoss::Bce)
+        );
+    }
+
+    #[test]
+    fn the_logit_target_is_cacs_targeted_loss_with_a_plain_mean() {
+        let logit = AttackConfig {
+            target_loss: TargetLoss::Logit,
+            ..AttackConfig::default()
+        };
+        logit.validate().unwrap();
+        let classes = ["person", "bicycle", "car"];
+        assert_eq!(
+            logit.goal_in(&classes, "m").unwrap(),
+            Goal::TargetedLogit(0)
+        );
+        let bce = AttackConfig::default();
+        assert_eq!(bce.goal_in(&classes, "m").unwrap(), Goal::Targeted(0));
+        for (bad, says) in [
+            (
+                AttackConfig {
+                    method: Method::Upc,
+                    ..logit.clone()
+                },
+                "needs --method cac",
+            ),
+            (
+                AttackConfig {
+                    hide: true,
+                    ..logit.clone()
+                },
+                "with --hide",
+            ),
+            (
+                AttackConfig {
+                    image_power: 2.0,
+                    ..logit.clone()
+                },
+                "no power mean",
+            ),
+        ] {
+            let e = bad.validate().unwrap_err().to_string();
+            assert!(e.contains("--target-loss logit") && e.contains(says), "{e}");
+        }
     }
 
     #[test]

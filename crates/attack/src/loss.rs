@@ -28,6 +28,20 @@
 //!
 //! `softplus(x) = max(x, 0) + log1p(exp(−|x|))` never overflows, so logits of ±1e4 give finite
 //! losses and gradients.
+//!
+//! **The logit target** ([`Goal::TargetedLogit`], `cac train --target-loss logit`). The BCE's
+//! target term `softplus(−z_it)` stops pulling once the source model is sure (its gradient is
+//! `σ(z_it) − 1`): a texture the white-box model already reads as the target is not pushed
+//! further. Zhao et al. (NeurIPS 2021, "On success and simplicity: a second look at
+//! transferable targeted attacks") found that the plain target logit, which never saturates,
+//! transfers a targeted attack to other models far better given enough iterations. Here the
+//! target term becomes `−z_it`; the other classes keep their `softplus(z_ic)` (the vehicle must
+//! still be suppressed, and a per-class sigmoid does not lower one class by raising another):
+//!
+//! `ℓ_i = Σ_{c≠t} softplus(z_ic) − z_it`.
+//!
+//! It is unbounded below, so it has no power mean over images (the power mean needs
+//! non-negative image losses).
 
 use anyhow::{bail, Result};
 use burn::tensor::{Int, Tensor, TensorData};
@@ -39,6 +53,8 @@ use cac_detect::{nms, Candidates};
 pub enum Goal {
     /// Every fixed proposal classified as this COCO-80 class.
     Targeted(usize),
+    /// As [`Goal::Targeted`], with the target's term the plain logit `−z_it` (module docs).
+    TargetedLogit(usize),
     /// The classes of the set suppressed in every fixed proposal.
     Hide(ClassSet),
 }
@@ -79,21 +95,56 @@ impl ClassSet {
     }
 }
 
-/// `Σ_c softplus(z_ic)` over the classes the goal scores (`[m, 1]`), minus `z_it` when targeted.
+/// `Σ_c softplus(z_ic)` over the classes the goal scores (`[m, 1]`), minus `z_it` when targeted
+/// (with the logit target, the target's own `softplus(z_it)` left out).
 fn per_proposal(z: Tensor<2>, goal: Goal) -> Result<Tensor<2>> {
     let [m, classes] = z.dims();
     let sp = softplus(z.clone());
     match goal {
-        Goal::Targeted(t) => {
+        Goal::Targeted(t) | Goal::TargetedLogit(t) => {
             if t >= classes {
                 bail!("target class {t} is out of range for {classes} classes");
             }
-            Ok(sp.sum_dim(1) - z.slice([0..m, t..t + 1]))
+            let zt = z.slice([0..m, t..t + 1]);
+            Ok(match goal {
+                Goal::TargetedLogit(_) => sp.clone().sum_dim(1) - sp.slice([0..m, t..t + 1]) - zt,
+                _ => sp.sum_dim(1) - zt,
+            })
         }
         Goal::Hide(set) => Ok(match set.mask(classes, &z.device()) {
             Some(w) => (sp * w).sum_dim(1),
             None => sp.sum_dim(1),
         }),
+    }
+}
+
+/// The target class's term in a targeted proposal's loss (module docs).
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    serde::Serialize,
+    serde::Deserialize,
+    clap::ValueEnum,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum TargetLoss {
+    /// `softplus(−z_it)`: the binary cross-entropy, the paper's targeted loss.
+    #[default]
+    Bce,
+    /// `−z_it`: the plain target logit, which does not saturate ([`Goal::TargetedLogit`]).
+    Logit,
+}
+
+impl TargetLoss {
+    pub fn name(self) -> &'static str {
+        match self {
+            TargetLoss::Bce => "bce",
+            TargetLoss::Logit => "logit",
+        }
     }
 }
 
@@ -302,10 +353,15 @@ pub fn proposals_loss_per_image(
     if !(power.is_finite() && power >= 1.0) {
         bail!("the images' power mean needs a finite power >= 1, got {power}");
     }
+    if power != 1.0 && matches!(goal, Goal::TargetedLogit(_)) {
+        bail!(
+            "the logit target is unbounded below: it has no power mean over images (power {power})"
+        );
+    }
     let Some(z) = gather(&logits, sel)? else {
         return Ok(logits.sum() * 0.0);
     };
-    let per = per_proposal(z, goal)?; // [m, 1], positive
+    let per = per_proposal(z, goal)?; // [m, 1], positive but for the logit target
     let (m, device) = (per.dims()[0], logits.device());
     let images: Vec<&Vec<usize>> = sel.iter().filter(|s| !s.is_empty()).collect();
     if power == 1.0 {
@@ -385,6 +441,51 @@ mod tests {
         assert!(g.iter().all(|v| v.is_finite()));
         // d/dz of the target's term is σ(z) − 1 (< 0: raising z lowers the loss); others σ(z) > 0.
         assert!(g[1] < 0.0 && g[0] > 0.0 && g[2] > 0.0, "{g:?}");
+    }
+
+    #[test]
+    fn the_logit_target_keeps_pulling_where_the_bce_has_stopped() {
+        let d = dev();
+        // Two proposals: the target (class 1) already sure in the second (z = 40, σ = 1 - 4e-18).
+        let z = vec![2.0f32, -1.0, 0.5, -3.0, 40.0, 1e4];
+        let t = Tensor::<3>::from_data(TensorData::new(z.clone(), [1, 2, 3]), &d).require_grad();
+        let l = proposals_loss(t.clone(), &[vec![0, 1]], Goal::TargetedLogit(1)).unwrap();
+        let want = ((sp(2.0) + sp(0.5) - (-1.0)) + (sp(-3.0) + sp(1e4) - 40.0)) / 2.0;
+        let got = scalar(&l);
+        assert!((got - want).abs() / want.abs() < 1e-5, "{got} vs {want}");
+        let g = grad(&t, l);
+        assert!(g.iter().all(|v| v.is_finite()), "{g:?}");
+        // d/dz_t = −1/m in every proposal, however sure the model is; the others as the BCE's.
+        assert!(
+            (g[1] + 0.5).abs() < 1e-6 && (g[4] + 0.5).abs() < 1e-6,
+            "{g:?}"
+        );
+        assert!(
+            (g[5] - 0.5).abs() < 1e-6 && g[0] > 0.0 && g[3] > 0.0,
+            "{g:?}"
+        );
+        let gb = grad(
+            &t,
+            proposals_loss(t.clone(), &[vec![0, 1]], Goal::Targeted(1)).unwrap(),
+        );
+        assert!(gb[4].abs() < 1e-12 && gb[1] < -0.1, "{gb:?}");
+        for (k, (a, b)) in g.iter().zip(&gb).enumerate() {
+            if k != 1 && k != 4 {
+                assert!((a - b).abs() < 1e-6, "class term {k}: {a} vs {b}");
+            }
+        }
+        // Negative losses are allowed (the target's logit is unbounded); the power mean is not.
+        let sure =
+            Tensor::<3>::from_data(TensorData::new(vec![-9.0f32, 30.0, -9.0], [1, 1, 3]), &d);
+        assert!(
+            scalar(
+                &proposals_loss_per_image(sure.clone(), &[vec![0]], Goal::TargetedLogit(1), 1.0)
+                    .unwrap()
+            ) < -29.0
+        );
+        let e =
+            proposals_loss_per_image(sure, &[vec![0]], Goal::TargetedLogit(1), 2.0).unwrap_err();
+        assert!(e.to_string().contains("no power mean"), "{e}");
     }
 
     #[test]
