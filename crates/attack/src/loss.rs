@@ -105,9 +105,19 @@ fn per_proposal(z: Tensor<2>, goal: Goal) -> Result<Tensor<2>> {
             if t >= classes {
                 bail!("target class {t} is out of range for {classes} classes");
             }
+            let device = z.device();
             let zt = z.slice([0..m, t..t + 1]);
             Ok(match goal {
-                Goal::TargetedLogit(_) => sp.clone().sum_dim(1) - sp.slice([0..m, t..t + 1]) - zt,
+                Goal::TargetedLogit(_) => {
+                    // The other classes by a 0/1 weight, not by subtracting the target's softplus
+                    // from the sum: at a huge z_it that difference loses them to rounding.
+                    let w: Vec<f32> = (0..classes).map(|c| f32::from(c != t)).collect();
+                    let w = Tensor::<2>::from_data(
+                        TensorData::new(w, [1, classes]),
+                        (&device, sp.dtype()),
+                    );
+                    (sp * w).sum_dim(1) - zt
+                }
                 _ => sp.sum_dim(1) - zt,
             })
         }
@@ -474,6 +484,11 @@ mod tests {
                 assert!((a - b).abs() < 1e-6, "class term {k}: {a} vs {b}");
             }
         }
+        // A target logit of 1e4: the formula's value, to f32's resolution there.
+        let huge = Tensor::<3>::from_data(TensorData::new(vec![-3.0f32, 1e4, -3.0], [1, 1, 3]), &d);
+        let got = scalar(&proposals_loss(huge, &[vec![0]], Goal::TargetedLogit(1)).unwrap());
+        let want = 2.0 * sp(-3.0) - 1e4;
+        assert!((got - want).abs() < 1e-3, "{got} vs {want}");
         // Negative losses are allowed (the target's logit is unbounded); the power mean is not.
         let sure =
             Tensor::<3>::from_data(TensorData::new(vec![-9.0f32, 30.0, -9.0], [1, 1, 3]), &d);
