@@ -14,6 +14,8 @@
 # TRAIN_SPP=2 at 2 samples per pixel (default 1, the training preset);
 # TRAIN_SKY_OCCLUSION=0.5 lights half the training views' ambient from an open sky over the ground
 # (environment.sky_occlusion; default 0, the evaluation protocol's ambient).
+# SHIP_SUFFIX=logit ships beside the texture instead of over it: meshes/OBJECT/cac-TARGET-logit.png
+# (and its run folder runs/ship-OBJECT-TARGET-logit), for a variant trained with other flags.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 object=${1:?object (pickup, jeep, barrel, container)}
@@ -26,9 +28,11 @@ spp=${TRAIN_SPP:-1}
 [[ $spp =~ ^[1-9][0-9]*$ ]] || { echo "TRAIN_SPP must be a positive number of samples per pixel, got '$spp'" >&2; exit 2; }
 sky=${TRAIN_SKY_OCCLUSION:-0.0}
 python3 -c 'import sys; v = float(sys.argv[1]); assert 0 <= v <= 1' "$sky" 2>/dev/null || { echo "TRAIN_SKY_OCCLUSION must be a probability within [0, 1], got '$sky'" >&2; exit 2; }
-invocation="${TRAIN_SIZE:+TRAIN_SIZE=$TRAIN_SIZE }${TRAIN_SPP:+TRAIN_SPP=$TRAIN_SPP }${TRAIN_SKY_OCCLUSION:+TRAIN_SKY_OCCLUSION=$TRAIN_SKY_OCCLUSION }tools/ship_texture.sh $*"
+suffix=${SHIP_SUFFIX:-}
+[[ -z $suffix || $suffix =~ ^[a-z0-9][a-z0-9-]*$ ]] || { echo "SHIP_SUFFIX must be lower-case letters, digits and dashes, got '$suffix'" >&2; exit 2; }
+invocation="${TRAIN_SIZE:+TRAIN_SIZE=$TRAIN_SIZE }${TRAIN_SPP:+TRAIN_SPP=$TRAIN_SPP }${TRAIN_SKY_OCCLUSION:+TRAIN_SKY_OCCLUSION=$TRAIN_SKY_OCCLUSION }${SHIP_SUFFIX:+SHIP_SUFFIX=$SHIP_SUFFIX }tools/ship_texture.sh $*"
 shift $(( $# < 4 ? $# : 4 ))
-slug=$(echo "$target" | tr ' ' '_')
+slug=$(echo "$target" | tr ' ' '_')${suffix:+-$suffix}
 # The commit the texture is trained with, read before anything is written; "-dirty" when tracked
 # files outside meshes/ differ from it.
 rev=$(git rev-parse HEAD 2>/dev/null) || { echo "not a git checkout: the texture's commit cannot be recorded" >&2; exit 2; }
