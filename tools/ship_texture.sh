@@ -16,6 +16,8 @@
 # (environment.sky_occlusion; default 0, the evaluation protocol's ambient).
 # SHIP_SUFFIX=logit ships beside the texture instead of over it: meshes/OBJECT/cac-TARGET-logit.png
 # (and its run folder runs/ship-OBJECT-TARGET-logit), for a variant trained with other flags.
+# A run folder is resumed only under the settings and extra train flags it was started with
+# (those are kept in runs/ship-OBJECT-TARGET.flags).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 object=${1:?object (pickup, jeep, barrel, container)}
@@ -66,8 +68,15 @@ if have != want:
     diff = [f"{n} {h} (asked {w})" for n, h, w in zip(names, have, want) if h != w]
     sys.exit(f"{path}: holds a run with other settings: {'; '.join(diff)}; remove it first")
 EOF
+    # The extra train flags are not in the settings above: a run started with others (e.g.
+    # another --target-loss) would be shipped under this command's.
+    if [ -f "$run.flags" ] && [ "$(cat "$run.flags")" != "$*" ]; then
+        echo "$run: was started with extra train flags '$(cat "$run.flags")' (asked '$*'); remove it first" >&2
+        exit 2
+    fi
     "$cac" train --resume "$run" --iterations "$iterations"
 else
+    printf '%s' "$*" > "$run.flags"
     "${train[@]}" --out "$run"
 fi
 case "$object" in

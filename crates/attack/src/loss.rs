@@ -149,15 +149,6 @@ pub enum TargetLoss {
     Logit,
 }
 
-impl TargetLoss {
-    pub fn name(self) -> &'static str {
-        match self {
-            TargetLoss::Bce => "bce",
-            TargetLoss::Logit => "logit",
-        }
-    }
-}
-
 /// Which candidates the loss fixes as proposals (module docs).
 #[derive(
     Clone,
