@@ -92,3 +92,61 @@ fn an_unknown_or_unbuilt_device_is_refused_before_anything_is_written() {
         assert!(!png.exists(), "nothing written");
     }
 }
+
+/// `cac bench agreement` pools two runs' per-view files into one table with its verdict and
+/// writes it as CSV; a bad file is refused naming it, and nothing is written.
+#[test]
+fn bench_agreement_pools_runs_and_refuses_bad_files() {
+    let d = tempfile::tempdir().unwrap();
+    let head = "mesh,renderer,texture,set,light,view,azimuth,elevation,distance_ratio,nanodet_hit,nanodet_conf,nanodet_targeted,centernet_hit,centernet_conf,centernet_targeted\n";
+    let row = |r: &str, v: usize, t: u8| {
+        format!("pickup,{r},atlas,free,hdri:night,{v},10.0,5.0,2.00,0,0.000,{t},1,0.500,0\n")
+    };
+    // Run a: "person" in cac's image only on view 0; run b: in both on view 0.
+    let a = d.path().join("a.csv");
+    let b = d.path().join("b.csv");
+    std::fs::write(
+        &a,
+        format!("{head}{}{}", row("cac", 0, 1), row("blender", 0, 0)),
+    )
+    .unwrap();
+    std::fs::write(
+        &b,
+        format!("{head}{}{}", row("cac", 0, 1), row("blender", 0, 1)),
+    )
+    .unwrap();
+    let csv = d.path().join("agreement.csv");
+    let files = format!("{},{}", a.display(), b.display());
+    let out = support::cac_ok(&[
+        "bench",
+        "agreement",
+        "--per-view",
+        &files,
+        "--csv",
+        csv.to_str().unwrap(),
+    ]);
+    assert!(out.contains("| pickup | atlas | free | blender | nanodet targeted | 2 | 1.000 | 0.500 | -0.500 | 1 | 0 | +1.00 | no |"), "{out}");
+    assert!(out.contains("2 run(s); 0 view(s) rendered by one renderer only (left out); every gap within 0.05: no"), "{out}");
+    let written = std::fs::read_to_string(&csv).unwrap();
+    assert!(
+        written.contains(
+            "pickup,atlas,free,blender,centernet P@0.5,2,1.000,1.000,+0.000,0,0,+0.00,yes"
+        ),
+        "{written}"
+    );
+    // A file that is not a per-view table.
+    std::fs::write(&b, "texture,set\natlas,free\n").unwrap();
+    let csv2 = d.path().join("none.csv");
+    let o = support::cac(&[
+        "bench",
+        "agreement",
+        "--per-view",
+        &files,
+        "--csv",
+        csv2.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(err.contains("b.csv: line 2"), "{err}");
+    assert!(!csv2.exists(), "nothing written");
+}

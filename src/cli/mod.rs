@@ -104,6 +104,8 @@ pub enum BenchCmd {
     Realism(bench::realism::Args),
     /// Image-based lighting: error against Cycles and time per knob (SH order, occlusion rays).
     Ibl(bench::ibl::Args),
+    /// cac's renderer against a second one on the same views, pooled over `realism` runs.
+    Agreement(bench::agreement::Args),
 }
 
 pub fn run(cli: Cli) -> Result<()> {
@@ -135,6 +137,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Bench(BenchCmd::Eval(a)) => bench::eval::run(a),
         Command::Bench(BenchCmd::Realism(a)) => bench::realism::run(a),
         Command::Bench(BenchCmd::Ibl(a)) => bench::ibl::run(a),
+        Command::Bench(BenchCmd::Agreement(a)) => bench::agreement::run(a),
     }
 }
 

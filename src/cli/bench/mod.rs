@@ -3,6 +3,7 @@
 //! timer (`cac::report::timer`), never in tests. A benchmark asserts nothing. (`cac bench export` lives in
 //! `cli/export.rs`.)
 
+pub mod agreement;
 pub mod attack;
 pub mod detect;
 pub mod eval;

@@ -12,6 +12,7 @@
 //! second (`cac bench eval`), [`compare`] one texture against another (the demo's before and
 //! after).
 
+pub mod agreement;
 pub mod bench;
 pub mod blender;
 pub mod cache;
