@@ -86,7 +86,7 @@ pub fn run(a: Args) -> Result<()> {
         println!("wrote {}", p.display());
     }
     println!("wrote {}", a.csv.display());
-    if job.renderers.contains(&Which::Cac) && job.renderers.len() > 1 {
+    if job.renderers.contains(&Which::Cac) && job.renderers.iter().any(|w| *w != Which::Cac) {
         // The renderers against each other on this run's views (pool runs: `cac bench agreement`).
         let mut views = cac::eval::agreement::Views::default();
         views.add_csv(&t.per_view.csv(), "this run")?;
