@@ -147,6 +147,7 @@ fn bench_agreement_pools_runs_and_refuses_bad_files() {
     ]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success(), "{err}");
-    assert!(err.contains("b.csv: line 2"), "{err}");
+    assert!(err.contains("b.csv: not a per-view table"), "{err}");
+    assert!(err.contains("no column 'mesh'"), "{err}");
     assert!(!csv2.exists(), "nothing written");
 }

@@ -88,9 +88,15 @@ pub fn run(a: Args) -> Result<()> {
     println!("wrote {}", a.csv.display());
     if job.renderers.contains(&Which::Cac) && job.renderers.iter().any(|w| *w != Which::Cac) {
         // The renderers against each other on this run's views (pool runs: `cac bench agreement`).
+        // A convenience after the measured rows: a failure here must not fail the run.
         let mut views = cac::eval::agreement::Views::default();
-        views.add_csv(&t.per_view.csv(), "this run")?;
-        super::agreement::print(&views.agreement()?, 0.05);
+        match views
+            .add_csv(&t.per_view.csv(), "this run")
+            .and_then(|()| views.agreement())
+        {
+            Ok(ag) => super::agreement::print(&ag, 0.05),
+            Err(e) => eprintln!("no agreement table: {e:#}"),
+        }
     }
     Ok(())
 }

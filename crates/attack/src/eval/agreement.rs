@@ -12,7 +12,8 @@ use cac_core::report::Table;
 use serde::Deserialize;
 use std::collections::BTreeMap;
 
-/// The per-view columns read (the per-view CSV of `cac bench realism --per-view` has more).
+/// The columns read of a per-view row; the header must have every one of
+/// [`super::realism::PER_VIEW_COLUMNS`].
 #[derive(Debug, Deserialize)]
 struct ViewRow {
     mesh: String,
@@ -49,18 +50,29 @@ pub struct Views {
 }
 
 impl Views {
-    /// Adds one run's per-view CSV; `source` names it in errors. A view listed twice for the
-    /// same renderer within a run is refused.
+    /// Adds one run's per-view CSV; `source` names it in errors. A file without the per-view
+    /// columns, with an outcome other than 0 or 1, or listing a view twice for one renderer is
+    /// refused, and then nothing of it is added.
     pub fn add_csv(&mut self, text: &str, source: &str) -> Result<()> {
-        let run = self.runs;
-        self.runs += 1;
+        if text.trim().is_empty() {
+            bail!("{source}: empty file: no per-view rows");
+        }
         let mut rd = csv::Reader::from_reader(text.as_bytes());
+        let head = rd
+            .headers()
+            .with_context(|| format!("{source}: cannot read the header line"))?
+            .clone();
+        for col in super::realism::PER_VIEW_COLUMNS {
+            if !head.iter().any(|h| h == col) {
+                bail!("{source}: not a per-view table of `cac bench realism --per-view`: no column '{col}'");
+            }
+        }
+        let run = self.runs;
+        let mut added: BTreeMap<String, BTreeMap<ViewKey, Outcomes>> = BTreeMap::new();
         for (i, rec) in rd.deserialize::<ViewRow>().enumerate() {
             // Line 1 is the header.
             let line = i + 2;
-            let r = rec.with_context(|| {
-                format!("{source}: line {line}: not a per-view row of `cac bench realism --per-view` (mesh, renderer, texture, set, light, view, nanodet_hit, nanodet_targeted, centernet_hit, centernet_targeted)")
-            })?;
+            let r = rec.with_context(|| format!("{source}: line {line}: not a per-view row"))?;
             let flags = [
                 r.nanodet_hit,
                 r.nanodet_targeted,
@@ -71,16 +83,22 @@ impl Views {
                 bail!("{source}: line {line}: an outcome must be 0 or 1, got {bad}");
             }
             let key = (run, r.mesh, r.texture, r.set, r.light, r.view);
-            let outcomes = flags.map(|f| f == 1);
-            let seen = self.by_renderer.entry(r.renderer.clone()).or_default();
-            if seen.insert(key, outcomes).is_some() {
+            let seen = added.entry(r.renderer.clone()).or_default();
+            if seen.insert(key, flags.map(|f| f == 1)).is_some() {
                 bail!(
-                    "{source}: line {line}: view {} of renderer {} is listed twice",
+                    "{source}: line {line}: view {} of renderer {} is listed twice (two textures with the same file name in one run? rename one)",
                     r.view,
                     r.renderer
                 );
             }
         }
+        if added.is_empty() {
+            bail!("{source}: no per-view rows");
+        }
+        for (renderer, views) in added {
+            self.by_renderer.entry(renderer).or_default().extend(views);
+        }
+        self.runs += 1;
         Ok(())
     }
 
@@ -177,6 +195,12 @@ impl Pair {
         (self.in_other as f64 - self.in_cac as f64) / self.views as f64
     }
 
+    /// Whether the gap is within `tolerance` (a rate difference; a hair of slack for the
+    /// rounding of `gap`).
+    pub fn within(&self, tolerance: f64) -> bool {
+        self.gap().abs() <= tolerance + 1e-12
+    }
+
     /// McNemar's statistic `(b − c) / √(b + c)` (0 when no view disagrees): beyond about ±2 the
     /// gap is unlikely to be the sample alone.
     pub fn mcnemar_z(&self) -> f64 {
@@ -199,7 +223,7 @@ pub struct Agreement {
 impl Agreement {
     /// Whether every gap is within `tolerance`.
     pub fn all_within(&self, tolerance: f64) -> bool {
-        self.rows.iter().all(|p| p.gap().abs() <= tolerance + 1e-12)
+        self.rows.iter().all(|p| p.within(tolerance))
     }
 
     /// The rows as a table (also its CSV); `within` marks each gap against `tolerance`.
@@ -233,12 +257,7 @@ impl Agreement {
                 p.cac_only.to_string(),
                 p.other_only.to_string(),
                 format!("{:+.2}", p.mcnemar_z()),
-                if p.gap().abs() <= tolerance + 1e-12 {
-                    "yes"
-                } else {
-                    "no"
-                }
-                .to_string(),
+                if p.within(tolerance) { "yes" } else { "no" }.to_string(),
             ]);
         }
         t
@@ -327,7 +346,28 @@ mod tests {
         let e = v
             .add_csv("mesh,renderer\npickup,cac\n", "a.csv")
             .unwrap_err();
-        assert!(format!("{e:#}").contains("a.csv: line 2"), "{e:#}");
+        let want =
+            "a.csv: not a per-view table of `cac bench realism --per-view`: no column 'texture'";
+        assert!(format!("{e:#}").contains(want), "{e:#}");
+        for empty in ["", HEAD] {
+            let e = v.add_csv(empty, "empty.csv").unwrap_err();
+            let e = format!("{e:#}");
+            assert!(
+                e.starts_with("empty.csv: ") && e.ends_with("no per-view rows"),
+                "{e}"
+            );
+        }
+        // A row that does not parse, after a good one: refused naming its line, nothing added.
+        let half = format!(
+            "{HEAD}{}pickup,cac,atlas,free,bright,x\n",
+            row("cac", "bright", 0, [1, 0, 0, 0])
+        );
+        let e = v.add_csv(&half, "f.csv").unwrap_err();
+        assert!(
+            format!("{e:#}").contains("f.csv: line 3: not a per-view row"),
+            "{e:#}"
+        );
+        assert_eq!((v.runs, v.by_renderer.len()), (0, 0));
         let twice = format!(
             "{HEAD}{}{}",
             row("cac", "bright", 0, [1, 0, 0, 0]),

@@ -96,6 +96,25 @@ pub struct RealismJob {
     pub protocol: Protocol,
 }
 
+/// The columns of the per-view table (`--per-view`), which `cac bench agreement` reads back.
+pub const PER_VIEW_COLUMNS: [&str; 15] = [
+    "mesh",
+    "renderer",
+    "texture",
+    "set",
+    "light",
+    "view",
+    "azimuth",
+    "elevation",
+    "distance_ratio",
+    "nanodet_hit",
+    "nanodet_conf",
+    "nanodet_targeted",
+    "centernet_hit",
+    "centernet_conf",
+    "centernet_targeted",
+];
+
 /// One combination's figures, per detector.
 pub struct Row {
     /// Mesh stem, renderer, texture stem, set, light ("bright", "dark" or "hdri:NAME").
@@ -149,23 +168,7 @@ pub fn run(
                 "centernet_targeted",
                 "seconds",
             ]),
-            per_view: Table::new([
-                "mesh",
-                "renderer",
-                "texture",
-                "set",
-                "light",
-                "view",
-                "azimuth",
-                "elevation",
-                "distance_ratio",
-                "nanodet_hit",
-                "nanodet_conf",
-                "nanodet_targeted",
-                "centernet_hit",
-                "centernet_conf",
-                "centernet_targeted",
-            ]),
+            per_view: Table::new(PER_VIEW_COLUMNS),
         },
     };
     for mesh in &job.meshes {
