@@ -44,6 +44,11 @@ fn quiet_when_stdout_closes() {
     }));
 }
 
+/// The memory guard under every stage's estimate: counts the heap and stops the process with
+/// one line when it would go over `--max-memory` (docs/memory.md).
+#[global_allocator]
+static GUARD: cac::memory::GuardedAllocator = cac::memory::GuardedAllocator;
+
 fn main() {
     tune_allocator();
     // Safety: no other thread exists yet (it sets a process environment variable).

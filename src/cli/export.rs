@@ -44,6 +44,9 @@ pub struct Args {
     /// Sheets: resolution.
     #[arg(long, default_value_t = 300)]
     pub dpi: u32,
+    /// Sheets: layouts of more pages are refused before any page is drawn.
+    #[arg(long, default_value_t = export::sheets::DEFAULT_MAX_PAGES)]
+    pub max_sheet_pages: usize,
     /// Also bundle the OBJ, MTL and PNGs into one zip.
     #[arg(long)]
     pub zip: bool,
@@ -97,6 +100,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     opts.sheets.paper = a.paper;
     opts.sheets.dpi = a.dpi;
+    opts.sheets.max_pages = a.max_sheet_pages;
     print!("{}", export::export(&a.mesh, &a.texture, &a.out, &opts)?);
     Ok(())
 }

@@ -108,7 +108,22 @@ pub enum BenchCmd {
     Agreement(bench::agreement::Args),
 }
 
+/// The stage the memory guard names until the command names its own.
+fn stage_name(c: &Command) -> &'static str {
+    match c {
+        Command::Demo(_) => "demo",
+        Command::Train(_) => "training",
+        Command::Render(_) => "render",
+        Command::Eval(_) => "evaluation",
+        Command::Export(_) => "export",
+        Command::Bench(_) => "benchmark",
+        Command::Study(_) => "study",
+        _ => "command",
+    }
+}
+
 pub fn run(cli: Cli) -> Result<()> {
+    cac::memory::stage(stage_name(&cli.command));
     cac::memory::set_process_budget(cli.max_memory);
     match cli.command {
         Command::Demo(a) => demo::run(a),

@@ -130,6 +130,17 @@ impl Format {
         }
     }
 
+    /// The stage that writes it, as the memory guard names it.
+    pub fn stage(&self) -> &'static str {
+        match self {
+            Format::ThreeMfTexture => "textured 3MF",
+            Format::ThreeMfColor => "colour 3MF",
+            Format::Obj => "textured OBJ",
+            Format::ObjVc => "vertex-colour OBJ",
+            Format::Sheets => "paste-on sheets",
+        }
+    }
+
     /// Does this format carry printable geometry (and so need a closed mesh)?
     pub(crate) fn is_geometry(&self) -> bool {
         !matches!(self, Format::Sheets)
@@ -465,6 +476,7 @@ pub fn export(
     opts: &ExportOptions,
 ) -> Result<ExportSummary> {
     ensure!(!opts.formats.is_empty(), "no export format requested");
+    cac_core::memory::stage("mesh and texture loading");
     let scene = load_mesh(mesh_path, &opts.load)?;
     let camo = load_texture(texture_path, &opts.memory)?;
     check_output_dir(out)?;
@@ -505,6 +517,7 @@ pub fn export(
         }
     } else if needs_closed {
         (opts.progress)("checking and repairing for print");
+        cac_core::memory::stage("print repair");
         let r = make_printable(&mesh, opts, mesh_path, &mut notes)?;
         if r.1.is_some() {
             original = Some((mesh, r.3));
@@ -516,6 +529,7 @@ pub fn export(
     let stem = sanitize(&mesh.name);
     let mut files = vec![];
     let baked = if needs_bake {
+        cac_core::memory::stage("bake");
         (opts.progress)(&format!(
             "baking the colours of {} triangles",
             mesh.tris.len()
@@ -539,6 +553,7 @@ pub fn export(
     }
     for f in &opts.formats {
         (opts.progress)(&format!("writing {}", f.name()));
+        cac_core::memory::stage(f.stage());
         match f {
             Format::ThreeMfTexture => {
                 let p = out.join(format!("{stem}_texture.3mf"));
@@ -557,8 +572,22 @@ pub fn export(
                 files.push(p);
             }
             Format::Sheets => {
+                // Sheets cover the surface as modelled (a person pastes them on the real
+                // object): the mesh before it was rebuilt as a solid, whose UV islands are the
+                // model's, not the grid's thousands of fragments.
+                let surface = original.as_ref().map_or(&mesh, |(m, _)| m);
                 let dir = out.join("sheets");
-                files.extend(sheets::write_sheets(&mesh, opts.scale, &opts.sheets, &dir)?);
+                files.extend(
+                    sheets::write_sheets(
+                        surface,
+                        opts.scale,
+                        &opts.sheets,
+                        &dir,
+                        &opts.memory,
+                        opts.progress,
+                    )
+                    .with_context(|| format!("mesh {}", mesh_path.display()))?,
+                );
             }
         }
     }
@@ -719,6 +748,7 @@ fn rebuild_solid(
         memory: opts.memory,
     };
     (opts.progress)(&format!("rebuilding as a solid on a {voxel:.3} mm grid"));
+    cac_core::memory::stage("solidify");
     let (m, rep) = solidify::solidify(cur, a, &so).with_context(|| at.to_string())?;
     notes.push(rep.note());
     if !m.report.is_closed() {

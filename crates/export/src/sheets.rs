@@ -9,6 +9,7 @@
 
 use super::{PrintMesh, Scale};
 use anyhow::{bail, ensure, Context, Result};
+use cac_core::memory::MemoryBudget;
 use cac_core::report::font::{draw_text, fill_rect, text_width};
 use glam::Vec2;
 use image::RgbImage;
@@ -45,6 +46,9 @@ impl FromStr for Paper {
     }
 }
 
+/// The default `--max-sheet-pages`: the full-size pickup (1:1) takes 960 A4 pages.
+pub const DEFAULT_MAX_PAGES: usize = 2000;
+
 /// Page settings.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct SheetOptions {
@@ -53,6 +57,8 @@ pub struct SheetOptions {
     pub margin_mm: f32,
     /// Texture printed beyond each part's cut line.
     pub bleed_mm: f32,
+    /// Layouts of more pages are refused before any page is drawn (`--max-sheet-pages`).
+    pub max_pages: usize,
 }
 
 impl Default for SheetOptions {
@@ -62,6 +68,7 @@ impl Default for SheetOptions {
             dpi: 300,
             margin_mm: 10.0,
             bleed_mm: 2.0,
+            max_pages: DEFAULT_MAX_PAGES,
         }
     }
 }
@@ -150,35 +157,68 @@ fn islands(mesh: &PrintMesh) -> Vec<Vec<usize>> {
     out
 }
 
-/// Lays out and writes the sheets into `dir`; returns the files written.
+/// Lays out the sheets and writes them into `dir` page by page (each page drawn, written as PNG
+/// and appended to the PDF, then freed), within `budget`; returns the files written. `progress`
+/// is told how many pieces and pages it is about to make.
 pub fn write_sheets(
     mesh: &PrintMesh,
     scale: Scale,
     opts: &SheetOptions,
     dir: &Path,
+    budget: &MemoryBudget,
+    progress: fn(&str),
 ) -> Result<Vec<PathBuf>> {
+    cac_core::memory::stage("paste-on sheets");
     let page = Page::new(opts)?;
-    let (parts, pieces) = cut_pieces(mesh, page.max_piece)?;
-    let (placed, n_pages) = pack(&pieces, &page, opts);
     let scale_txt = format!("1:{}", scale.denominator);
-    let images = draw_pages(
-        mesh, &scale_txt, &parts, &pieces, &placed, n_pages, &page, opts,
-    );
-    // Files.
+    let what = |w: &str| format!("the paste-on sheets of {} at {scale_txt}: {w}", mesh.name);
+    let painted = mesh
+        .tris
+        .iter()
+        .filter(|t| mesh.camo_uv(t).is_some())
+        .count();
+    let before = plan_bytes(painted as u64, 0) + page.draw_bytes(opts);
+    budget.check(
+        &what(&format!(
+            "{painted} painted triangles, pages of {}",
+            page.px_text(opts)
+        )),
+        before,
+        &format!(
+            "lower --dpi (now {}), or use the textured 3MF for this mesh",
+            opts.dpi
+        ),
+    )?;
+    let (parts, pieces) = cut_pieces(mesh, &page, opts, &what)?;
+    let (placed, n_pages) = pack(&pieces, &page, opts);
+    check_pages(n_pages, "", pieces.len(), opts, &what)?;
+    budget.check(
+        &what(&format!("{} pieces on {n_pages} pages", pieces.len())),
+        plan_bytes(painted as u64, pieces.len() as u64) + page.draw_bytes(opts),
+        &format!(
+            "lower --dpi (now {}), or print at a smaller scale",
+            opts.dpi
+        ),
+    )?;
+    progress(&format!(
+        "paste-on sheets: {} parts cut into {} pieces on {n_pages} pages ({:?}, {} dpi)",
+        parts.len(),
+        pieces.len(),
+        opts.paper,
+        opts.dpi
+    ));
     std::fs::create_dir_all(dir)
         .with_context(|| format!("cannot create sheet folder {}", dir.display()))?;
-    let mut files = vec![];
-    for (k, img) in images.iter().enumerate() {
-        let p = dir.join(format!("page_{:02}.png", k + 1));
-        cac_core::io::save_png_atomic(&p, img)?;
-        files.push(p);
-    }
-    let pdf = dir.join("sheets.pdf");
-    cac_core::io::write_atomic(
-        &pdf,
-        &super::pdf::pages_to_pdf(&images, (page.w, page.h), &mesh.name)?,
-    )?;
-    files.push(pdf);
+    let plan = Plan {
+        mesh,
+        scale_txt: &scale_txt,
+        parts: &parts,
+        pieces: &pieces,
+        n_pages,
+        page: &page,
+        opts,
+    };
+    let mut files = write_pages(&plan, &placed, dir)?;
     let mut parts_out: Vec<PartSheet> = parts.into_iter().map(|(p, _)| p).collect();
     for (i, pl) in placed {
         parts_out[pieces[i].part].pieces.push(pl);
@@ -198,6 +238,108 @@ pub fn write_sheets(
     cac_core::io::write_atomic(&json, serde_json::to_string_pretty(&layout)?.as_bytes())?;
     files.push(json);
     Ok(files)
+}
+
+/// Bytes the layout holds: the UV islands' edge map and groups (about 256 bytes per painted
+/// triangle) and the pieces with their placements and labels (about 512 bytes each).
+pub(crate) fn plan_bytes(painted_tris: u64, pieces: u64) -> u64 {
+    painted_tris * 256 + pieces * 512
+}
+
+/// More pages than `opts.max_pages` are refused before any is drawn.
+/// `at_least` qualifies a lower bound of the pages ("at least ").
+fn check_pages(
+    n_pages: usize,
+    at_least: &str,
+    n_pieces: usize,
+    opts: &SheetOptions,
+    what: &dyn Fn(&str) -> String,
+) -> Result<()> {
+    ensure!(
+        n_pages <= opts.max_pages,
+        "{} would take {at_least}{n_pages} pages ({n_pieces} pieces), over the limit of {} \
+         pages: print \
+         at a smaller scale, or use the textured 3MF (--formats 3mf-texture) for this mesh (or \
+         raise --max-sheet-pages)",
+        what("the layout"),
+        opts.max_pages
+    );
+    Ok(())
+}
+
+/// What drawing the pages needs besides the layout.
+struct Plan<'a> {
+    mesh: &'a PrintMesh,
+    scale_txt: &'a str,
+    parts: &'a [(PartSheet, Vec<usize>)],
+    pieces: &'a [Piece],
+    n_pages: usize,
+    page: &'a Page,
+    opts: &'a SheetOptions,
+}
+
+/// Draws, writes and frees one page at a time: `page_NN.png` each, and `sheets.pdf` streamed
+/// to disk as the pages come. `placed` is in page order (as [`pack`] makes it).
+fn write_pages(plan: &Plan, placed: &[(usize, Placement)], dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut files = vec![];
+    let pdf_path = dir.join("sheets.pdf");
+    let title = format!("cac paste-on sheets: {}", plan.mesh.name);
+    write_streamed(&pdf_path, |w| {
+        let mut pdf = super::pdf::PdfStream::start(w, &title, plan.n_pages)?;
+        let mut rest = placed;
+        for k in 0..plan.n_pages {
+            let n = rest.iter().take_while(|(_, pl)| pl.page == k).count();
+            let img = draw_page(plan, k, &rest[..n]);
+            rest = &rest[n..];
+            let mut png = Vec::new();
+            img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+                .context("cannot encode a sheet page as PNG")?;
+            drop(img);
+            let p = dir.join(format!("page_{:02}.png", k + 1));
+            cac_core::io::write_atomic(&p, &png)?;
+            files.push(p);
+            pdf.page(&png, (plan.page.w, plan.page.h))?;
+        }
+        pdf.finish()
+    })?;
+    files.push(pdf_path);
+    Ok(files)
+}
+
+/// Writes `path` atomically like `cac_core::io::write_atomic_with` (temporary sibling, renamed
+/// into place when finished), with the temporary registered with the memory guard: a file
+/// written over many pages must not be left half-written should the guard stop the process.
+fn write_streamed(
+    path: &Path,
+    f: impl FnOnce(&mut std::io::BufWriter<&mut std::fs::File>) -> Result<()>,
+) -> Result<()> {
+    use std::io::Write;
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let mut tmp = tempfile::Builder::new()
+        .prefix(".cac-tmp-")
+        .tempfile_in(dir)
+        .with_context(|| format!("cannot write into sheet folder {}", dir.display()))?;
+    let _on_stop = cac_core::memory::remove_on_stop(tmp.path());
+    {
+        let mut w = std::io::BufWriter::new(tmp.as_file_mut());
+        f(&mut w).with_context(|| format!("while writing {}", path.display()))?;
+        w.flush()
+            .with_context(|| format!("while writing {}", path.display()))?;
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let _ = tmp
+            .as_file()
+            .set_permissions(std::fs::Permissions::from_mode(0o644));
+    }
+    tmp.as_file()
+        .sync_all()
+        .with_context(|| format!("while syncing {}", path.display()))?;
+    tmp.persist(path)
+        .map_err(|e| e.error)
+        .with_context(|| format!("cannot move finished file into place at {}", path.display()))?;
+    Ok(())
 }
 
 /// Room for a page's header text, a piece's label, and the gap between pieces (mm).
@@ -241,6 +383,29 @@ impl Page {
             max_piece,
         })
     }
+
+    /// The page's size in pixels at `opts.dpi`.
+    fn px(&self, opts: &SheetOptions) -> (u32, u32) {
+        let px_per_mm = opts.dpi as f32 / 25.4;
+        (
+            (self.w * px_per_mm).round() as u32,
+            (self.h * px_per_mm).round() as u32,
+        )
+    }
+
+    /// `2480x3508 px`.
+    fn px_text(&self, opts: &SheetOptions) -> String {
+        let (w, h) = self.px(opts);
+        format!("{w}x{h} px")
+    }
+
+    /// Bytes held while one page is drawn and written: the page (3 bytes per pixel), a piece's
+    /// masks (at most a page, 3 bytes per pixel), the encoded PNG and the PDF's copy of its data
+    /// (at most the raw size each, plus the encoder's rows: 6 bytes per pixel), plus 16 MB.
+    fn draw_bytes(&self, opts: &SheetOptions) -> u64 {
+        let (w, h) = self.px(opts);
+        w as u64 * h as u64 * 12 + 16 * (1 << 20)
+    }
 }
 
 /// One rectangle of a part's texture to print: its part, label, texel rectangle and size (mm).
@@ -252,22 +417,25 @@ struct Piece {
     h: f32,
 }
 
-/// The painted parts (UV islands) at print scale, each cut into pieces no larger than
-/// `max_piece`; a part with collapsed UVs shows no texture and is left out.
-#[allow(clippy::type_complexity)]
-fn cut_pieces(
-    mesh: &PrintMesh,
-    max_piece: (f32, f32),
-) -> Result<(Vec<(PartSheet, Vec<usize>)>, Vec<Piece>)> {
+/// One part measured: its triangles, 3D area (mm²), texel bounds and mm per texel.
+struct Measured {
+    tris: Vec<usize>,
+    area_mm2: f64,
+    lo: Vec2,
+    hi: Vec2,
+    mm_per_texel: f32,
+}
+
+/// The painted parts (UV islands) at print scale; a part with collapsed UVs shows no texture
+/// and is left out.
+fn measure_parts(mesh: &PrintMesh) -> Vec<Measured> {
     let tex = &mesh.textures[0];
     let (tw, th) = (tex.width as f32, tex.height as f32);
-    let mut parts = vec![];
-    let mut pieces = vec![];
-    let groups = islands(mesh);
-    for (id, g) in groups.iter().enumerate() {
+    let mut out = vec![];
+    for g in islands(mesh) {
         let (mut a3, mut auv) = (0.0f64, 0.0f64);
         let (mut lo, mut hi) = (Vec2::splat(f32::MAX), Vec2::splat(f32::MIN));
-        for &ti in g {
+        for &ti in &g {
             let t = &mesh.tris[ti];
             let [p, q, r] = t.v.map(|i| mesh.positions[i as usize]);
             a3 += 0.5 * (q - p).cross(r - p).length() as f64;
@@ -281,23 +449,82 @@ fn cut_pieces(
                 hi = hi.max(u);
             }
         }
-        if auv <= 1e-9 {
-            continue; // a part with collapsed UVs shows no texture
+        if auv > 1e-9 {
+            out.push(Measured {
+                tris: g,
+                area_mm2: a3,
+                lo,
+                hi,
+                mm_per_texel: (a3 / auv).sqrt() as f32,
+            });
         }
-        let s = (a3 / auv).sqrt() as f32;
-        let (w, h) = ((hi.x - lo.x) * s, (hi.y - lo.y) * s);
-        let (nx, ny) = (
-            (w / max_piece.0).ceil().max(1.0),
-            (h / max_piece.1).ceil().max(1.0),
-        );
-        let (sx, sy) = ((hi.x - lo.x) / nx, (hi.y - lo.y) / ny);
+    }
+    out
+}
+
+/// A part's tiles across and down (each at most the largest piece).
+fn tiles(m: &Measured, max_piece: (f32, f32)) -> (f64, f64) {
+    let (w, h) = ((m.hi - m.lo) * m.mm_per_texel).into();
+    (
+        (w as f64 / max_piece.0 as f64).ceil().max(1.0),
+        (h as f64 / max_piece.1 as f64).ceil().max(1.0),
+    )
+}
+
+/// Fewest pages the parts can take: the paper each piece needs (with bleed, label and gap),
+/// summed over the pieces, over a page's printable area. Checked before the pieces are made,
+/// so that a kilometre-long object at 1:1 is refused before millions of tiles are listed.
+fn min_pages(parts: &[Measured], page: &Page, opts: &SheetOptions) -> f64 {
+    let paper: f64 = parts
+        .iter()
+        .map(|m| {
+            let (nx, ny) = tiles(m, page.max_piece);
+            let (w, h) = ((m.hi - m.lo) * m.mm_per_texel).into();
+            let pw = (w / nx as f32 + 2.0 * opts.bleed_mm + GAP_MM).max(30.0) as f64;
+            let ph = (h / ny as f32 + 2.0 * opts.bleed_mm + LABEL_MM + GAP_MM) as f64;
+            nx * ny * pw * ph
+        })
+        .sum();
+    (paper / (page.avail.0 as f64 * page.avail.1 as f64)).ceil()
+}
+
+/// The painted parts at print scale, each cut into pieces no larger than the page's largest
+/// piece; refused (naming `what`) when they cannot fit `opts.max_pages` pages.
+#[allow(clippy::type_complexity)]
+fn cut_pieces(
+    mesh: &PrintMesh,
+    page: &Page,
+    opts: &SheetOptions,
+    what: &dyn Fn(&str) -> String,
+) -> Result<(Vec<(PartSheet, Vec<usize>)>, Vec<Piece>)> {
+    let measured = measure_parts(mesh);
+    ensure!(
+        !measured.is_empty(),
+        "no painted part has texture coordinates to lay out"
+    );
+    let least = min_pages(&measured, page, opts);
+    if least > opts.max_pages as f64 {
+        let n: f64 = measured
+            .iter()
+            .map(|m| tiles(m, page.max_piece))
+            .map(|(x, y)| x * y)
+            .sum();
+        let (least, n) = (least.min(1e15) as usize, n.min(1e15) as usize);
+        check_pages(least, "at least ", n, opts, what)?;
+    }
+    let mut parts = vec![];
+    let mut pieces = vec![];
+    for (id, m) in measured.into_iter().enumerate() {
+        let (nx, ny) = tiles(&m, page.max_piece);
+        let s = m.mm_per_texel;
+        let (sx, sy) = ((m.hi.x - m.lo.x) / nx as f32, (m.hi.y - m.lo.y) / ny as f32);
         for r in 0..ny as usize {
             for c in 0..nx as usize {
                 let t = [
-                    lo.x + c as f32 * sx,
-                    lo.y + r as f32 * sy,
-                    lo.x + (c + 1) as f32 * sx,
-                    lo.y + (r + 1) as f32 * sy,
+                    m.lo.x + c as f32 * sx,
+                    m.lo.y + r as f32 * sy,
+                    m.lo.x + (c + 1) as f32 * sx,
+                    m.lo.y + (r + 1) as f32 * sy,
                 ];
                 let label = if nx * ny > 1.0 {
                     format!("P{} R{}C{}", id + 1, r + 1, c + 1)
@@ -313,25 +540,21 @@ fn cut_pieces(
                 });
             }
         }
-        let mat = mesh.parts[mesh.tris[g[0]].part as usize].clone();
+        let mat = mesh.parts[mesh.tris[m.tris[0]].part as usize].clone();
         parts.push((
             PartSheet {
                 id: id + 1,
                 material: mat,
-                triangles: g.len(),
-                area_mm2: a3,
+                triangles: m.tris.len(),
+                area_mm2: m.area_mm2,
                 mm_per_texel: s as f64,
-                width_mm: w,
-                height_mm: h,
+                width_mm: (m.hi.x - m.lo.x) * s,
+                height_mm: (m.hi.y - m.lo.y) * s,
                 pieces: vec![],
             },
-            g.clone(),
+            m.tris,
         ));
     }
-    ensure!(
-        !pieces.is_empty(),
-        "no painted part has texture coordinates to lay out"
-    );
     Ok((parts, pieces))
 }
 
@@ -377,76 +600,43 @@ fn pack(pieces: &[Piece], page: &Page, opts: &SheetOptions) -> (Vec<(usize, Plac
     (placed, n + 1)
 }
 
-/// The pages as images: each piece rendered with its label, each page's header and scale bar.
-#[allow(clippy::too_many_arguments)]
-fn draw_pages(
-    mesh: &PrintMesh,
-    scale_txt: &str,
-    parts: &[(PartSheet, Vec<usize>)],
-    pieces: &[Piece],
-    placed: &[(usize, Placement)],
-    n_pages: usize,
-    page: &Page,
-    opts: &SheetOptions,
-) -> Vec<RgbImage> {
+/// Page `k` as an image: its pieces (`items`) rendered with their labels, the page's header and
+/// scale bar.
+fn draw_page(plan: &Plan, k: usize, items: &[(usize, Placement)]) -> RgbImage {
+    let (opts, mesh) = (plan.opts, plan.mesh);
     let px_per_mm = opts.dpi as f32 / 25.4;
-    let (wpx, hpx) = (
-        (page.w * px_per_mm).round() as u32,
-        (page.h * px_per_mm).round() as u32,
-    );
-    let mut images: Vec<RgbImage> = (0..n_pages)
-        .map(|_| RgbImage::from_pixel(wpx, hpx, image::Rgb([255, 255, 255])))
-        .collect();
+    let (wpx, hpx) = plan.page.px(opts);
+    let mut img = RgbImage::from_pixel(wpx, hpx, image::Rgb([255, 255, 255]));
     let font_px = ((2.6 * px_per_mm) / 7.0).round().max(1.0) as u32; // 2.6 mm capitals
-    for (i, pl) in placed {
-        let pc = &pieces[*i];
-        let (ps, tris) = &parts[pc.part];
-        render_piece(
-            &mut images[pl.page],
-            mesh,
-            tris,
-            ps.mm_per_texel as f32,
-            pl,
-            opts,
-            px_per_mm,
-        );
+    for (i, pl) in items {
+        let pc = &plan.pieces[*i];
+        let (ps, tris) = &plan.parts[pc.part];
+        let scale = (ps.mm_per_texel as f32, px_per_mm);
+        render_piece(&mut img, mesh, tris, scale, pl, opts);
         let label = format!("{} {:.0}X{:.0} MM", pl.label, pl.width_mm, pl.height_mm);
         let lx = ((pl.x_mm - opts.bleed_mm) * px_per_mm) as i64;
         let ly = ((pl.y_mm - opts.bleed_mm - LABEL_MM + 1.0) * px_per_mm) as i64;
-        draw_text(&mut images[pl.page], lx, ly, &label, font_px, [0, 0, 0]);
+        draw_text(&mut img, lx, ly, &label, font_px, [0, 0, 0]);
     }
-    for (k, img) in images.iter_mut().enumerate() {
-        let x0 = (opts.margin_mm * px_per_mm) as i64;
-        let y0 = (opts.margin_mm * px_per_mm) as i64;
-        let line = (7 * font_px + font_px * 4) as i64;
-        draw_text(
-            img,
-            x0,
-            y0,
-            &format!(
-                "CAC PASTE-ON SHEET  {}  SCALE {}  PAGE {}/{}",
-                mesh.name,
-                scale_txt,
-                k + 1,
-                n_pages
-            ),
-            font_px,
-            [0, 0, 0],
-        );
-        draw_text(
-            img,
-            x0,
-            y0 + line,
-            &format!(
-                "PRINT AT 100% (ACTUAL SIZE, NO FIT TO PAGE)  {} DPI  {:?}",
-                opts.dpi, opts.paper
-            ),
-            font_px,
-            [0, 0, 0],
-        );
-        scale_bar(img, x0, y0 + 2 * line + font_px as i64, px_per_mm, font_px);
-    }
-    images
+    let x0 = (opts.margin_mm * px_per_mm) as i64;
+    let y0 = (opts.margin_mm * px_per_mm) as i64;
+    let line = (7 * font_px + font_px * 4) as i64;
+    let head = format!(
+        "CAC PASTE-ON SHEET  {}  SCALE {}  PAGE {}/{}",
+        mesh.name,
+        plan.scale_txt,
+        k + 1,
+        plan.n_pages
+    );
+    draw_text(&mut img, x0, y0, &head, font_px, [0, 0, 0]);
+    let print = format!(
+        "PRINT AT 100% (ACTUAL SIZE, NO FIT TO PAGE)  {} DPI  {:?}",
+        opts.dpi, opts.paper
+    );
+    draw_text(&mut img, x0, y0 + line, &print, font_px, [0, 0, 0]);
+    let bar_y = y0 + 2 * line + font_px as i64;
+    scale_bar(&mut img, x0, bar_y, px_per_mm, font_px);
+    img
 }
 
 /// A 100 mm bar with 10 mm ticks and labels at 0, 50 and 100 mm.
@@ -467,15 +657,15 @@ fn scale_bar(img: &mut RgbImage, x0: i64, y0: i64, px_per_mm: f32, font_px: u32)
     }
 }
 
-/// Draws one piece: texture inside the part (plus bleed), and the cut line.
+/// Draws one piece: texture inside the part (plus bleed), and the cut line. `scale` is the
+/// part's (mm per texel, pixels per mm).
 fn render_piece(
     img: &mut RgbImage,
     mesh: &PrintMesh,
     tris: &[usize],
-    mm_per_texel: f32,
+    (mm_per_texel, px_per_mm): (f32, f32),
     pl: &Placement,
     opts: &SheetOptions,
-    px_per_mm: f32,
 ) {
     let tex = &mesh.textures[0];
     let (tw, th) = (tex.width as f32, tex.height as f32);

@@ -1,0 +1,236 @@
+//! The memory guard under the estimates (`cac::memory::GuardedAllocator`, the binary's global
+//! allocator) and the paste-on sheets in bounded memory, on the `cac` binary in child processes:
+//! - a stage that its estimate lets through but that goes over a small `--max-memory` ends with
+//!   the guard's one line and exit status 1 (no panic, abort or backtrace), files written before
+//!   it intact and no temporary file left;
+//! - sheets at a large scale are written page by page within a small budget.
+//!
+//! Each child runs under an address-space limit (`ulimit -v` through `setrlimit` before `exec`),
+//! so a regression fails the test instead of growing without bound.
+
+use std::io::Read;
+use std::os::unix::process::{CommandExt, ExitStatusExt};
+use std::path::Path;
+use std::process::{Command, ExitStatus, Stdio};
+
+/// The address-space limit of each child: far above what these commands need (the binary maps
+/// about 1 GB of address space before it allocates anything) and far below the machine.
+const ADDRESS_SPACE: u64 = 4 << 30;
+
+/// A finished child: status, stdout, stderr, peak resident bytes.
+struct Run {
+    status: ExitStatus,
+    stdout: String,
+    stderr: String,
+    peak: u64,
+}
+
+/// Runs `cac args...` under [`ADDRESS_SPACE`] and reads its peak resident memory from `wait4`
+/// (an upper bound: Linux carries this test process's peak into the child at `exec`).
+fn run(args: &[&str]) -> Run {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_cac"));
+    cmd.args(args)
+        .env("RUST_BACKTRACE", "1")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    // SAFETY: setrlimit is async-signal-safe; nothing else runs between fork and exec.
+    unsafe {
+        cmd.pre_exec(|| {
+            let lim = libc::rlimit {
+                rlim_cur: ADDRESS_SPACE,
+                rlim_max: ADDRESS_SPACE,
+            };
+            if libc::setrlimit(libc::RLIMIT_AS, &lim) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let mut child = cmd.spawn().expect("cac starts");
+    let (mut so, mut se) = (child.stdout.take().unwrap(), child.stderr.take().unwrap());
+    let t = std::thread::spawn(move || {
+        let mut s = String::new();
+        let _ = so.read_to_string(&mut s);
+        s
+    });
+    let mut stderr = String::new();
+    let _ = se.read_to_string(&mut stderr);
+    let stdout = t.join().unwrap();
+    let mut status = 0i32;
+    // SAFETY: an all-zero rusage is a valid value; wait4 fills it for our own child's pid.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    let pid = child.id() as libc::pid_t;
+    // SAFETY: pid is our child, not yet reaped (Child::wait is never called on it).
+    let r = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
+    assert_eq!(r, pid, "wait4 on cac failed");
+    Run {
+        status: ExitStatus::from_raw(status),
+        stdout,
+        stderr,
+        peak: usage.ru_maxrss as u64 * 1024,
+    }
+}
+
+fn texture() -> String {
+    format!(
+        "{}/meshes/pickup/cac-person.png",
+        env!("CARGO_MANIFEST_DIR")
+    )
+}
+
+/// Every file under `dir` with its bytes.
+fn snapshot(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut out = vec![];
+    for e in std::fs::read_dir(dir).unwrap().flatten() {
+        if e.path().is_dir() {
+            out.extend(snapshot(&e.path()));
+        } else {
+            out.push((
+                e.path().display().to_string(),
+                std::fs::read(e.path()).unwrap(),
+            ));
+        }
+    }
+    out.sort();
+    out
+}
+
+/// The texture's estimate (16 bytes per texel: decoded and `f32` texels) lets a 1800² texture
+/// (52 MB) through a 64 MB budget, but loading it and laying it on the mesh holds it twice (about
+/// 80 MB): the guard stops the stage with its one line. The folder's files, from an earlier
+/// export and the user's own, are byte for byte as they were, and nothing half-written is left.
+#[test]
+fn the_guard_stops_a_stage_over_the_budget_with_one_line_and_keeps_written_files() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("notes.txt"), b"the user's own file").unwrap();
+    let tex = texture();
+    let out_s = out.to_str().unwrap();
+    let args = |tex: &str, budget: &str| -> Vec<String> {
+        [
+            "--max-memory",
+            budget,
+            "export",
+            "--mesh",
+            "pickup",
+            "--texture",
+            tex,
+            "--scale",
+            "1:24",
+            "--formats",
+            "obj,sheets",
+            "--dpi",
+            "100",
+            "--out",
+            out_s,
+        ]
+        .map(String::from)
+        .to_vec()
+    };
+    let earlier = run(&args(&tex, "4G")
+        .iter()
+        .map(|s| s.as_str())
+        .collect::<Vec<_>>());
+    assert_eq!(earlier.status.code(), Some(0), "{}", earlier.stderr);
+    let before = snapshot(&out);
+    assert!(before.len() >= 6, "{before:?}");
+    let big = d.path().join("big.png");
+    let r = run(&[
+        "texture",
+        "random",
+        "--res",
+        "1800",
+        "--out",
+        big.to_str().unwrap(),
+    ]);
+    assert_eq!(r.status.code(), Some(0), "{}", r.stderr);
+    let r = run(&args(big.to_str().unwrap(), "64M")
+        .iter()
+        .map(|s| s.as_str())
+        .collect::<Vec<_>>());
+    let all = format!("{}{}", r.stdout, r.stderr);
+    assert_eq!(r.status.code(), Some(1), "{:?}:\n{all}", r.status);
+    for bad in [
+        "panicked",
+        "memory allocation of",
+        "stack backtrace",
+        "RUST_BACKTRACE",
+    ] {
+        assert!(!all.contains(bad), "{bad}:\n{all}");
+    }
+    let errors: Vec<&str> = r.stderr.lines().filter(|l| l.contains("error")).collect();
+    assert_eq!(errors.len(), 1, "{}", r.stderr);
+    let e = errors[0];
+    assert!(
+        e.starts_with(
+            "error: the mesh and texture loading stage went over the memory budget of 64 MB (at "
+        ),
+        "{e}"
+    );
+    assert!(e.contains("--max-memory") && e.contains("files already written are kept"));
+    assert_eq!(snapshot(&out), before, "the folder changed");
+}
+
+/// The pickup at 1:2 takes hundreds of pages; written one at a time, they fit a 256 MB budget
+/// (the whole layout held at once took about 1.3 GB at this resolution before).
+#[test]
+fn sheets_at_a_large_scale_are_written_page_by_page_within_a_small_budget() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("out");
+    let tex = texture();
+    let r = run(&[
+        "--max-memory",
+        "256M",
+        "export",
+        "--mesh",
+        "pickup",
+        "--texture",
+        &tex,
+        "--scale",
+        "1:2",
+        "--formats",
+        "sheets",
+        "--dpi",
+        "100",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(
+        r.status.code(),
+        Some(0),
+        "{:?}:\n{}{}",
+        r.status,
+        r.stdout,
+        r.stderr
+    );
+    let dir = out.join("sheets");
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("sheets.json")).unwrap()).unwrap();
+    let pages = j["pages"].as_u64().unwrap() as usize;
+    assert!(pages >= 50, "{pages} pages");
+    // It said how many pieces and pages before drawing them.
+    let said = format!("on {pages} pages (A4, 100 dpi)");
+    assert!(r.stderr.contains(&said), "{}", r.stderr);
+    for k in 1..=pages {
+        let p = dir.join(format!("page_{k:02}.png"));
+        let (w, h) = image::image_dimensions(&p).unwrap();
+        assert_eq!((w, h), (827, 1169), "{}", p.display());
+    }
+    // The streamed PDF: one page object per page, and a cross-reference table at the end.
+    let pdf = std::fs::read(dir.join("sheets.pdf")).unwrap();
+    assert!(pdf.starts_with(b"%PDF-1.7"));
+    let tail = String::from_utf8_lossy(&pdf[pdf.len() - 200..]).to_string();
+    assert!(
+        tail.contains("startxref") && tail.ends_with("%%EOF\n"),
+        "{tail}"
+    );
+    let text = String::from_utf8_lossy(&pdf);
+    assert_eq!(text.matches("/Type /Page ").count(), pages);
+    assert!(text.contains(&format!("/Count {pages} >>")));
+    assert!(
+        r.peak < 600 << 20,
+        "peak resident memory {} MB",
+        r.peak >> 20
+    );
+}
