@@ -1,6 +1,7 @@
 //! Faster R-CNN matched to torchvision: the three models rebuilt on the oracle's deterministic
 //! weights (tools/torchvision_oracle.py, files in tests/data/frcnn) give the same proposals,
-//! class logits, box regressions and detections; gradients reach the image; the `.pth` /
+//! class logits, box regressions and detections, each within 4 × torchvision's own float noise
+//! on that image (the json's `noise`, see [`Bounds`]); gradients reach the image; the `.pth` /
 //! safetensors readers load real files and name what is wrong with bad ones.
 
 mod frcnn_common;
@@ -14,8 +15,62 @@ fn rel(a: &[f32], b: &[f32]) -> f64 {
     cac::detect::raw::relative_error(a, b)
 }
 
-/// Runs one model on the oracle's images and checks every output; returns the worst errors
-/// (logits rel, regression rel, proposal px, detection box px, detection score).
+/// How many times torchvision's own float noise cac may be off: cac's kernels sum in other
+/// orders at every layer, as the oracle's re-runs do. Measured (docs/detectors.md): cac's errors
+/// are 0.5–1.2× the noise with Flex and with libtorch on an AMD EPYC with AVX2; the box that
+/// failed the old fixed 1e-3 px bound on an AVX-512 EPYC (issue 48) was 1.14×. A wrong anchor, a
+/// swapped coordinate or a wrong weight is off by orders of magnitude more.
+const NOISE_FACTOR: f64 = 4.0;
+
+/// The bounds of one oracle case, [`NOISE_FACTOR`] times torchvision's own float noise on it
+/// (the json's `noise`, measured by tools/torchvision_oracle.py: the spread of torchvision's
+/// outputs over a two-ulp input jitter, one thread against two, and channels-last convolutions).
+/// Box and proposal coordinates are bounded relative to the box's larger side (the regression
+/// is decoded through `exp` times the anchor's size, so the rounding grows with the box).
+#[derive(Debug, Clone, Copy)]
+struct Bounds {
+    logits_rel: f64,
+    regression_rel: f64,
+    proposals_size_rel: f64,
+    boxes_size_rel: f64,
+    scores_abs: f64,
+}
+
+impl Bounds {
+    fn from_noise(meta: &serde_json::Value, what: &str) -> Bounds {
+        let noise = |k: &str| {
+            let v = meta["noise"][k].as_f64().unwrap_or_else(|| {
+                panic!("{what}: the oracle's json has no noise.{k} (tools/torchvision_oracle.py --noise-only)")
+            });
+            assert!(v.is_finite() && v >= 0.0, "{what}: noise.{k} = {v}");
+            NOISE_FACTOR * v.max(f32::EPSILON as f64)
+        };
+        Bounds {
+            logits_rel: noise("logits_rel"),
+            regression_rel: noise("regression_rel"),
+            proposals_size_rel: noise("proposals_size_rel"),
+            boxes_size_rel: noise("boxes_size_rel"),
+            scores_abs: noise("scores_abs"),
+        }
+    }
+}
+
+/// A box's larger side (at least 1 px): the scale its coordinates' rounding grows with.
+fn size(b: &[f32]) -> f64 {
+    ((b[2] - b[0]).max(b[3] - b[1]) as f64).max(1.0)
+}
+
+/// The largest coordinate difference of two boxes relative to `want`'s larger side.
+fn size_rel(a: &[f32], want: &[f32]) -> f64 {
+    a.iter()
+        .zip(want)
+        .fold(0f64, |m, (p, q)| m.max((p - q).abs() as f64))
+        / size(want)
+}
+
+/// Runs one model on the oracle's images and checks every output against [`Bounds`]; returns
+/// the worst errors as multiples of torchvision's own noise (logits, regression, proposals,
+/// detection boxes, detection scores).
 fn conformance(arch: Arch, images: &[&str]) -> [f64; 5] {
     let name = arch.name();
     let mut worst = [0f64; 5];
@@ -33,6 +88,8 @@ fn conformance(arch: Arch, images: &[&str]) -> [f64; 5] {
                 FasterRcnn::from_state_dict(arch, &oracle_weights(arch), cfg, &dev()).unwrap(),
             );
         }
+        let what = format!("{name} {stem}");
+        let bounds = Bounds::from_noise(&meta, &what);
         let m = model.as_ref().unwrap();
         let out = m.run(image(stem)).unwrap().remove(0);
         let rs = meta["resized_size"].as_array().unwrap();
@@ -49,22 +106,27 @@ fn conformance(arch: Arch, images: &[&str]) -> [f64; 5] {
 
         let (ps, pv) = npy(&data(&format!("{name}-{stem}-proposals.npy")));
         assert_eq!(out.proposals.len(), ps[0], "{name} {stem}: proposal count");
-        let (order, dp) = proposal_order(&out.proposals, &pv, &format!("{name} {stem}"));
-        worst[2] = worst[2].max(dp);
+        let (order, dp) = proposal_order(&out.proposals, &pv, bounds.proposals_size_rel, &what);
+        worst[2] = worst[2].max(dp / bounds.proposals_size_rel * NOISE_FACTOR);
 
         let (_, lv) = npy(&data(&format!("{name}-{stem}-class_logits.npy")));
         let (a, b) = paired_rows(&out.class_logits, &lv, &order);
-        let e = rel(&a, &b);
-        assert!(e <= 1e-4, "{name} {stem}: class logits relative error {e}");
-        worst[0] = worst[0].max(e);
+        let el = rel(&a, &b);
+        assert!(
+            el <= bounds.logits_rel,
+            "{what}: class logits relative error {el:.3e} over {:.3e} ({NOISE_FACTOR} x torchvision's noise)",
+            bounds.logits_rel
+        );
+        worst[0] = worst[0].max(el / bounds.logits_rel * NOISE_FACTOR);
         let (rs, rv) = npy(&data(&format!("{name}-{stem}-box_regression.npy")));
         let (a, b) = paired_rows(&out.box_regression[..rs[0] * rs[1]], &rv, &order[..rs[0]]);
-        let e = rel(&a, &b);
+        let er = rel(&a, &b);
         assert!(
-            e <= 1e-4,
-            "{name} {stem}: box regression relative error {e}"
+            er <= bounds.regression_rel,
+            "{what}: box regression relative error {er:.3e} over {:.3e} ({NOISE_FACTOR} x torchvision's noise)",
+            bounds.regression_rel
         );
-        worst[1] = worst[1].max(e);
+        worst[1] = worst[1].max(er / bounds.regression_rel * NOISE_FACTOR);
 
         let d = &meta["detections"];
         let want: Vec<(usize, f32, [f32; 4])> = (0..d["labels"].as_array().unwrap().len())
@@ -83,16 +145,23 @@ fn conformance(arch: Arch, images: &[&str]) -> [f64; 5] {
             .iter()
             .map(|d| (d.label, d.score, d.bbox))
             .collect();
-        let (dbox, dscore) = same_detections(&mine, &want, &format!("{name} {stem}"));
-        worst[3] = worst[3].max(dbox);
-        worst[4] = worst[4].max(dscore);
-        assert!(
-            worst[3] <= 1e-3 && worst[4] <= 1e-4,
-            "{name} {stem}: detections differ {worst:?}"
-        );
+        let (dbox, dscore) =
+            same_detections(&mine, &want, bounds, &what).unwrap_or_else(|e| panic!("{e}"));
+        worst[3] = worst[3].max(dbox / bounds.boxes_size_rel * NOISE_FACTOR);
+        worst[4] = worst[4].max(dscore / bounds.scores_abs * NOISE_FACTOR);
         eprintln!(
-            "{name} {stem}: {} proposals, {} detections; worst so far: logits {:.2e}, regression {:.2e}, proposals {:.2e} px, boxes {:.2e} px, scores {:.2e}",
-            out.proposals.len(), out.detections.len(), worst[0], worst[1], worst[2], worst[3], worst[4]
+            "{what}: {} proposals, {} detections; here: logits {el:.2e} rel, regression \
+             {er:.2e} rel, proposals {dp:.2e} of the box's side, boxes {dbox:.2e} of the box's \
+             side, scores {dscore:.2e}; worst so far in units of torchvision's noise (logits, \
+             regression, proposals, boxes, scores): {:.2} {:.2} {:.2} {:.2} {:.2} (bound \
+             {NOISE_FACTOR})",
+            out.proposals.len(),
+            out.detections.len(),
+            worst[0],
+            worst[1],
+            worst[2],
+            worst[3],
+            worst[4]
         );
     }
     worst
@@ -101,25 +170,23 @@ fn conformance(arch: Arch, images: &[&str]) -> [f64; 5] {
 /// Which of torchvision's proposals (`want`, 4 values each) each of ours is: the one at the same
 /// place, or, where two objectness scores tie to float rounding and the kernels' summation order
 /// ranks them the other way round (libtorch's channels-last convolutions do, as PyTorch builds
-/// do between themselves), one within 4 places of it; each box within 1e-3 px, one to one, and
-/// at most 1 % of them (at least one swapped pair) out of place. The oracle's files hold no
-/// objectness scores, so the tie itself is not checked.
-/// Returns the order and the worst box difference (px).
-fn proposal_order(mine: &[[f32; 4]], want: &[f32], what: &str) -> (Vec<usize>, f64) {
+/// do between themselves), one within 4 places of it; each box within `bound` of its larger
+/// side, one to one, and at most 1 % of them (at least one swapped pair) out of place. The
+/// oracle's files hold no objectness scores, so the tie itself is not checked.
+/// Returns the order and the worst box difference (relative to the box's larger side).
+fn proposal_order(mine: &[[f32; 4]], want: &[f32], bound: f64, what: &str) -> (Vec<usize>, f64) {
     let n = want.len() / 4;
-    let gap = |a: &[f32; 4], j: usize| {
-        a.iter()
-            .zip(&want[4 * j..4 * j + 4])
-            .fold(0f64, |m, (p, q)| m.max((p - q).abs() as f64))
-    };
     let (mut used, mut order, mut worst) = (vec![false; n], Vec::new(), 0f64);
     for (i, a) in mine.iter().enumerate() {
         let near = (i.saturating_sub(4)..(i + 5).min(n)).filter(|&j| !used[j]);
         let best = near
-            .map(|j| (gap(a, j), j))
+            .map(|j| (size_rel(a, &want[4 * j..4 * j + 4]), j))
             .min_by(|p, q| p.0.total_cmp(&q.0));
-        let Some((d, j)) = best.filter(|&(d, _)| d <= 1e-3) else {
-            panic!("{what}: proposal {i} {a:?} is none of torchvision's near its place");
+        let Some((d, j)) = best.filter(|&(d, _)| d <= bound) else {
+            panic!(
+                "{what}: proposal {i} {a:?} is none of torchvision's near its place (within \
+                 {bound:.2e} of the box's side; nearest: {best:?})"
+            );
         };
         used[j] = true;
         order.push(j);
@@ -146,48 +213,52 @@ fn paired_rows(mine: &[f32], want: &[f32], order: &[usize]) -> (Vec<f32>, Vec<f3
     (a, b)
 }
 
-/// The same detections as torchvision's, in torchvision's order except where two scores lie
+/// The same detections as torchvision's (an error saying the first that differs otherwise), in
+/// torchvision's order except where two scores lie
 /// within the score bound of each other (there the summation order of the kernels decides, as it
 /// does between PyTorch builds): each of torchvision's detections has one of ours with its label,
-/// its box within 1e-3 px and its score within 1e-4, and ours are sorted by decreasing score.
-/// Returns the worst box (px) and score differences.
+/// its box within `bounds.boxes_size_rel` of its larger side and its score within
+/// `bounds.scores_abs`, and ours are sorted by decreasing score.
+/// Returns the worst box (relative to the box's larger side) and score differences.
 fn same_detections(
     mine: &[(usize, f32, [f32; 4])],
     want: &[(usize, f32, [f32; 4])],
+    bounds: Bounds,
     what: &str,
-) -> (f64, f64) {
-    assert_eq!(mine.len(), want.len(), "{what}: detection count");
-    assert!(
-        mine.windows(2).all(|p| p[0].1 >= p[1].1),
-        "{what}: detections not sorted by score"
-    );
+) -> Result<(f64, f64), String> {
+    if mine.len() != want.len() {
+        return Err(format!(
+            "{what}: {} detections, torchvision {}",
+            mine.len(),
+            want.len()
+        ));
+    }
+    if !mine.windows(2).all(|p| p[0].1 >= p[1].1) {
+        return Err(format!("{what}: detections not sorted by score"));
+    }
     let (mut dbox, mut dscore) = (0f64, 0f64);
     let mut used = vec![false; mine.len()];
     for (k, (label, score, bbox)) in want.iter().enumerate() {
-        let gap = |(_, s, b): &(usize, f32, [f32; 4])| {
-            let db = b
-                .iter()
-                .zip(bbox)
-                .fold(0f64, |m, (a, b)| m.max((a - b).abs() as f64));
-            (db, (s - score).abs() as f64)
-        };
+        let gap =
+            |(_, s, b): &(usize, f32, [f32; 4])| (size_rel(b, bbox), (s - score).abs() as f64);
         let found = (0..mine.len()).find(|&j| {
             let (b, s) = gap(&mine[j]);
-            !used[j] && mine[j].0 == *label && b <= 1e-3 && s <= 1e-4
+            !used[j] && mine[j].0 == *label && b <= bounds.boxes_size_rel && s <= bounds.scores_abs
         });
         let Some(j) = found else {
-            panic!(
+            return Err(format!(
                 "{what}: torchvision's detection {k} (label {label}, score {score}, box {bbox:?}) \
-                 has no match; ours at {k}: {:?}",
-                mine.get(k)
-            );
+                 has no match within {bounds:?}; ours at {k}: {:?} (off by {:?})",
+                mine.get(k),
+                mine.get(k).map(gap)
+            ));
         };
         used[j] = true;
         let (b, s) = gap(&mine[j]);
         dbox = dbox.max(b);
         dscore = dscore.max(s);
     }
-    (dbox, dscore)
+    Ok((dbox, dscore))
 }
 
 #[test]
@@ -389,4 +460,60 @@ fn cac_detect_takes_the_checkpoint_from_weights() {
         !out.status.success() && stderr.contains("needs --weights"),
         "{stderr}"
     );
+}
+
+/// The noise-derived bounds still catch what a bug does: torchvision's own detections match
+/// themselves, and fail with one box moved by a tenth of a pixel (a wrong anchor or offset is
+/// off by more), with x and y swapped, or with a score moved by 1e-4.
+#[test]
+fn the_bounds_catch_a_moved_box_a_swapped_coordinate_and_a_moved_score() {
+    for stem in [
+        "frcnn-mobilenet-v3-320-chelsea",
+        "frcnn-mobilenet-v3-320-astronaut",
+        "frcnn-mobilenet-v3-chelsea",
+        "frcnn-resnet50-chelsea",
+    ] {
+        let meta: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(data(&format!("{stem}.json"))).unwrap())
+                .unwrap();
+        let bounds = Bounds::from_noise(&meta, stem);
+        let d = &meta["detections"];
+        let want: Vec<(usize, f32, [f32; 4])> = (0..d["labels"].as_array().unwrap().len())
+            .map(|k| {
+                let b: Vec<f32> = d["boxes"][k]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|v| v.as_f64().unwrap() as f32)
+                    .collect();
+                let label = d["labels"][k].as_u64().unwrap() as usize;
+                (
+                    label,
+                    d["scores"][k].as_f64().unwrap() as f32,
+                    [b[0], b[1], b[2], b[3]],
+                )
+            })
+            .collect();
+        assert_eq!(same_detections(&want, &want, bounds, stem), Ok((0.0, 0.0)));
+        // The largest box: the loosest bound in pixels.
+        let k = (0..want.len())
+            .max_by(|&a, &b| size(&want[a].2).total_cmp(&size(&want[b].2)))
+            .unwrap();
+        let (label, score, b) = want[k];
+        let fails = |at: usize, bad: (usize, f32, [f32; 4])| {
+            let mut mine = want.clone();
+            mine[at] = bad;
+            let err = same_detections(&mine, &want, bounds, stem).expect_err("a bug passed");
+            err.contains("has no match")
+        };
+        let moved = [b[0] + 0.1, b[1], b[2] + 0.1, b[3]];
+        assert!(fails(k, (label, score, moved)), "{stem}: moved box");
+        assert!(
+            fails(k, (label, score, [b[1], b[0], b[3], b[2]])),
+            "{stem}: x, y swapped"
+        );
+        // The top detection's score raised: still sorted, so only the score bound can fail it.
+        let (label, score, b) = want[0];
+        assert!(fails(0, (label, score + 1e-4, b)), "{stem}: moved score");
+    }
 }

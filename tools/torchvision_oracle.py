@@ -8,13 +8,17 @@ Every parameter and buffer is set from a formula that tests/frcnn_conformance.rs
 Rust without Python: `v = 2 * (splitmix64(fnv1a64(name) + (i + 1) * GOLDEN) >> 40) / 2^24 - 1`
 for the flat index `i`, then scaled by the parameter's role (see `value`). Written:
 
-* `<model>-<image>.json`: configuration, sizes, final detections (torchvision's output);
+* `<model>-<image>.json`: configuration, sizes, final detections (torchvision's output), and
+  `noise`: how far torchvision's own outputs move with float rounding (see `noise`), from which
+  tests/frcnn_conformance.rs derives its bounds;
 * `<model>-<image>-{proposals,class_logits,box_regression}.npy` (float32; box regression of
   the first 200 proposals only, to keep the files small);
 * `subset.pth`: a real `torch.save` state_dict (the 320 model's first blocks + RPN predictors);
 * `bad.pth`: the same with one mis-shaped key and one unexpected key (reader error tests).
 
 Usage: python3 tools/torchvision_oracle.py [--out tests/data/frcnn] [--images ../shared/reference/images]
+       python3 tools/torchvision_oracle.py --noise-only   (re-measures `noise` into the json files,
+                                                           leaving every other value as it is)
        python3 tools/torchvision_oracle.py --bench MODEL --threads 2 --iters 3   (used by `cac bench detect`)
 """
 import argparse
@@ -116,7 +120,7 @@ def load_image(path):
 
 
 @torch.no_grad()
-def run(m, img):
+def run(m, img, check=True):
     images, _ = m.transform([img])
     features = m.backbone(images.tensors)
     proposals, _ = m.rpn(images, features)
@@ -127,9 +131,120 @@ def run(m, img):
     boxes, scores, labels = rh.postprocess_detections(class_logits, box_regression, proposals, images.image_sizes)
     dets = [{"boxes": boxes[0], "scores": scores[0], "labels": labels[0]}]
     dets = m.transform.postprocess(dets, images.image_sizes, [tuple(img.shape[-2:])])[0]
+    if not check:
+        return images, features, proposals[0], class_logits, box_regression, dets
     ref = m([img])[0]
     assert torch.equal(ref["labels"], dets["labels"]) and torch.allclose(ref["boxes"], dets["boxes"])
     return images, features, proposals[0], class_logits, box_regression, dets
+
+
+# ---- torchvision's own float noise ----
+
+# A two-ulp relative jitter of every input value (a value in [0.5, 1) has an ulp of 6e-8).
+JITTER = 2.4e-7
+NOISE_METHOD = ("max over three re-runs of torchvision on this machine of the output's distance "
+                "to the first run: the input jittered by two ulps (seeded), one thread instead of "
+                "two, the model in channels-last memory format (other convolution kernels); with "
+                "--noise-only also the first run against the files' values. Box and proposal "
+                "coordinates relative to the box's larger side (at least 1 px), logits and "
+                "regression relative to their largest magnitude, scores absolute.")
+
+
+def outputs(run_result, img):
+    """The comparable outputs of one `run` (numpy, detections in the original image's pixels)."""
+    _, _, props, logits, regs, dets = run_result
+    return {"proposals": props.numpy(), "logits": logits.numpy(), "regression": regs.numpy(),
+            "boxes": dets["boxes"].numpy(), "scores": dets["scores"].numpy(),
+            "labels": dets["labels"].numpy()}
+
+
+def size(box):
+    return max(box[2] - box[0], box[3] - box[1], 1.0)
+
+
+def proposal_order(mine, want):
+    """For each of `mine`'s proposals, the nearest unused one of `want` within 4 places."""
+    used, order = np.zeros(len(want), bool), []
+    for i, a in enumerate(mine):
+        near = [j for j in range(max(0, i - 4), min(len(want), i + 5)) if not used[j]]
+        j = min(near, key=lambda j: np.abs(a - want[j]).max())
+        used[j] = True
+        order.append(j)
+    return order
+
+
+def rel(a, b):
+    return float(np.abs(a - b).max() / max(np.abs(b).max(), 1e-30)) if len(b) else 0.0
+
+
+def distance(got, want):
+    """How far `got`'s outputs are from `want`'s, on the measures of `NOISE_METHOD`."""
+    n = min(len(got["proposals"]), len(want["proposals"]))
+    order = proposal_order(got["proposals"][:n], want["proposals"][:n])
+    pairs = [(i, j) for i, j in enumerate(order)]
+    prop = max(np.abs(got["proposals"][i] - want["proposals"][j]).max() / size(want["proposals"][j])
+               for i, j in pairs)
+    rows = [(i, j) for i, j in pairs if i < len(got["regression"]) and j < len(want["regression"])]
+    logits = rel(got["logits"][[i for i, _ in pairs]], want["logits"][[j for _, j in pairs]])
+    regs = rel(got["regression"][[i for i, _ in rows]], want["regression"][[j for _, j in rows]])
+    boxes, scores, unmatched = 0.0, 0.0, 0
+    for b, s, l in zip(want["boxes"], want["scores"], want["labels"]):
+        cand = [(np.abs(gb - b).max() / size(b), abs(float(gs - s)))
+                for gb, gs, gl in zip(got["boxes"], got["scores"], got["labels"]) if gl == l]
+        best = min(cand, default=None)
+        if best is None or best[0] > 1e-3:  # dropped at the score threshold or the 100 cap
+            unmatched += 1
+            continue
+        boxes, scores = max(boxes, best[0]), max(scores, best[1])
+    return {"proposals_size_rel": float(prop), "logits_rel": logits, "regression_rel": regs,
+            "boxes_size_rel": float(boxes), "scores_abs": float(scores),
+            "detections_unmatched": unmatched}
+
+
+def noise(name, img, first, files=None):
+    """torchvision's own float noise around `first` (the outputs of `run` at two threads)."""
+    reruns = {}
+    u = torch.from_numpy(uniform("jitter", img.numel()).astype(np.float32)).reshape(img.shape)
+    reruns["jitter"] = outputs(run(build(name), img + img * u * JITTER, check=False), img)
+    torch.set_num_threads(1)
+    reruns["one thread"] = outputs(run(build(name), img, check=False), img)
+    torch.set_num_threads(2)
+    cl = build(name).to(memory_format=torch.channels_last)
+    reruns["channels last"] = outputs(run(cl, img, check=False), img)
+    if files is not None:
+        reruns["files"] = files
+    by = {k: distance(v, first) for k, v in reruns.items()}
+    out = {k: max(d[k] for d in by.values()) for k in next(iter(by.values()))}
+    out["method"] = NOISE_METHOD
+    out["by_rerun"] = by
+    return out
+
+
+def files_outputs(base, meta):
+    d = meta["detections"]
+    return {"proposals": np.load(base + "-proposals.npy"),
+            "logits": np.load(base + "-class_logits.npy"),
+            "regression": np.load(base + "-box_regression.npy"),
+            "boxes": np.array(d["boxes"], np.float32).reshape(-1, 4),
+            "scores": np.array(d["scores"], np.float32),
+            "labels": np.array(d["labels"])}
+
+
+def noise_only(out, image_dir):
+    """Re-measures `noise` into the existing json files, every other value kept."""
+    for name, (_, _, images) in MODELS.items():
+        m = build(name)
+        for stem in images:
+            img = load_image(os.path.join(image_dir, stem + ".png"))
+            base = os.path.join(out, f"{name}-{stem}")
+            with open(base + ".json") as f:
+                meta = json.load(f)
+            first = outputs(run(m, img), img)
+            meta["noise"] = noise(name, img, first, files_outputs(base, meta))
+            with open(base + ".json", "w") as f:
+                json.dump(meta, f)
+            print(f"{name} {stem}: noise " + json.dumps({k: v for k, v in meta["noise"].items()
+                                                         if k != "method"}))
 
 
 def oracle(out, image_dir):
@@ -139,7 +254,8 @@ def oracle(out, image_dir):
         t = m.transform
         for stem in images:
             img = load_image(os.path.join(image_dir, stem + ".png"))
-            images_t, feats, props, logits, regs, dets = run(m, img)
+            result = run(m, img)
+            images_t, feats, props, logits, regs, dets = result
             base = os.path.join(out, f"{name}-{stem}")
             np.save(base + "-proposals.npy", props.numpy().astype(np.float32))
             np.save(base + "-class_logits.npy", logits.numpy().astype(np.float32))
@@ -161,6 +277,7 @@ def oracle(out, image_dir):
                     "scores": dets["scores"].tolist(),
                     "labels": dets["labels"].tolist(),
                 },
+                "noise": noise(name, img, outputs(result, img)),
             }
             with open(base + ".json", "w") as f:
                 json.dump(meta, f)
@@ -242,8 +359,13 @@ if __name__ == "__main__":
     ap.add_argument("--iters", type=int, default=3)
     ap.add_argument("--size", default="480x640", help="bench image HxW")
     ap.add_argument("--device", default="cpu", help="bench device: cpu or cuda")
+    ap.add_argument("--noise-only", action="store_true",
+                    help="re-measure torchvision's float noise into the existing json files")
     a = ap.parse_args()
-    if a.bench:
+    if a.noise_only:
+        torch.set_num_threads(2)
+        noise_only(a.out, a.images)
+    elif a.bench:
         bench(a.bench, a.threads, a.iters, tuple(int(s) for s in a.size.split("x")), a.device)
     else:
         torch.set_num_threads(2)
