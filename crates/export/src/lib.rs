@@ -193,7 +193,7 @@ pub struct ExportOptions {
     /// Light repair fills holes up to this perimeter, mm at print scale.
     pub max_hole_mm: f32,
     /// The memory budget (default: the process's, [`MemoryBudget::current`]): the texture, the
-    /// solid and the bake are estimated against it first.
+    /// solid, the bake and the paste-on sheets are estimated against it first.
     pub memory: MemoryBudget,
     /// Told the name of each stage as it starts (the CLI prints it; default: nothing).
     pub progress: fn(&str),

@@ -1,7 +1,9 @@
 //! A seeded generator of hostile meshes: the files users really bring (tiled and far-out UVs,
 //! a floorless box vehicle with intersecting wheels, objects from 1 mm to 1 km, degenerate and
 //! non-finite vertices, a million triangles, ten thousand tiny parts, non-manifold fans,
-//! inverted normals, missing material and texture files, glTF node trees with transforms).
+//! inverted normals, missing material and texture files, glTF node trees with transforms, and
+//! the quad vehicle of issue 49: five objects of quads in three materials, wheels pushed through
+//! an open body, the atlas tiled once per face, a single-sided window).
 //!
 //! Each [`HostileCase`] is written as files into a folder and says what a stage must do with it:
 //! work, or refuse with an error naming the file. `cac meshes hostile --out DIR` writes them for
@@ -35,8 +37,9 @@ pub struct HostileCase {
 }
 
 /// The cases, in order (names are file stems).
-pub const CASES: [&str; 14] = [
+pub const CASES: [&str; 15] = [
     "tiled_uv_vehicle",
+    "quad_vehicle",
     "uv_far_outside",
     "tiny_1mm",
     "huge_1km",
@@ -66,6 +69,7 @@ pub fn write_case(dir: &Path, name: &str, seed: u64) -> Result<HostileCase> {
     let mut gltf = None;
     match name {
         "tiled_uv_vehicle" => vehicle(&mut m, &mut rng, 1.0),
+        "quad_vehicle" => quad_vehicle(&mut m, &mut rng),
         "uv_far_outside" => {
             m.material("paint", None);
             let s = rng.random_range(300.0..1000.0f32);
@@ -212,6 +216,14 @@ impl Obj {
         }
         let _ = writeln!(self.f, "usemtl {name}");
     }
+    /// Declares a material in the MTL without switching to it.
+    fn declare(&mut self, name: &str, kd: [f32; 3]) {
+        let _ = writeln!(self.mtl, "newmtl {name}\nKd {} {} {}", kd[0], kd[1], kd[2]);
+    }
+    /// Switches the following faces to a declared material.
+    fn use_material(&mut self, name: &str) {
+        let _ = writeln!(self.f, "usemtl {name}");
+    }
     fn group(&mut self, name: &str) {
         let _ = writeln!(self.f, "o {name}");
         self.groups += 1;
@@ -313,6 +325,51 @@ fn vehicle(m: &mut Obj, rng: &mut impl Rng, scale: f32) {
     ]
     .into_iter()
     .map(|p| m.vertex(s(p)))
+    .collect();
+    let t: Vec<usize> = [[0.05, 0.05], [0.95, 0.05], [0.95, 0.95], [0.05, 0.95]]
+        .into_iter()
+        .map(|q| m.uv(q))
+        .collect();
+    m.face(&[(w[0], t[0]), (w[1], t[1]), (w[2], t[2]), (w[3], t[3])]);
+}
+
+/// Issue 49's file, rebuilt from its description: five OBJ objects of quads (four corners per
+/// face) whose every face maps the same square 0.05–0.95 of the atlas (the atlas tiled once per
+/// face); a `body` box without a floor (five quads, open), a `cabin` box sunk into the body,
+/// four box wheels (two objects) pushed through the body's sides, and a single-sided `window`
+/// quad 1 cm off the cabin; materials `paint`, `wheel` and `glass` in its MTL. The wheels' depth
+/// through the sides varies with the seed.
+fn quad_vehicle(m: &mut Obj, rng: &mut impl Rng) {
+    let tile = |_: usize, c: [f32; 2]| [0.05 + 0.9 * c[0], 0.05 + 0.9 * c[1]];
+    m.declare("paint", [0.45, 0.5, 0.35]);
+    m.declare("wheel", [0.1, 0.1, 0.1]);
+    m.declare("glass", [0.3, 0.4, 0.5]);
+    m.group("body");
+    m.use_material("paint");
+    m.cuboid_skip([-2.25, 0.4, -0.9], [2.25, 1.4, 0.9], Some(2), tile);
+    m.group("cabin");
+    m.cuboid([-0.8, 1.2, -0.85], [0.9, 2.1, 0.85], tile);
+    let depth = rng.random_range(0.1..0.25f32);
+    for (name, x) in [("wheels_front", 1.5f32), ("wheels_rear", -1.5)] {
+        m.group(name);
+        m.use_material("wheel");
+        for side in [-1.0f32, 1.0] {
+            // Through the side wall at |z| = 0.9: from `depth` inside to 0.15 outside.
+            let (z0, z1) = (side * (0.9 - depth), side * 1.05);
+            let (zl, zh) = (z0.min(z1), z0.max(z1));
+            m.cuboid([x - 0.4, 0.0, zl], [x + 0.4, 0.8, zh], tile);
+        }
+    }
+    m.group("window");
+    m.use_material("glass");
+    let w: Vec<usize> = [
+        [0.91, 1.5, -0.7],
+        [0.91, 1.5, 0.7],
+        [0.91, 2.0, 0.7],
+        [0.91, 2.0, -0.7],
+    ]
+    .into_iter()
+    .map(|p| m.vertex(p))
     .collect();
     let t: Vec<usize> = [[0.05, 0.05], [0.95, 0.05], [0.95, 0.95], [0.05, 0.95]]
         .into_iter()
