@@ -234,3 +234,82 @@ fn sheets_at_a_large_scale_are_written_page_by_page_within_a_small_budget() {
         r.peak >> 20
     );
 }
+
+/// The guard inside the sheets stage, mid-layout: a 1425² texture (32 MB by its estimate) held
+/// twice leaves the 200 dpi pages (their estimate, 62 MB, passes) too little room under 64 MB,
+/// and the guard stops the stage a few pages in. The pages written before are whole PNGs; the
+/// PDF being streamed is removed, not left half-written. (The window is narrow: a 1350² texture
+/// fits, a 1500² one is stopped before the first page. Retune the size if the export's memory
+/// changes.)
+#[test]
+fn the_guard_stops_the_sheets_mid_layout_keeping_finished_pages_and_no_partial_pdf() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("notes.txt"), b"the user's own file").unwrap();
+    let tex = d.path().join("t.png");
+    let t = tex.to_str().unwrap();
+    let r = run(&[
+        "texture", "random", "--res", "1425", "--seed", "3", "--out", t,
+    ]);
+    assert_eq!(r.status.code(), Some(0), "{}", r.stderr);
+    let r = run(&[
+        "--max-memory",
+        "64M",
+        "export",
+        "--mesh",
+        "pickup",
+        "--texture",
+        t,
+        "--scale",
+        "1:5",
+        "--formats",
+        "sheets",
+        "--dpi",
+        "200",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(
+        r.status.code(),
+        Some(1),
+        "{:?}:\n{}{}",
+        r.status,
+        r.stdout,
+        r.stderr
+    );
+    let errors: Vec<&str> = r.stderr.lines().filter(|l| l.contains("error")).collect();
+    assert_eq!(errors.len(), 1, "{}", r.stderr);
+    assert!(
+        errors[0].starts_with(
+            "error: the paste-on sheets stage went over the memory budget of 64 MB (at "
+        ),
+        "{}",
+        errors[0]
+    );
+    assert!(
+        r.stderr
+            .contains("export: paste-on sheets: 38 parts cut into"),
+        "{}",
+        r.stderr
+    );
+    let sheets = snapshot(&out.join("sheets"));
+    let names: Vec<&str> = sheets
+        .iter()
+        .map(|(p, _)| p.rsplit('/').next().unwrap())
+        .collect();
+    assert!(!names.is_empty(), "no page was written before the stop");
+    for (p, bytes) in &sheets {
+        let name = p.rsplit('/').next().unwrap();
+        assert!(
+            name.starts_with("page_") && name.ends_with(".png"),
+            "{names:?}"
+        );
+        let img = image::load_from_memory(bytes).unwrap();
+        assert_eq!((img.width(), img.height()), (1654, 2339), "{p}");
+    }
+    assert_eq!(
+        std::fs::read(out.join("notes.txt")).unwrap(),
+        b"the user's own file"
+    );
+}
