@@ -46,6 +46,8 @@ fn run(args: &[&str]) -> Run {
             Ok(())
         });
     }
+    // Reaped by `wait4` below (which also reads its peak memory), not by `Child::wait`.
+    #[allow(clippy::zombie_processes)]
     let mut child = cmd.spawn().expect("cac starts");
     let (mut so, mut se) = (child.stdout.take().unwrap(), child.stderr.take().unwrap());
     let t = std::thread::spawn(move || {
