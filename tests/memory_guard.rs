@@ -170,7 +170,10 @@ fn the_guard_stops_a_stage_over_the_budget_with_one_line_and_keeps_written_files
         ),
         "{e}"
     );
-    assert!(e.contains("--max-memory") && e.contains("files already written are kept"));
+    assert!(
+        e.contains("use a smaller texture, or raise --max-memory; files already written are kept"),
+        "{e}"
+    );
     assert_eq!(snapshot(&out), before, "the folder changed");
 }
 
@@ -289,6 +292,7 @@ fn the_guard_stops_the_sheets_mid_layout_keeping_finished_pages_and_no_partial_p
         "{}",
         errors[0]
     );
+    assert!(errors[0].contains("lower --dpi, or raise --max-memory"));
     assert!(
         r.stderr
             .contains("export: paste-on sheets: 38 parts cut into"),

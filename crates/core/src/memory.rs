@@ -169,10 +169,17 @@ static GUARD_PEAK: AtomicUsize = AtomicUsize::new(0);
 static GUARD_LIMIT: AtomicUsize = AtomicUsize::new(0);
 /// Set when the guard has stopped the process: allocations then pass while it exits.
 static GUARD_FIRED: AtomicBool = AtomicBool::new(false);
-/// The current stage's name ([`stage`]); null: none set.
-static STAGE: AtomicPtr<&'static str> = AtomicPtr::new(std::ptr::null_mut());
-/// Every stage name set so far, each stored once where [`STAGE`] can point at it.
-static STAGE_NAMES: Mutex<Vec<&'static &'static str>> = Mutex::new(Vec::new());
+/// The current stage ([`stage`]); null: none set.
+static STAGE: AtomicPtr<Stage> = AtomicPtr::new(std::ptr::null_mut());
+/// Every stage set so far, each stored once where [`STAGE`] can point at it.
+static STAGE_NAMES: Mutex<Vec<&'static Stage>> = Mutex::new(Vec::new());
+
+/// A stage as the guard names it: its name and what makes its work smaller.
+#[derive(PartialEq)]
+struct Stage {
+    name: &'static str,
+    knob: &'static str,
+}
 
 /// Unfinished output files (temporaries being written) that the guard removes when it stops
 /// the process, so that a stop leaves no half-written file behind.
@@ -214,26 +221,40 @@ fn remove_unfinished() {
 
 /// Names the stage now running (`"paste-on sheets"`, `"bake"`), for the guard's message.
 pub fn stage(name: &'static str) {
+    stage_with(name, "make the stage's work smaller");
+}
+
+/// [`stage`], with what makes its work smaller (`"lower --dpi"`), which the guard's message
+/// gives before `--max-memory`.
+pub fn stage_with(name: &'static str, knob: &'static str) {
+    let want = Stage { name, knob };
     let mut names = STAGE_NAMES.lock().unwrap_or_else(|e| e.into_inner());
-    let slot = match names.iter().find(|n| ***n == name) {
+    let slot = match names.iter().find(|n| ***n == want) {
         Some(n) => *n,
         None => {
-            let n: &'static &'static str = Box::leak(Box::new(name));
+            let n: &'static Stage = Box::leak(Box::new(want));
             names.push(n);
             n
         }
     };
-    STAGE.store(slot as *const &'static str as *mut _, Ordering::Relaxed);
+    STAGE.store(slot as *const Stage as *mut Stage, Ordering::Relaxed);
 }
 
 /// The stage last named with [`stage`] (`"cac"` before any).
 pub fn current_stage() -> &'static str {
+    current().name
+}
+
+fn current() -> &'static Stage {
     let p = STAGE.load(Ordering::Relaxed);
     if p.is_null() {
-        "cac"
+        &Stage {
+            name: "cac",
+            knob: "make the command's work smaller",
+        }
     } else {
-        // Safety: STAGE only ever points at a leaked `&'static str` of STAGE_NAMES.
-        unsafe { *p }
+        // Safety: STAGE only ever points at a leaked `Stage` of STAGE_NAMES.
+        unsafe { &*p }
     }
 }
 
@@ -357,7 +378,8 @@ fn stop(why: Stop, size: usize, live: usize, limit: usize) {
 
 /// The guard's message (see `docs/memory.md`).
 fn guard_line(w: &mut impl fmt::Write, why: Stop, size: u64, live: u64, limit: u64) -> fmt::Result {
-    write!(w, "error: the {} stage ", current_stage())?;
+    let stage = current();
+    write!(w, "error: the {} stage ", stage.name)?;
     match why {
         Stop::OverBudget => w.write_str("went over the memory budget of ")?,
         Stop::Refused => w.write_str("ran out of system memory under the memory budget of ")?,
@@ -369,13 +391,16 @@ fn guard_line(w: &mut impl fmt::Write, why: Stop, size: u64, live: u64, limit: u
     write_human(w, size)?;
     w.write_str(" more): ")?;
     match why {
-        Stop::OverBudget => w.write_str(
-            "stopped before the machine runs out; make the stage's work smaller or raise \
-             --max-memory",
+        Stop::OverBudget => write!(
+            w,
+            "stopped before the machine runs out; {}, or raise --max-memory",
+            stage.knob
         )?,
-        Stop::Refused => w.write_str(
+        Stop::Refused => write!(
+            w,
             "the system (or an address-space limit) gives less than the budget; lower \
-             --max-memory to what the machine has, or make the stage's work smaller",
+             --max-memory to what the machine has, or {}",
+            stage.knob
         )?,
     }
     w.write_str("; files already written are kept\n")
@@ -481,10 +506,11 @@ mod tests {
 
     #[test]
     fn the_guard_line_names_the_stage_budget_and_knob_without_allocating() {
-        stage("paste-on sheets");
+        stage("bake");
+        stage_with("paste-on sheets", "lower --dpi");
         assert_eq!(current_stage(), "paste-on sheets");
         stage("bake");
-        stage("paste-on sheets");
+        stage_with("paste-on sheets", "lower --dpi");
         assert_eq!(STAGE_NAMES.lock().unwrap().len(), 2);
         let mut line = StackLine::default();
         guard_line(
@@ -504,7 +530,8 @@ mod tests {
             "{text}"
         );
         assert!(
-            text.contains("--max-memory") && text.ends_with("kept\n"),
+            text.contains("runs out; lower --dpi, or raise --max-memory; files already written")
+                && text.ends_with("kept\n"),
             "{text}"
         );
         assert_eq!(text.lines().count(), 1);

@@ -476,7 +476,7 @@ pub fn export(
     opts: &ExportOptions,
 ) -> Result<ExportSummary> {
     ensure!(!opts.formats.is_empty(), "no export format requested");
-    cac_core::memory::stage("mesh and texture loading");
+    cac_core::memory::stage_with("mesh and texture loading", "use a smaller texture");
     let scene = load_mesh(mesh_path, &opts.load)?;
     let camo = load_texture(texture_path, &opts.memory)?;
     check_output_dir(out)?;
@@ -517,7 +517,7 @@ pub fn export(
         }
     } else if needs_closed {
         (opts.progress)("checking and repairing for print");
-        cac_core::memory::stage("print repair");
+        cac_core::memory::stage_with("print repair", "use a smaller texture or mesh");
         let r = make_printable(&mesh, opts, mesh_path, &mut notes)?;
         if r.1.is_some() {
             original = Some((mesh, r.3));
@@ -529,7 +529,7 @@ pub fn export(
     let stem = sanitize(&mesh.name);
     let mut files = vec![];
     let baked = if needs_bake {
-        cac_core::memory::stage("bake");
+        cac_core::memory::stage_with("bake", "raise --max-edge-texels");
         (opts.progress)(&format!(
             "baking the colours of {} triangles",
             mesh.tris.len()
@@ -748,7 +748,7 @@ fn rebuild_solid(
         memory: opts.memory,
     };
     (opts.progress)(&format!("rebuilding as a solid on a {voxel:.3} mm grid"));
-    cac_core::memory::stage("solidify");
+    cac_core::memory::stage_with("solidify", "raise --voxel-mm");
     let (m, rep) = solidify::solidify(cur, a, &so).with_context(|| at.to_string())?;
     notes.push(rep.note());
     if !m.report.is_closed() {

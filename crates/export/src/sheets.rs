@@ -168,7 +168,7 @@ pub fn write_sheets(
     budget: &MemoryBudget,
     progress: fn(&str),
 ) -> Result<Vec<PathBuf>> {
-    cac_core::memory::stage("paste-on sheets");
+    cac_core::memory::stage_with("paste-on sheets", "lower --dpi");
     let page = Page::new(opts)?;
     let scale_txt = format!("1:{}", scale.denominator);
     let what = |w: &str| format!("the paste-on sheets of {} at {scale_txt}: {w}", mesh.name);
