@@ -319,3 +319,48 @@ fn the_guard_stops_the_sheets_mid_layout_keeping_finished_pages_and_no_partial_p
         b"the user's own file"
     );
 }
+
+/// Sheets are refused before any page is drawn when their parts are too small to cut out (the
+/// 10 000 tiny boxes at 1:24 are under a millimetre on paper), or when the layout would take more
+/// pages than `--max-sheet-pages` (the same boxes at 1:2: 60 000 pieces), each naming the scale
+/// and the textured 3MF.
+#[test]
+fn sheets_of_too_small_or_too_many_pieces_are_refused_before_any_page() {
+    let d = tempfile::tempdir().unwrap();
+    let case = cac::scene::hostile::write_case(&d.path().join("m"), "tiny_parts", 29).unwrap();
+    let tex = texture();
+    let out = d.path().join("out");
+    let export = |scale: &str, pages: &str| {
+        run(&[
+            "export",
+            "--mesh",
+            case.mesh.to_str().unwrap(),
+            "--texture",
+            &tex,
+            "--scale",
+            scale,
+            "--formats",
+            "sheets",
+            "--max-sheet-pages",
+            pages,
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    for (r, want) in [
+        (
+            export("1:24", "2000"),
+            "no painted part of at least 1 mm on paper (all 60000",
+        ),
+        (
+            export("1:2", "100"),
+            "pages (60000 pieces), over the limit of 100 pages",
+        ),
+    ] {
+        assert_eq!(r.status.code(), Some(1), "{}", r.stderr);
+        let e = r.stderr.lines().find(|l| l.starts_with("error:")).unwrap();
+        assert!(e.contains("tiny_parts.obj") && e.contains(want), "{e}");
+        assert!(e.contains("--formats 3mf-texture"), "{e}");
+        assert!(!out.join("sheets").exists(), "pages were drawn");
+    }
+}

@@ -189,7 +189,7 @@ pub fn write_sheets(
             opts.dpi
         ),
     )?;
-    let (parts, pieces) = cut_pieces(mesh, &page, opts, &what)?;
+    let (parts, pieces, left_out) = cut_pieces(mesh, &page, opts, &what)?;
     let (placed, n_pages) = pack(&pieces, &page, opts);
     check_pages(n_pages, "", pieces.len(), opts, &what)?;
     budget.check(
@@ -200,8 +200,12 @@ pub fn write_sheets(
             opts.dpi
         ),
     )?;
+    let small = match left_out {
+        0 => String::new(),
+        n => format!("; {n} parts under {MIN_PART_MM} mm left out"),
+    };
     progress(&format!(
-        "paste-on sheets: {} parts cut into {} pieces on {n_pages} pages ({:?}, {} dpi)",
+        "paste-on sheets: {} parts cut into {} pieces on {n_pages} pages ({:?}, {} dpi){small}",
         parts.len(),
         pieces.len(),
         opts.paper,
@@ -462,6 +466,17 @@ fn measure_parts(mesh: &PrintMesh) -> Vec<Measured> {
     out
 }
 
+/// Parts smaller than this on paper (largest extent, mm) cannot be cut out and pasted: they are
+/// left out of the sheets (and said), like printability's minimum feature.
+pub const MIN_PART_MM: f32 = 1.0;
+
+impl Measured {
+    /// The part's largest extent on paper, mm.
+    fn extent_mm(&self) -> f32 {
+        ((self.hi - self.lo) * self.mm_per_texel).max_element()
+    }
+}
+
 /// A part's tiles across and down (each at most the largest piece).
 fn tiles(m: &Measured, max_piece: (f32, f32)) -> (f64, f64) {
     let (w, h) = ((m.hi - m.lo) * m.mm_per_texel).into();
@@ -489,19 +504,32 @@ fn min_pages(parts: &[Measured], page: &Page, opts: &SheetOptions) -> f64 {
 }
 
 /// The painted parts at print scale, each cut into pieces no larger than the page's largest
-/// piece; refused (naming `what`) when they cannot fit `opts.max_pages` pages.
+/// piece, parts under [`MIN_PART_MM`] left out (the number left out is returned); refused
+/// (naming `what`) when none is left or they cannot fit `opts.max_pages` pages.
 #[allow(clippy::type_complexity)]
 fn cut_pieces(
     mesh: &PrintMesh,
     page: &Page,
     opts: &SheetOptions,
     what: &dyn Fn(&str) -> String,
-) -> Result<(Vec<(PartSheet, Vec<usize>)>, Vec<Piece>)> {
+) -> Result<(Vec<(PartSheet, Vec<usize>)>, Vec<Piece>, usize)> {
     let measured = measure_parts(mesh);
     ensure!(
         !measured.is_empty(),
         "no painted part has texture coordinates to lay out"
     );
+    let all = measured.len();
+    let measured: Vec<Measured> = measured
+        .into_iter()
+        .filter(|m| m.extent_mm() >= MIN_PART_MM)
+        .collect();
+    ensure!(
+        !measured.is_empty(),
+        "{} has no painted part of at least {MIN_PART_MM} mm on paper (all {all} are smaller): \
+         print at a larger scale, or use the textured 3MF (--formats 3mf-texture)",
+        what("the layout")
+    );
+    let left = measured.len();
     let least = min_pages(&measured, page, opts);
     if least > opts.max_pages as f64 {
         let n: f64 = measured
@@ -555,7 +583,7 @@ fn cut_pieces(
             m.tris,
         ));
     }
-    Ok((parts, pieces))
+    Ok((parts, pieces, all - left))
 }
 
 /// Shelf packing, tallest first: each piece's placement (by index into `pieces`) and the
