@@ -109,24 +109,21 @@ fn conformance(arch: Arch, images: &[&str]) -> [f64; 5] {
         let (order, dp) = proposal_order(&out.proposals, &pv, bounds.proposals_size_rel, &what);
         worst[2] = worst[2].max(dp / bounds.proposals_size_rel * NOISE_FACTOR);
 
+        // Relative error of an output against its bound, kept as a multiple of the noise.
+        let mut within = |slot: usize, output: &str, e: f64, bound: f64| {
+            assert!(
+                e <= bound,
+                "{what}: {output} relative error {e:.3e} over {bound:.3e} ({NOISE_FACTOR} x torchvision's noise)"
+            );
+            worst[slot] = worst[slot].max(e / bound * NOISE_FACTOR);
+            e
+        };
         let (_, lv) = npy(&data(&format!("{name}-{stem}-class_logits.npy")));
         let (a, b) = paired_rows(&out.class_logits, &lv, &order);
-        let el = rel(&a, &b);
-        assert!(
-            el <= bounds.logits_rel,
-            "{what}: class logits relative error {el:.3e} over {:.3e} ({NOISE_FACTOR} x torchvision's noise)",
-            bounds.logits_rel
-        );
-        worst[0] = worst[0].max(el / bounds.logits_rel * NOISE_FACTOR);
+        let el = within(0, "class logits", rel(&a, &b), bounds.logits_rel);
         let (rs, rv) = npy(&data(&format!("{name}-{stem}-box_regression.npy")));
         let (a, b) = paired_rows(&out.box_regression[..rs[0] * rs[1]], &rv, &order[..rs[0]]);
-        let er = rel(&a, &b);
-        assert!(
-            er <= bounds.regression_rel,
-            "{what}: box regression relative error {er:.3e} over {:.3e} ({NOISE_FACTOR} x torchvision's noise)",
-            bounds.regression_rel
-        );
-        worst[1] = worst[1].max(er / bounds.regression_rel * NOISE_FACTOR);
+        let er = within(1, "box regression", rel(&a, &b), bounds.regression_rel);
 
         let d = &meta["detections"];
         let want: Vec<(usize, f32, [f32; 4])> = (0..d["labels"].as_array().unwrap().len())

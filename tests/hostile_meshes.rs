@@ -6,13 +6,12 @@
 //! panic or a signal), stays within [`PEAK_BOUND`], and loses nothing already in the output
 //! folder. Times are the benchmarks' job (`cac bench export`), not asserted here.
 
+mod limited_child;
 mod support;
 
 use cac::scene::hostile::{self, Expect, HostileCase};
-use std::io::Read;
-use std::os::unix::process::{CommandExt, ExitStatusExt};
+use limited_child::Run;
 use std::path::Path;
-use std::process::{Command, ExitStatus, Stdio};
 
 /// Peak resident memory allowed to any one command on a hostile mesh: under the default memory
 /// budget (4 GiB), with room for the binary and the detectors.
@@ -20,61 +19,14 @@ const PEAK_BOUND: u64 = 3 << 30;
 
 const SEED: u64 = 29;
 
-/// A finished child: status, stdout + stderr, peak resident bytes.
-struct Run {
-    status: ExitStatus,
-    text: String,
-    peak: u64,
-}
-
 /// The address-space limit of every child (`ulimit -v`): issue 49's 8 GB, far below what a
 /// runaway stage took (24 GB), far above the binary's own mappings.
 const ADDRESS_SPACE: u64 = 8 << 30;
 
-/// Runs `cac args...` under [`ADDRESS_SPACE`] and reads its peak resident memory from `wait4`.
-/// It is an upper bound: Linux carries the spawning process's own peak (this test's, ~180 MB)
-/// into the child's at `exec`, so a child that stays under the bound here stays under it
-/// anywhere.
+/// Runs `cac args...` under [`ADDRESS_SPACE`] and reads its peak resident memory (an upper
+/// bound, see `limited_child`).
 fn run(args: &[&str]) -> Run {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_cac"));
-    cmd.args(args).stdout(Stdio::piped()).stderr(Stdio::piped());
-    // SAFETY: setrlimit is async-signal-safe; nothing else runs between fork and exec.
-    unsafe {
-        cmd.pre_exec(|| {
-            let lim = libc::rlimit {
-                rlim_cur: ADDRESS_SPACE,
-                rlim_max: ADDRESS_SPACE,
-            };
-            if libc::setrlimit(libc::RLIMIT_AS, &lim) != 0 {
-                return Err(std::io::Error::last_os_error());
-            }
-            Ok(())
-        });
-    }
-    // Reaped by `wait4` below (which also reads its peak memory), not by `Child::wait`.
-    #[allow(clippy::zombie_processes)]
-    let mut child = cmd.spawn().expect("cac starts");
-    let (mut so, mut se) = (child.stdout.take().unwrap(), child.stderr.take().unwrap());
-    let t = std::thread::spawn(move || {
-        let mut s = String::new();
-        let _ = so.read_to_string(&mut s);
-        s
-    });
-    let mut err = String::new();
-    let _ = se.read_to_string(&mut err);
-    let out = t.join().unwrap();
-    let mut status = 0i32;
-    // SAFETY: an all-zero rusage is a valid value; wait4 fills it for our own child's pid.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    let pid = child.id() as libc::pid_t;
-    // SAFETY: pid is our child, not yet reaped (Child::wait is never called on it).
-    let r = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
-    assert_eq!(r, pid, "wait4 on cac failed");
-    Run {
-        status: ExitStatus::from_raw(status),
-        text: format!("{out}{err}"),
-        peak: usage.ru_maxrss as u64 * 1024,
-    }
+    limited_child::run(args, ADDRESS_SPACE, &[])
 }
 
 /// The checks every command on a case must pass; `refused` says whether it refused.

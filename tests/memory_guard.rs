@@ -8,69 +8,19 @@
 //! Each child runs under an address-space limit (`ulimit -v` through `setrlimit` before `exec`),
 //! so a regression fails the test instead of growing without bound.
 
-use std::io::Read;
-use std::os::unix::process::{CommandExt, ExitStatusExt};
+mod limited_child;
+
+use limited_child::Run;
 use std::path::Path;
-use std::process::{Command, ExitStatus, Stdio};
 
 /// The address-space limit of each child: far above what these commands need (the binary maps
 /// about 1 GB of address space before it allocates anything) and far below the machine.
 const ADDRESS_SPACE: u64 = 4 << 30;
 
-/// A finished child: status, stdout, stderr, peak resident bytes.
-struct Run {
-    status: ExitStatus,
-    stdout: String,
-    stderr: String,
-    peak: u64,
-}
-
-/// Runs `cac args...` under [`ADDRESS_SPACE`] and reads its peak resident memory from `wait4`
-/// (an upper bound: Linux carries this test process's peak into the child at `exec`).
+/// Runs `cac args...` under [`ADDRESS_SPACE`] (with backtraces on, so that none may show) and
+/// reads its peak resident memory.
 fn run(args: &[&str]) -> Run {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_cac"));
-    cmd.args(args)
-        .env("RUST_BACKTRACE", "1")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped());
-    // SAFETY: setrlimit is async-signal-safe; nothing else runs between fork and exec.
-    unsafe {
-        cmd.pre_exec(|| {
-            let lim = libc::rlimit {
-                rlim_cur: ADDRESS_SPACE,
-                rlim_max: ADDRESS_SPACE,
-            };
-            if libc::setrlimit(libc::RLIMIT_AS, &lim) != 0 {
-                return Err(std::io::Error::last_os_error());
-            }
-            Ok(())
-        });
-    }
-    // Reaped by `wait4` below (which also reads its peak memory), not by `Child::wait`.
-    #[allow(clippy::zombie_processes)]
-    let mut child = cmd.spawn().expect("cac starts");
-    let (mut so, mut se) = (child.stdout.take().unwrap(), child.stderr.take().unwrap());
-    let t = std::thread::spawn(move || {
-        let mut s = String::new();
-        let _ = so.read_to_string(&mut s);
-        s
-    });
-    let mut stderr = String::new();
-    let _ = se.read_to_string(&mut stderr);
-    let stdout = t.join().unwrap();
-    let mut status = 0i32;
-    // SAFETY: an all-zero rusage is a valid value; wait4 fills it for our own child's pid.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    let pid = child.id() as libc::pid_t;
-    // SAFETY: pid is our child, not yet reaped (Child::wait is never called on it).
-    let r = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
-    assert_eq!(r, pid, "wait4 on cac failed");
-    Run {
-        status: ExitStatus::from_raw(status),
-        stdout,
-        stderr,
-        peak: usage.ru_maxrss as u64 * 1024,
-    }
+    limited_child::run(args, ADDRESS_SPACE, &[("RUST_BACKTRACE", "1")])
 }
 
 fn texture() -> String {
