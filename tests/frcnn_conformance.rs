@@ -17,9 +17,9 @@ fn rel(a: &[f32], b: &[f32]) -> f64 {
 
 /// How many times torchvision's own float noise cac may be off: cac's kernels sum in other
 /// orders at every layer, as the oracle's re-runs do. Measured (docs/detectors.md): cac's errors
-/// are 0.5–1.2× the noise with Flex and with libtorch on an AMD EPYC with AVX2; the box that
-/// failed the old fixed 1e-3 px bound on an AVX-512 EPYC (issue 48) was 1.14×. A wrong anchor, a
-/// swapped coordinate or a wrong weight is off by orders of magnitude more.
+/// are 0.5–1.2× the noise with Flex and 0.7–1.7× with libtorch on an AMD EPYC with AVX2; the box
+/// that failed the old fixed 1e-3 px bound (issue 48) is 1.14×. A wrong anchor, a swapped
+/// coordinate or a wrong weight is off by orders of magnitude more.
 const NOISE_FACTOR: f64 = 4.0;
 
 /// The bounds of one oracle case, [`NOISE_FACTOR`] times torchvision's own float noise on it
