@@ -23,6 +23,34 @@ fn run(args: &[&str]) -> Run {
     limited_child::run(args, ADDRESS_SPACE, &[("RUST_BACKTRACE", "1")])
 }
 
+/// `cac --max-memory BUDGET export --mesh MESH --texture TEX --scale SCALE --formats FORMATS
+/// EXTRA... --out OUT`, through [`run`].
+fn export(
+    budget: &str,
+    (mesh, tex): (&str, &str),
+    scale: &str,
+    formats: &str,
+    extra: &[&str],
+    out: &Path,
+) -> Run {
+    let mut args = vec![
+        "--max-memory",
+        budget,
+        "export",
+        "--mesh",
+        mesh,
+        "--texture",
+        tex,
+        "--scale",
+        scale,
+        "--formats",
+        formats,
+    ];
+    args.extend_from_slice(extra);
+    args.extend(["--out", out.to_str().unwrap()]);
+    run(&args)
+}
+
 fn texture() -> String {
     format!(
         "{}/meshes/pickup/cac-person.png",
@@ -58,32 +86,17 @@ fn the_guard_stops_a_stage_over_the_budget_with_one_line_and_keeps_written_files
     std::fs::create_dir_all(&out).unwrap();
     std::fs::write(out.join("notes.txt"), b"the user's own file").unwrap();
     let tex = texture();
-    let out_s = out.to_str().unwrap();
-    let args = |tex: &str, budget: &str| -> Vec<String> {
-        [
-            "--max-memory",
+    let sheets = |tex: &str, budget: &str| {
+        export(
             budget,
-            "export",
-            "--mesh",
-            "pickup",
-            "--texture",
-            tex,
-            "--scale",
+            ("pickup", tex),
             "1:24",
-            "--formats",
             "obj,sheets",
-            "--dpi",
-            "100",
-            "--out",
-            out_s,
-        ]
-        .map(String::from)
-        .to_vec()
+            &["--dpi", "100"],
+            &out,
+        )
     };
-    let earlier = run(&args(&tex, "4G")
-        .iter()
-        .map(|s| s.as_str())
-        .collect::<Vec<_>>());
+    let earlier = sheets(&tex, "4G");
     assert_eq!(earlier.status.code(), Some(0), "{}", earlier.stderr);
     let before = snapshot(&out);
     assert!(before.len() >= 6, "{before:?}");
@@ -97,10 +110,7 @@ fn the_guard_stops_a_stage_over_the_budget_with_one_line_and_keeps_written_files
         big.to_str().unwrap(),
     ]);
     assert_eq!(r.status.code(), Some(0), "{}", r.stderr);
-    let r = run(&args(big.to_str().unwrap(), "64M")
-        .iter()
-        .map(|s| s.as_str())
-        .collect::<Vec<_>>());
+    let r = sheets(big.to_str().unwrap(), "64M");
     let all = format!("{}{}", r.stdout, r.stderr);
     assert_eq!(r.status.code(), Some(1), "{:?}:\n{all}", r.status);
     for bad in [
@@ -134,23 +144,14 @@ fn sheets_at_a_large_scale_are_written_page_by_page_within_a_small_budget() {
     let d = tempfile::tempdir().unwrap();
     let out = d.path().join("out");
     let tex = texture();
-    let r = run(&[
-        "--max-memory",
+    let r = export(
         "256M",
-        "export",
-        "--mesh",
-        "pickup",
-        "--texture",
-        &tex,
-        "--scale",
+        ("pickup", &tex),
         "1:2",
-        "--formats",
         "sheets",
-        "--dpi",
-        "100",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+        &["--dpi", "100"],
+        &out,
+    );
     assert_eq!(
         r.status.code(),
         Some(0),
@@ -208,23 +209,14 @@ fn the_guard_stops_the_sheets_mid_layout_keeping_finished_pages_and_no_partial_p
         "texture", "random", "--res", "1425", "--seed", "3", "--out", t,
     ]);
     assert_eq!(r.status.code(), Some(0), "{}", r.stderr);
-    let r = run(&[
-        "--max-memory",
+    let r = export(
         "64M",
-        "export",
-        "--mesh",
-        "pickup",
-        "--texture",
-        t,
-        "--scale",
+        ("pickup", t),
         "1:5",
-        "--formats",
         "sheets",
-        "--dpi",
-        "200",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+        &["--dpi", "200"],
+        &out,
+    );
     assert_eq!(
         r.status.code(),
         Some(1),
@@ -280,30 +272,18 @@ fn sheets_of_too_small_or_too_many_pieces_are_refused_before_any_page() {
     let case = cac::scene::hostile::write_case(&d.path().join("m"), "tiny_parts", 29).unwrap();
     let tex = texture();
     let out = d.path().join("out");
-    let export = |scale: &str, pages: &str| {
-        run(&[
-            "export",
-            "--mesh",
-            case.mesh.to_str().unwrap(),
-            "--texture",
-            &tex,
-            "--scale",
-            scale,
-            "--formats",
-            "sheets",
-            "--max-sheet-pages",
-            pages,
-            "--out",
-            out.to_str().unwrap(),
-        ])
+    let mesh = case.mesh.to_str().unwrap();
+    let sheets = |scale: &str, pages: &str| {
+        let limit = ["--max-sheet-pages", pages];
+        export("4G", (mesh, &tex), scale, "sheets", &limit, &out)
     };
     for (r, want) in [
         (
-            export("1:24", "2000"),
+            sheets("1:24", "2000"),
             "no painted part of at least 1 mm on paper (all 60000",
         ),
         (
-            export("1:2", "100"),
+            sheets("1:2", "100"),
             "pages (60000 pieces), over the limit of 100 pages",
         ),
     ] {

@@ -12,7 +12,9 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomic_with(path, |w| w.write_all(bytes).map_err(Into::into))
 }
 
-/// Writes a file atomically through a writer callback (temporary sibling, fsync, rename).
+/// Writes a file atomically through a writer callback (temporary sibling, fsync, rename); a
+/// file streamed over a long stage (the sheets' PDF) is removed if the memory guard stops the
+/// process before it is finished.
 pub fn write_atomic_with(
     path: &Path,
     f: impl FnOnce(&mut std::io::BufWriter<&mut std::fs::File>) -> Result<()>,
@@ -27,6 +29,8 @@ pub fn write_atomic_with(
         .prefix(".cac-tmp-")
         .tempfile_in(dir)
         .with_context(|| format!("cannot write into output folder {}", dir.display()))?;
+    // Removed, not left half-written, should the memory guard stop the process mid-write.
+    let _on_stop = crate::memory::remove_on_stop(tmp.path());
     {
         let mut w = std::io::BufWriter::new(tmp.as_file_mut());
         f(&mut w).with_context(|| format!("while writing {}", path.display()))?;

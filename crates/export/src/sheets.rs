@@ -288,7 +288,7 @@ fn write_pages(plan: &Plan, placed: &[(usize, Placement)], dir: &Path) -> Result
     let mut files = vec![];
     let pdf_path = dir.join("sheets.pdf");
     let title = format!("cac paste-on sheets: {}", plan.mesh.name);
-    write_streamed(&pdf_path, |w| {
+    cac_core::io::write_atomic_with(&pdf_path, |w| {
         let mut pdf = super::pdf::PdfStream::start(w, &title, plan.n_pages)?;
         let mut rest = placed;
         for k in 0..plan.n_pages {
@@ -308,42 +308,6 @@ fn write_pages(plan: &Plan, placed: &[(usize, Placement)], dir: &Path) -> Result
     })?;
     files.push(pdf_path);
     Ok(files)
-}
-
-/// Writes `path` atomically like `cac_core::io::write_atomic_with` (temporary sibling, renamed
-/// into place when finished), with the temporary registered with the memory guard: a file
-/// written over many pages must not be left half-written should the guard stop the process.
-fn write_streamed(
-    path: &Path,
-    f: impl FnOnce(&mut std::io::BufWriter<&mut std::fs::File>) -> Result<()>,
-) -> Result<()> {
-    use std::io::Write;
-    let dir = path.parent().unwrap_or(Path::new("."));
-    let mut tmp = tempfile::Builder::new()
-        .prefix(".cac-tmp-")
-        .tempfile_in(dir)
-        .with_context(|| format!("cannot write into sheet folder {}", dir.display()))?;
-    let _on_stop = cac_core::memory::remove_on_stop(tmp.path());
-    {
-        let mut w = std::io::BufWriter::new(tmp.as_file_mut());
-        f(&mut w).with_context(|| format!("while writing {}", path.display()))?;
-        w.flush()
-            .with_context(|| format!("while writing {}", path.display()))?;
-    }
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        let _ = tmp
-            .as_file()
-            .set_permissions(std::fs::Permissions::from_mode(0o644));
-    }
-    tmp.as_file()
-        .sync_all()
-        .with_context(|| format!("while syncing {}", path.display()))?;
-    tmp.persist(path)
-        .map_err(|e| e.error)
-        .with_context(|| format!("cannot move finished file into place at {}", path.display()))?;
-    Ok(())
 }
 
 /// Room for a page's header text, a piece's label, and the gap between pieces (mm).

@@ -317,20 +317,7 @@ fn vehicle(m: &mut Obj, rng: &mut impl Rng, scale: f32) {
         m.cuboid(s([x - 0.4, 0.0, z]), s([x + 0.4, 0.8, z + 0.2]), tile);
     }
     m.group("window");
-    let w: Vec<usize> = [
-        [0.91, 1.5, -0.7],
-        [0.91, 1.5, 0.7],
-        [0.91, 2.0, 0.7],
-        [0.91, 2.0, -0.7],
-    ]
-    .into_iter()
-    .map(|p| m.vertex(s(p)))
-    .collect();
-    let t: Vec<usize> = [[0.05, 0.05], [0.95, 0.05], [0.95, 0.95], [0.05, 0.95]]
-        .into_iter()
-        .map(|q| m.uv(q))
-        .collect();
-    m.face(&[(w[0], t[0]), (w[1], t[1]), (w[2], t[2]), (w[3], t[3])]);
+    window(m, s);
 }
 
 /// Issue 49's file, rebuilt from its description: five OBJ objects of quads (four corners per
@@ -362,20 +349,25 @@ fn quad_vehicle(m: &mut Obj, rng: &mut impl Rng) {
     }
     m.group("window");
     m.use_material("glass");
-    let w: Vec<usize> = [
+    window(m, |p| p);
+}
+
+/// The vehicles' single-sided window: one quad 1 cm off the cabin's front, mapping 0.05–0.95 of
+/// the atlas; `place` maps its corners (the vehicle's scale).
+fn window(m: &mut Obj, place: impl Fn([f32; 3]) -> [f32; 3]) {
+    let corners = [
         [0.91, 1.5, -0.7],
         [0.91, 1.5, 0.7],
         [0.91, 2.0, 0.7],
         [0.91, 2.0, -0.7],
-    ]
-    .into_iter()
-    .map(|p| m.vertex(p))
-    .collect();
-    let t: Vec<usize> = [[0.05, 0.05], [0.95, 0.05], [0.95, 0.95], [0.05, 0.95]]
+    ];
+    let uvs = [[0.05, 0.05], [0.95, 0.05], [0.95, 0.95], [0.05, 0.95]];
+    let face: Vec<(usize, usize)> = corners
         .into_iter()
-        .map(|q| m.uv(q))
+        .zip(uvs)
+        .map(|(p, q)| (m.vertex(place(p)), m.uv(q)))
         .collect();
-    m.face(&[(w[0], t[0]), (w[1], t[1]), (w[2], t[2]), (w[3], t[3])]);
+    m.face(&face);
 }
 
 /// A UV sphere of `rings` × `segments` quads (two triangles each).
