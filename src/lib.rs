@@ -5,10 +5,10 @@
 //! forward only. A module names only modules of an earlier rank (modules joined by `/` share one
 //! and do not name each other; `tests/import_graph.rs` checks it against this line):
 //!
-//! `io` / `memory` / `report` → `scene` → `render` → `environment` → `config` → `detect` → `attack` / `eval` → `export` / `physical` / `study` → `sim` / `video`
+//! `memory` → `io` / `report` → `scene` → `render` → `environment` → `config` → `detect` → `attack` / `eval` → `export` / `physical` / `study` → `sim` / `video`
 //!
-//! `io`, `memory` and `report` are the shared floor (files, the memory budget, tables, plots, HTML,
-//! drawn labels); `config`
+//! `memory`, `io` and `report` are the shared floor (the memory budget; files, which register their
+//! temporaries with the budget's guard; tables, plots, HTML, drawn labels); `config`
 //! holds the scene config and the named presets; `study` holds the experiments that train with
 //! `attack` and judge with `eval` (the studies, the demo, the attack benchmark); `sim` is the
 //! simulated turntable firmware that `physical`'s driver talks to, and the simulated rig around it; `video` scores recordings
