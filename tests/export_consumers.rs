@@ -3,7 +3,7 @@
 
 mod export_common;
 
-use cac::export::{self, bake, texture, ExportOptions, Format, Paint, Scale};
+use cac::export::{self, bake, ExportOptions, Format, Paint, Scale};
 use export_common::*;
 use glam::{Vec2, Vec3};
 use rand::{Rng, SeedableRng};
@@ -200,7 +200,7 @@ fn baked_3mf_round_trip_matches_the_texture() {
         se += e2;
         if textured {
             se_tex += e2;
-            des.push(texture::delta_e(got, want));
+            des.push(cac::colour::delta_e76_srgb(got, want));
         }
     }
     // Ambiguous (coplanar overlapping parts) or off-mesh points: few, and counted.

@@ -45,7 +45,11 @@ const ROOTS: [&str; 11] = [
 /// The crates under `crates/`: folder, the module its `lib.rs` is (none: only the listed
 /// modules), and the pipeline modules declared beside it.
 const CRATES: &[(&str, Option<&str>, &[&str])] = &[
-    ("core", None, &["io", "memory", "report"]),
+    (
+        "core",
+        None,
+        &["colour", "io", "memory", "printer", "report"],
+    ),
     ("scene", Some("scene"), &[]),
     ("render", Some("render"), &["config", "environment"]),
     ("detect", Some("detect"), &[]),

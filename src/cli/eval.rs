@@ -67,6 +67,11 @@ pub struct Args {
     /// Extra figure for the HTML report, CAPTION=PNG (e.g. "Top-n study=study-topn/topn.png").
     #[arg(long = "figure", value_parser = job::parse_figure)]
     pub figures: Vec<(String, PathBuf)>,
+    /// Judge every texture as this printer makes it (a printer profile, docs/formats.md "Printer
+    /// profile"): each texel the nearest filament (FDM) or the fitted response; the report says
+    /// which printer judged.
+    #[arg(long)]
+    pub printer: Option<PathBuf>,
     /// Output folder (finished textures are reused from its cache/ on a rerun).
     #[arg(long, default_value = "eval-out")]
     pub out: PathBuf,
@@ -112,6 +117,7 @@ pub fn job(a: &Args) -> Result<EvalJob> {
         protocol: Protocol::from_labels(&a.true_classes, a.target.as_deref())?,
         examples_per_group: a.examples,
         figures: a.figures.clone(),
+        printer: a.printer.clone(),
         out: a.out.clone(),
     };
     Ok(job)

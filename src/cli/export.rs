@@ -6,6 +6,7 @@ use cac::export::{
     self, benchmark, printability::BuildVolume, BakeLimits, ExportOptions, Format, RepairMode,
     Scale, ThinPolicy,
 };
+use cac::printer::Profile;
 use clap::Args as ClapArgs;
 use std::path::PathBuf;
 
@@ -21,7 +22,8 @@ pub struct Args {
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
-    /// Comma-separated: 3mf-texture, 3mf-color, obj, obj-vc, sheets.
+    /// Comma-separated: 3mf-texture, 3mf-color, obj, obj-vc, sheets, 3mf-painted (with an FDM
+    /// --printer, the 3MF formats are written as 3mf-painted).
     #[arg(
         long,
         default_value = "3mf-texture,3mf-color,obj,obj-vc,sheets",
@@ -76,6 +78,15 @@ pub struct Args {
     /// Light repair fills holes up to this perimeter, mm.
     #[arg(long, default_value_t = 20.0)]
     pub max_hole_mm: f32,
+    /// Printer profile (TOML, docs/formats.md). A multi-material FDM profile makes the 3MF the
+    /// painted one that PrusaSlicer, Bambu Studio and OrcaSlicer open as a painted object; its
+    /// object_size_mm must match --scale within 1 %.
+    #[arg(long)]
+    pub printer: Option<PathBuf>,
+    /// Slice the painted 3MF with PrusaSlicer's command line (prusa-slicer) and report tool
+    /// changes, purge and print time.
+    #[arg(long)]
+    pub slice: bool,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -88,6 +99,8 @@ pub fn run(a: Args) -> Result<()> {
         voxel_mm: a.voxel_mm,
         max_hole_mm: a.max_hole_mm,
         progress: |stage| eprintln!("export: {stage} ..."),
+        printer: a.printer.as_deref().map(Profile::load).transpose()?,
+        slice: a.slice,
         ..Default::default()
     };
     opts.limits.thin = a.thin;

@@ -15,6 +15,7 @@ pub mod explain;
 pub mod export;
 pub mod meshes;
 pub mod models;
+pub mod print;
 pub mod render;
 pub mod score;
 pub mod score_video;
@@ -78,6 +79,9 @@ pub enum Command {
     /// Run an evaluation or a study as a Slurm sweep: job arrays and a dependent merge.
     #[command(subcommand)]
     Slurm(slurm::Cmd),
+    /// Printers: write a calibration chart, fit a printer profile from its photograph.
+    #[command(subcommand)]
+    Print(print::Cmd),
     /// Benchmarks: print a table and write CSV (timings are measured here, never in tests).
     #[command(subcommand)]
     Bench(BenchCmd),
@@ -106,6 +110,8 @@ pub enum BenchCmd {
     Ibl(bench::ibl::Args),
     /// cac's renderer against a second one on the same views, pooled over `realism` runs.
     Agreement(bench::agreement::Args),
+    /// Printer calibration on the twin: held-out ΔE2000 and fit time against the patch count.
+    Calibration(bench::calibration::Args),
 }
 
 /// The stage the memory guard names until the command names its own.
@@ -143,6 +149,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Capture(a) => capture::run(a),
         Command::Camera(a) => camera::run(a),
         Command::Score(a) => score::run(a),
+        Command::Print(c) => print::run(c),
         Command::Bench(BenchCmd::Render(a)) => bench::render::run(a),
         Command::Bench(BenchCmd::Detect(a)) => bench::detect::run(a),
         Command::Bench(BenchCmd::Kernels(a)) => bench::kernels::run(a),
@@ -153,6 +160,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Bench(BenchCmd::Realism(a)) => bench::realism::run(a),
         Command::Bench(BenchCmd::Ibl(a)) => bench::ibl::run(a),
         Command::Bench(BenchCmd::Agreement(a)) => bench::agreement::run(a),
+        Command::Bench(BenchCmd::Calibration(a)) => bench::calibration::run(a),
     }
 }
 

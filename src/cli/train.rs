@@ -86,6 +86,10 @@ pub fn run(a: Args) -> Result<()> {
         device::training(),
         &init,
     )?;
+    let tr = tr.through_printer(&run.attack)?;
+    if let Some(f) = tr.filaments() {
+        println!("training {}", f.describe());
+    }
     let mut tr = run.resume(tr)?;
     if a.resume.is_some() {
         println!(

@@ -26,6 +26,10 @@ pub struct Checkpoint {
     /// atlas and for 2D patches.
     #[serde(default = "one_level")]
     pub scales: usize,
+    /// Trained through a printer's filaments ([`super::filaments`]): how many parameters `atlas`
+    /// holds (a logit per filament and region); 0 otherwise.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub filament_params: usize,
     /// Adam's state; its moments are stored beside the metadata (`adam_m.f32`, `adam_v.f32`).
     pub adam: Adam,
     /// The optimised parameters: the atlas itself (row-major RGB) when `scales` is 1. Stored
@@ -37,6 +41,10 @@ pub struct Checkpoint {
 
 fn one_level() -> usize {
     1
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 const CHECKPOINT: &str = "checkpoint";
@@ -103,7 +111,10 @@ pub fn load(run_dir: &Path) -> Result<Checkpoint> {
     }
     ck.atlas = f32s("atlas.f32")?;
     (ck.adam.m, ck.adam.v) = (f32s("adam_m.f32")?, f32s("adam_v.f32")?);
-    let want = pyramid::len(res, scales);
+    let want = match ck.filament_params {
+        0 => pyramid::len(res, scales),
+        n => n,
+    };
     if ck.atlas.len() != want || ck.adam.m.len() != want || ck.adam.v.len() != want {
         bail!(
             "{}: checkpoint arrays do not match a {res}² atlas in {scales} level(s)",
@@ -127,6 +138,7 @@ mod tests {
             iteration: 3,
             atlas_res: 8,
             scales,
+            filament_params: 0,
             adam,
             atlas: (0..n).map(|i| (i % 7) as f32 / 7.0).collect(),
             log: vec![],

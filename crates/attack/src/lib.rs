@@ -23,9 +23,11 @@ pub mod study;
 pub mod adam;
 pub mod baselines;
 pub mod checkpoint;
+pub mod filaments;
 pub mod loss;
 pub mod pyramid;
 pub mod report;
+pub mod response;
 pub mod run;
 mod trainer;
 
@@ -123,6 +125,12 @@ pub struct AttackConfig {
     /// K-1 coarser levels (each half the side of the last) whose sum is the atlas ([`pyramid`]).
     #[arg(long, default_value_t = 1)]
     pub scales: usize,
+    /// Train through this printer (a profile, docs/formats.md "Printer profile"): every view
+    /// renders what the printer makes. An FDM profile makes the atlas a choice among its
+    /// filaments per region ([`filaments`]); the texture written is the one printed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[arg(long)]
+    pub printer: Option<std::path::PathBuf>,
     /// 2D methods: side of the trained patch in texels.
     #[arg(long, default_value_t = 128)]
     pub patch_res: usize,
@@ -249,6 +257,17 @@ impl AttackConfig {
         }
         if self.batch == 0 || self.top_n == 0 {
             bail!("batch and top_n must be positive");
+        }
+        if let Some(p) = &self.printer {
+            cac_core::printer::Profile::load(p)?;
+        }
+        if self.printer.is_some() && (self.method.is_2d() || self.scales != 1) {
+            bail!(
+                "--printer trains the whole atlas through the printer: it needs a full-atlas \
+                 method (cac, upc, camou) at --scales 1 (got {} at {} scales)",
+                self.method.name(),
+                self.scales
+            );
         }
         if !(self.overlap_iou > 0.0 && self.overlap_iou <= 1.0) {
             bail!("--overlap-iou must be in (0, 1], got {}", self.overlap_iou);

@@ -11,9 +11,11 @@ use super::adam::Adam;
 use super::baselines::patch::{self, Patch};
 use super::baselines::{self, Method};
 use super::checkpoint::{self, Checkpoint};
+use super::filaments::{Filaments, Forward};
 use super::{draw_conditions, ensemble_loss, pyramid, AttackConfig, IterationLog};
 use anyhow::{bail, Context, Result};
 use burn::tensor::{Device, Tensor, TensorData};
+use cac_core::printer::{Printer, Profile, Response};
 use cac_detect::Detector;
 use cac_render::environment::{self, Condition, Environment};
 use cac_render::{RenderPlan, Renderer};
@@ -29,6 +31,12 @@ pub enum Parameterisation {
     Atlas { scales: usize, paintable: Vec<bool> },
     /// A 2D patch pasted on rendered images, tiled onto the atlas.
     Patch(Patch),
+    /// A choice among an FDM printer's filaments per region ([`super::filaments`]): what the
+    /// printer makes, trained through the printer.
+    Filaments(Filaments),
+    /// The requested atlas, rendered through a full-colour or paper printer's fitted response
+    /// ([`super::response`]).
+    Response(Response),
 }
 
 /// A training run bound to a renderer, an environment and its source detectors.
@@ -106,6 +114,7 @@ impl<'a> Trainer<'a> {
             iteration: 0,
             atlas_res: side,
             scales,
+            filament_params: 0,
             adam: Adam::new(params.len(), config.lr),
             atlas: params,
             log: vec![],
@@ -130,6 +139,8 @@ impl<'a> Trainer<'a> {
         let what = match self.param {
             Parameterisation::Atlas { .. } => "checkpoint atlas",
             Parameterisation::Patch(_) => "checkpoint patch",
+            Parameterisation::Filaments(_) => "checkpoint filament choice",
+            Parameterisation::Response(_) => "checkpoint atlas",
         };
         if ck.atlas_res != self.state.atlas_res {
             bail!(
@@ -147,7 +158,35 @@ impl<'a> Trainer<'a> {
                 self.state.scales
             );
         }
+        if ck.atlas.len() != self.state.atlas.len() {
+            bail!(
+                "{}: the checkpoint holds {} parameters, the run asks for {} (a run trained \
+                 through a printer resumes with the same printer profile)",
+                run_dir.display(),
+                ck.atlas.len(),
+                self.state.atlas.len()
+            );
+        }
         self.state = ck;
+        Ok(self)
+    }
+
+    /// Trains through a multi-material FDM printer from here on: the atlas becomes a choice
+    /// among its filaments per region ([`Filaments`]), started from the nearest filament of the
+    /// current atlas; the optimiser starts afresh. Full-atlas methods at one scale only.
+    pub fn through_filaments(mut self, f: Filaments) -> Result<Self> {
+        match self.param {
+            Parameterisation::Atlas { scales: 1, .. } if f.res == self.state.atlas_res => {}
+            _ => bail!(
+                "training through a printer's filaments needs a full-atlas method at one scale \
+                 (--scales 1) on the renderer's atlas"
+            ),
+        }
+        let init = f.init(&self.atlas());
+        self.state.adam = Adam::new(init.len(), self.config.lr);
+        self.state.filament_params = init.len();
+        self.state.atlas = init;
+        self.param = Parameterisation::Filaments(f);
         Ok(self)
     }
 
@@ -161,6 +200,8 @@ impl<'a> Trainer<'a> {
         match &self.param {
             Parameterisation::Atlas { .. } => texture(self.state.atlas_res, &self.leaf()),
             Parameterisation::Patch(p) => p.on_object(&self.patch()),
+            Parameterisation::Filaments(f) => f.hard(&self.state.atlas),
+            Parameterisation::Response(_) => texture(self.state.atlas_res, &self.state.atlas),
         }
     }
 
@@ -169,19 +210,83 @@ impl<'a> Trainer<'a> {
         texture(self.state.atlas_res, &self.leaf())
     }
 
-    /// Extra images for the run folder (name, image): the 2D patch.
+    /// Extra images for the run folder (name, image): the 2D patch; through a printer's
+    /// response, the atlas as printed.
     pub(crate) fn extra_images(&self) -> Vec<(String, image::RgbImage)> {
-        match self.param {
-            Parameterisation::Atlas { .. } => vec![],
+        match &self.param {
+            Parameterisation::Atlas { .. } | Parameterisation::Filaments(_) => vec![],
+            Parameterisation::Response(r) => {
+                let printed = super::response::forward(r, &self.state.atlas);
+                let t = texture(self.state.atlas_res, &printed);
+                vec![("as_printed.png".into(), t.to_rgb8())]
+            }
             Parameterisation::Patch(_) => vec![("patch.png".into(), self.patch().to_rgb8())],
         }
     }
 
     /// What the gradient is taken with respect to (row-major RGB, `atlas_res²`): the atlas the
-    /// parameters compose to, or the patch.
+    /// parameters compose to (through a printer's filaments: iteration `i`'s choice, with what
+    /// its backward pass needs), or the patch.
+    fn leaf_at(&self, i: usize) -> (Vec<f32>, Option<Forward>) {
+        match &self.param {
+            Parameterisation::Filaments(f) => {
+                let fw = f.forward(&self.state.atlas, i, self.config.iterations);
+                (fw.atlas.clone(), Some(fw))
+            }
+            Parameterisation::Response(r) => (super::response::forward(r, &self.state.atlas), None),
+            _ => (self.leaf(), None),
+        }
+    }
+
+    /// Trains through `config.printer`'s profile, when there is one: an FDM profile trains the
+    /// filaments' choice ([`Trainer::through_filaments`]); a full-colour or paper profile renders
+    /// the requested atlas through its fitted response ([`super::response`]).
+    pub fn through_printer(self, config: &AttackConfig) -> Result<Self> {
+        let Some(path) = &config.printer else {
+            return Ok(self);
+        };
+        let profile = Profile::load(path)?;
+        match profile.printer()? {
+            Printer::Response(r) => self.through_response(r),
+            fdm => {
+                let res = self.state.atlas_res;
+                let f = Filaments::new(&fdm, &self.renderer.scene, res, config.seed)?;
+                self.through_filaments(f)
+            }
+        }
+    }
+
+    /// Renders the requested atlas through a printer's fitted response from here on.
+    pub fn through_response(mut self, r: Response) -> Result<Self> {
+        match self.param {
+            Parameterisation::Atlas { scales: 1, .. } => {}
+            _ => bail!(
+                "training through a printer's response needs a full-atlas method at --scales 1"
+            ),
+        }
+        self.param = Parameterisation::Response(r);
+        Ok(self)
+    }
+
+    /// The filaments trained through, if any.
+    pub fn filaments(&self) -> Option<&Filaments> {
+        match &self.param {
+            Parameterisation::Filaments(f) => Some(f),
+            _ => None,
+        }
+    }
+
+    /// [`Trainer::leaf_at`] outside training: the parameters as they stand (the hard choice for
+    /// filaments).
     fn leaf(&self) -> Vec<f32> {
         let (r, k) = (self.state.atlas_res, self.state.scales);
         match &self.param {
+            Parameterisation::Filaments(f) => f
+                .hard(&self.state.atlas)
+                .texels
+                .into_iter()
+                .flatten()
+                .collect(),
             Parameterisation::Atlas { paintable, .. } if k > 1 => {
                 // Projected parameters compose to [0, 1] up to rounding; the clamp removes that.
                 let mut a = pyramid::compose(&self.state.atlas, r, k, paintable);
@@ -196,7 +301,9 @@ impl<'a> Trainer<'a> {
     /// views' plans are the prefetched ones when they are iteration `i`'s.
     fn images(&mut self, i: usize, leaf: Tensor<4>) -> Result<(Tensor<4>, Vec<Option<[f32; 4]>>)> {
         match &self.param {
-            Parameterisation::Atlas { .. } => {
+            Parameterisation::Atlas { .. }
+            | Parameterisation::Filaments(_)
+            | Parameterisation::Response(_) => {
                 let conds = self.conditions(i);
                 let plans = match self.next_plans.take() {
                     Some((j, plans)) if j == i => plans,
@@ -211,10 +318,20 @@ impl<'a> Trainer<'a> {
         }
     }
 
-    /// One Adam step on the parameters from the gradient with respect to the leaf.
-    fn update(&mut self, g: &[f32]) {
+    /// One Adam step on the parameters from the gradient with respect to the leaf (`fw`: the
+    /// leaf's forward pass through filaments).
+    fn update(&mut self, g: &[f32], fw: Option<Forward>) {
         let (r, k) = (self.state.atlas_res, self.state.scales);
         match &self.param {
+            Parameterisation::Filaments(f) => {
+                let fw = fw.expect("a filament leaf comes with its forward pass");
+                let gl = f.backward(&fw, g);
+                self.state.adam.step_unclipped(&mut self.state.atlas, &gl);
+            }
+            Parameterisation::Response(resp) => {
+                let gr = super::response::backward(resp, &self.state.atlas, g);
+                self.state.adam.step(&mut self.state.atlas, &gr);
+            }
             Parameterisation::Atlas { paintable, .. } if k > 1 => {
                 let gp = pyramid::adjoint(g, r, k, paintable);
                 self.state.adam.step_unclipped(&mut self.state.atlas, &gp);
@@ -236,11 +353,12 @@ impl<'a> Trainer<'a> {
         let i = self.state.iteration;
         let t0 = Instant::now();
         let r = self.state.atlas_res;
-        let leaf = Tensor::<4>::from_data(TensorData::new(self.leaf(), [1, r, r, 3]), &self.device)
+        let (values, fw) = self.leaf_at(i);
+        let leaf = Tensor::<4>::from_data(TensorData::new(values, [1, r, r, 3]), &self.device)
             .require_grad();
         let (images, objects) = self.images(i, leaf.clone())?;
         let mut ms_render = t0.elapsed().as_secs_f64() * 1e3;
-        let prefetch = self.plan_ahead && matches!(self.param, Parameterisation::Atlas { .. });
+        let prefetch = self.plan_ahead && !matches!(self.param, Parameterisation::Patch(_));
         let (detected, next) = std::thread::scope(|s| {
             let (renderer, env, config) = (self.renderer, self.env, &self.config);
             let next = prefetch.then(|| {
@@ -267,7 +385,7 @@ impl<'a> Trainer<'a> {
         let t3 = Instant::now();
         let grad_norm = g.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
         self.state.adam.lr = self.config.lr_at(i);
-        self.update(&g);
+        self.update(&g, fw);
         let log = IterationLog {
             iteration: i,
             loss: loss_value,

@@ -1,6 +1,9 @@
-//! The shared floor of cac's crates: files written atomically ([`io`]), the memory budget
-//! ([`memory`]), and tables, plots, HTML and drawn labels ([`report`]).
+//! The shared floor of cac's crates: the memory budget ([`memory`]), colour ([`colour`]: sRGB,
+//! CIELAB, ΔE2000), files written atomically ([`io`]), tables, plots, HTML and drawn labels
+//! ([`report`]), and printer models ([`printer`]: what a printer makes of a requested colour).
 
+pub mod colour;
 pub mod io;
 pub mod memory;
+pub mod printer;
 pub mod report;

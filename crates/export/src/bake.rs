@@ -7,9 +7,9 @@
 //! two, three or four triangles; this repeats until no edge is marked. [`colour_error`] measures
 //! how far the per-corner colours (interpolated across each triangle) are from the texture.
 
-use super::texture::delta_e;
 use super::{Paint, PrintMesh};
 use anyhow::{bail, Result};
+use cac_core::colour::delta_e76_srgb as delta_e;
 use cac_core::memory::MemoryBudget;
 use glam::{Vec2, Vec3};
 use rand::{Rng, SeedableRng};
@@ -339,7 +339,7 @@ pub(crate) fn colour_error(mesh: &PrintMesh, baked: &Baked, n: usize, seed: u64)
         let w = [1.0 - u - v, u, v];
         let q = t
             .colour
-            .map(|c| super::texture::to_rgb8(c).map(|x| x as f32 / 255.0));
+            .map(|c| cac_core::colour::to_rgb8(c).map(|x| x as f32 / 255.0));
         let baked_c: [f32; 3] = std::array::from_fn(|k| (0..3).map(|j| q[j][k] * w[j]).sum());
         let b = t.bary[0] * w[0] + t.bary[1] * w[1] + t.bary[2] * w[2];
         let r = reference_colour(mesh, t.parent as usize, b);

@@ -8,8 +8,10 @@
 //! ([`solidify`], on the BVH queries of [`surface`]), and checks printability at the chosen scale
 //! ([`printability`]: wall thickness, sheets, floating and tiny parts, build volume). Writers then
 //! produce:
-//! - [`threemf`]: textured 3MF (`m:texture2d` + `m:texture2dgroup`) and baked-colour 3MF
-//!   (`m:colorgroup` per corner after [`bake`]'s adaptive subdivision);
+//! - [`threemf`]: textured 3MF (`m:texture2d` + `m:texture2dgroup`), baked-colour 3MF
+//!   (`m:colorgroup` per corner after [`bake`]'s adaptive subdivision) and, for a multi-material
+//!   FDM printer profile, the painted 3MF that slicers open as a painted object ([`painted`]:
+//!   the slicers' per-triangle painting trees, and the G-code's cost when sliced);
 //! - [`obj`]: OBJ + MTL + PNG (optionally zipped) and a vertex-colour OBJ from the same bake;
 //! - [`sheets`]: paste-on sheets at true physical size (PNG pages, PDF, JSON sidecar).
 //!
@@ -18,6 +20,7 @@
 pub mod bake;
 pub mod benchmark;
 pub mod obj;
+pub mod painted;
 pub mod pdf;
 pub mod printability;
 pub mod printcheck;
@@ -25,11 +28,11 @@ pub mod repair;
 pub mod sheets;
 pub mod solidify;
 pub mod surface;
-pub mod texture;
 pub mod threemf;
 
 use anyhow::{bail, ensure, Context, Result};
 use cac_core::memory::MemoryBudget;
+use cac_core::printer::{Printer, Profile};
 use cac_scene::{LoadOptions, PaintRule, Scene, Texture};
 use glam::{Vec2, Vec3};
 use serde::Serialize;
@@ -93,6 +96,8 @@ pub enum Format {
     ObjVc,
     /// `sheets/`: paste-on pages (PNG, PDF, JSON).
     Sheets,
+    /// `<name>_painted.3mf`: multi-material painting for slicers (needs an FDM printer profile).
+    ThreeMfPainted,
 }
 
 impl FromStr for Format {
@@ -102,16 +107,18 @@ impl FromStr for Format {
         if s == "3mf-colour" {
             return Ok(Format::ThreeMfColor);
         }
-        Ok(match Format::ALL.into_iter().find(|f| f.name() == s) {
+        let all = Format::ALL.into_iter().chain([Format::ThreeMfPainted]);
+        Ok(match all.into_iter().find(|f| f.name() == s) {
             Some(f) => f,
             None => bail!(
-                "unknown export format '{s}' (expected 3mf-texture, 3mf-color, obj, obj-vc, sheets)"
+                "unknown export format '{s}' (expected 3mf-texture, 3mf-color, obj, obj-vc, sheets, 3mf-painted)"
             ),
         })
     }
 }
 
 impl Format {
+    /// The formats written without a printer profile (the default; `3mf-painted` needs one).
     pub const ALL: [Format; 5] = [
         Format::ThreeMfTexture,
         Format::ThreeMfColor,
@@ -127,6 +134,7 @@ impl Format {
             Format::Obj => "obj",
             Format::ObjVc => "obj-vc",
             Format::Sheets => "sheets",
+            Format::ThreeMfPainted => "3mf-painted",
         }
     }
 
@@ -138,6 +146,7 @@ impl Format {
             Format::Obj => "textured OBJ",
             Format::ObjVc => "vertex-colour OBJ",
             Format::Sheets => "paste-on sheets",
+            Format::ThreeMfPainted => "painted 3MF",
         }
     }
 
@@ -197,6 +206,13 @@ pub struct ExportOptions {
     pub memory: MemoryBudget,
     /// Told the name of each stage as it starts (the CLI prints it; default: nothing).
     pub progress: fn(&str),
+    /// The printer the object is made on (`--printer`). A multi-material FDM profile makes the
+    /// 3MF the painted one (`3mf-texture` / `3mf-color` become `3mf-painted`) and its
+    /// `object_size_mm` must match the scale; other profiles are refused with a 3MF format.
+    pub printer: Option<Profile>,
+    /// Slice the painted 3MF with PrusaSlicer's command line and report what the print costs
+    /// (`--slice`).
+    pub slice: bool,
 }
 
 impl Default for ExportOptions {
@@ -215,6 +231,8 @@ impl Default for ExportOptions {
             max_hole_mm: 20.0,
             memory: MemoryBudget::current(),
             progress: |_| {},
+            printer: None,
+            slice: false,
         }
     }
 }
@@ -417,6 +435,10 @@ pub struct ExportSummary {
     pub fidelity: Option<Fidelity>,
     /// Printability at scale of what was written (geometry formats only).
     pub printability: Option<Printability>,
+    /// The multi-material painting (per-filament area), when the painted 3MF was written.
+    pub painting: Option<painted::PaintSummary>,
+    /// What the print costs, when the painted 3MF was sliced (`--slice`).
+    pub slice: Option<painted::SliceCost>,
 }
 
 /// What `cac export` prints: the mesh as loaded and as written, the repair notes, the bake's
@@ -454,6 +476,12 @@ impl std::fmt::Display for ExportSummary {
                 "bake: {t} triangles, colour RMSE {e:.2} (8-bit), mean dE76 {de:.2}"
             )?;
         }
+        if let Some(p) = &self.painting {
+            writeln!(f, "{}", p.line())?;
+        }
+        if let Some(c) = &self.slice {
+            writeln!(f, "{}", c.line())?;
+        }
         for p in &self.files {
             writeln!(f, "wrote {}", p.display())?;
         }
@@ -476,12 +504,17 @@ pub fn export(
     opts: &ExportOptions,
 ) -> Result<ExportSummary> {
     ensure!(!opts.formats.is_empty(), "no export format requested");
+    let mut pre_notes = vec![];
+    let (formats, printer) = formats_for_printer(opts, &mut pre_notes)?;
     cac_core::memory::stage_with("mesh and texture loading", "use a smaller texture");
     let scene = load_mesh(mesh_path, &opts.load)?;
     let camo = load_texture(texture_path, &opts.memory)?;
     check_output_dir(out)?;
     let mesh = prepare(&scene, &camo, opts.scale)
         .with_context(|| format!("mesh {}", mesh_path.display()))?;
+    if let Some((printer, name)) = &printer {
+        check_printer_scale(printer, name, &mesh, opts.scale)?;
+    }
     let input_report = mesh.report.clone();
     let mut notes = vec![format!(
         "check: {}",
@@ -491,10 +524,10 @@ pub fn export(
             mesh.report.problems()
         }
     )];
+    notes.extend(pre_notes);
     notes.extend(mesh.report.repairs());
-    let needs_closed = opts.formats.iter().any(Format::is_geometry);
-    let needs_bake = opts
-        .formats
+    let needs_closed = formats.iter().any(Format::is_geometry);
+    let needs_bake = formats
         .iter()
         .any(|f| matches!(f, Format::ThreeMfColor | Format::ObjVc));
     if needs_bake {
@@ -551,7 +584,8 @@ pub fn export(
         notes.push(f.note());
         fidelity = Some(f);
     }
-    for f in &opts.formats {
+    let (mut painting, mut slice) = (None, None);
+    for f in &formats {
         (opts.progress)(&format!("writing {}", f.name()));
         cac_core::memory::stage(f.stage());
         match f {
@@ -570,6 +604,26 @@ pub fn export(
                 let p = out.join(format!("{stem}_vc.obj"));
                 obj::write_vertex_colour(baked.as_ref().unwrap(), &p)?;
                 files.push(p);
+            }
+            Format::ThreeMfPainted => {
+                let (printer, name) = printer.as_ref().expect("checked by formats_for_printer");
+                let Printer::Fdm { palette, fdm, .. } = printer else {
+                    unreachable!("formats_for_printer keeps FDM printers only")
+                };
+                let p = out.join(format!("{stem}_painted.3mf"));
+                let painted =
+                    painted::paint(&mesh, printer, name, &painted::PaintLimits::for_fdm(fdm))
+                        .with_context(|| format!("mesh {}", mesh_path.display()))?;
+                let bed = opts.limits.build_volume_mm;
+                threemf::write_painted(&mesh, &painted.trees, fdm, palette, name, bed, &p)?;
+                files.push(p.clone());
+                if opts.slice {
+                    (opts.progress)("slicing the painted 3MF with PrusaSlicer");
+                    let g = out.join(format!("{stem}_painted.gcode"));
+                    slice = Some(painted::slice(&p, &g)?);
+                    files.push(g);
+                }
+                painting = Some(painted.summary);
             }
             Format::Sheets => {
                 // Sheets cover the surface as modelled (a person pastes them on the real
@@ -602,7 +656,122 @@ pub fn export(
         solid,
         fidelity,
         printability,
+        painting,
+        slice,
     })
+}
+
+/// A loaded printer model and its profile's name.
+type NamedPrinter = (Printer, String);
+
+/// The formats to write with `opts.printer`, and the printer (with its profile's name) when it
+/// is an FDM one: the 3MF becomes the painted one (`3mf-texture` / `3mf-color` →
+/// `3mf-painted`, noted); `3mf-painted` without an FDM profile, a non-FDM profile with a 3MF
+/// format, and `--slice` without the painted 3MF are refused.
+fn formats_for_printer(
+    opts: &ExportOptions,
+    notes: &mut Vec<String>,
+) -> Result<(Vec<Format>, Option<NamedPrinter>)> {
+    let is_3mf = |f: &Format| {
+        matches!(
+            f,
+            Format::ThreeMfTexture | Format::ThreeMfColor | Format::ThreeMfPainted
+        )
+    };
+    let mut formats = vec![];
+    let printer = match &opts.printer {
+        None => {
+            if opts.formats.contains(&Format::ThreeMfPainted) {
+                bail!("the 3mf-painted format paints with a printer's filaments: pass --printer with a multi-material FDM profile ([fdm] in docs/formats.md)");
+            }
+            formats = opts.formats.clone();
+            None
+        }
+        Some(profile) => {
+            let printer = profile
+                .printer()
+                .with_context(|| format!("printer profile {}", profile.name))?;
+            if !matches!(printer, Printer::Fdm { .. }) {
+                if opts.formats.iter().any(is_3mf) {
+                    bail!(
+                        "printer profile {:?} is a {} profile; the printer-aware 3MF is the painted multi-material one, for [fdm] profiles only: drop --printer or the 3MF formats",
+                        profile.name,
+                        profile.kind()
+                    );
+                }
+                notes.push(format!(
+                    "printer profile {:?} ({}) is not used by {}",
+                    profile.name,
+                    profile.kind(),
+                    opts.formats
+                        .iter()
+                        .map(Format::name)
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ));
+                formats = opts.formats.clone();
+                None
+            } else {
+                for f in &opts.formats {
+                    let f = if is_3mf(f) {
+                        Format::ThreeMfPainted
+                    } else {
+                        *f
+                    };
+                    if !formats.contains(&f) {
+                        formats.push(f);
+                    }
+                }
+                let replaced: Vec<&str> = opts
+                    .formats
+                    .iter()
+                    .filter(|f| matches!(f, Format::ThreeMfTexture | Format::ThreeMfColor))
+                    .map(Format::name)
+                    .collect();
+                if !replaced.is_empty() {
+                    notes.push(format!(
+                        "printer profile {:?} is multi-material FDM: the 3MF is the painted one (3mf-painted instead of {})",
+                        profile.name,
+                        replaced.join(", ")
+                    ));
+                }
+                Some((printer, profile.name.clone()))
+            }
+        }
+    };
+    if opts.slice && !formats.contains(&Format::ThreeMfPainted) {
+        bail!("--slice slices the painted 3MF: it needs --printer with a multi-material FDM profile and a 3MF format");
+    }
+    Ok((formats, printer))
+}
+
+/// Most the printed size may differ from a printer profile's `object_size_mm`.
+pub const PRINTER_SIZE_TOLERANCE: f64 = 0.01;
+
+/// The object's longest side at the export's scale must be the FDM profile's `object_size_mm`
+/// (within 1 %): the profile's nozzle sets the smallest colour region on that object.
+fn check_printer_scale(
+    printer: &Printer,
+    name: &str,
+    mesh: &PrintMesh,
+    scale: Scale,
+) -> Result<()> {
+    let Printer::Fdm { fdm, .. } = printer else {
+        return Ok(());
+    };
+    let longest = mesh.report.size_mm.iter().copied().fold(0.0f32, f32::max) as f64;
+    let want = fdm.object_size_mm as f64;
+    if (longest - want).abs() > PRINTER_SIZE_TOLERANCE * want {
+        bail!(
+            "printer profile {name:?} is for an object {want:.1} mm long (object_size_mm), but at 1:{} this one is {longest:.1} mm long ({:+.1} %, over the 1 % allowed): export at 1:{} or change object_size_mm",
+            scale.denominator,
+            (longest / want - 1.0) * 100.0,
+            format_scale((scale.denominator * longest / want) as f32)
+                .trim_end_matches('0')
+                .trim_end_matches('.')
+        );
+    }
+    Ok(())
 }
 
 /// Above this share of the surface thinner than the minimum wall, thickening would change the

@@ -3,9 +3,9 @@
 //! duplicated wherever its corners carry different colours (texture seams). Millimetres, +Z up.
 
 use super::bake::Baked;
-use super::texture::to_rgb8;
 use super::{Paint, PrintMesh};
 use anyhow::{Context, Result};
+use cac_core::colour::to_rgb8;
 use cac_scene::{Material, Scene, Triangle};
 use std::collections::HashMap;
 use std::fmt::Write as _;

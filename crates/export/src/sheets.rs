@@ -747,7 +747,7 @@ fn render_piece(
             } else {
                 let tx = pl.texels[0] + (xx - bleed_px) as f32 * texel_per_px + 0.5 * texel_per_px;
                 let ty = pl.texels[1] + (yy - bleed_px) as f32 * texel_per_px + 0.5 * texel_per_px;
-                super::texture::to_rgb8(tex.sample(Vec2::new(tx / tw, 1.0 - ty / th)))
+                cac_core::colour::to_rgb8(tex.sample(Vec2::new(tx / tw, 1.0 - ty / th)))
             };
             img.put_pixel(gx as u32, gy as u32, image::Rgb(c));
         }

@@ -768,7 +768,7 @@ pub fn fidelity(
     n: usize,
     seed: u64,
 ) -> Fidelity {
-    use super::texture::{delta_e, to_rgb8};
+    use cac_core::colour::{delta_e76_srgb as delta_e, to_rgb8};
     use rand::SeedableRng;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let (ot, _) = corners(original, |_| true);

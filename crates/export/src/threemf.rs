@@ -4,13 +4,18 @@
 //! Package layout: `[Content_Types].xml`, `_rels/.rels` (→ `/3D/3dmodel.model`),
 //! `3D/_rels/3dmodel.model.rels` (→ each texture, relationship type `3dtexture`),
 //! `3D/Textures/texK.png`, `3D/3dmodel.model` (`unit="millimeter"`). UVs are written as they
-//! are in the scene: origin lower-left, `v` up, which is 3MF's convention. Every triangle carries
-//! `pid`/`p1`/`p2`/`p3`; the object's own `pid`/`pindex` is that of its first triangle.
+//! are in the scene: origin lower-left, `v` up, which is 3MF's convention. Every triangle of the
+//! textured and baked-colour files carries `pid`/`p1`/`p2`/`p3`; the object's own `pid`/`pindex`
+//! is that of its first triangle. The painted multi-material file ([`write_painted`]) has no
+//! colour properties: each triangle carries the slicers' painting (`slic3rpe:mmu_segmentation`
+//! and `paint_color`, see [`super::painted`]) and the package holds the slicers' settings files
+//! (`Metadata/Slic3r_PE.config`, `Metadata/project_settings.config`).
 
 use super::bake::Baked;
-use super::texture::to_rgb8;
+use super::painted;
 use super::{Paint, PrintMesh};
 use anyhow::{Context, Result};
+use cac_core::colour::to_rgb8;
 use glam::{Vec2, Vec3};
 use quick_xml::events::{BytesDecl, BytesEnd, BytesStart, Event};
 use quick_xml::Writer;
@@ -26,6 +31,8 @@ const REL_TEXTURE: &str = "http://schemas.microsoft.com/3dmanufacturing/2013/01/
 const CT_RELS: &str = "application/vnd.openxmlformats-package.relationships+xml";
 const CT_MODEL: &str = "application/vnd.ms-package.3dmanufacturing-3dmodel+xml";
 const CT_TEXTURE: &str = "application/vnd.ms-package.3dmanufacturing-3dmodeltexture";
+/// PrusaSlicer's namespace for its attributes and metadata (`slic3rpe:`).
+const NS_SLIC3RPE: &str = "http://schemas.slic3r.org/3mf/2017/06";
 
 type XmlW<'a, W> = Writer<&'a mut zip::ZipWriter<W>>;
 
@@ -50,9 +57,10 @@ fn decl<W: Write>(w: &mut Writer<W>) -> Result<()> {
     Ok(())
 }
 
-/// Writes the package around a model: parts, relationships, textures (PNG bytes), then the
-/// model XML produced by `model`. Atomic (temporary file, then rename).
-fn package<F>(path: &Path, textures: &[Vec<u8>], model: F) -> Result<()>
+/// Writes the package around a model: parts, relationships, textures (PNG bytes), other files
+/// (`(path in the package, bytes)`, `.config` files as text), then the model XML produced by
+/// `model`. Atomic (temporary file, then rename).
+fn package<F>(path: &Path, textures: &[Vec<u8>], extra: &[(&str, Vec<u8>)], model: F) -> Result<()>
 where
     F: FnOnce(&mut XmlW<'_, &mut std::io::BufWriter<&mut std::fs::File>>) -> Result<()>,
 {
@@ -89,6 +97,13 @@ where
                     &mut w,
                     "Default",
                     &[("Extension", "png"), ("ContentType", CT_TEXTURE)],
+                )?;
+            }
+            if extra.iter().any(|(name, _)| name.ends_with(".config")) {
+                empty(
+                    &mut w,
+                    "Default",
+                    &[("Extension", "config"), ("ContentType", "text/plain")],
                 )?;
             }
             end(&mut w, "Types")?;
@@ -131,6 +146,10 @@ where
             zip.start_file(format!("3D/Textures/tex{k}.png"), stored)?;
             zip.write_all(png)?;
         }
+        for (name, bytes) in extra {
+            zip.start_file(*name, deflate)?;
+            zip.write_all(bytes)?;
+        }
         zip.start_file("3D/3dmodel.model", deflate)?;
         {
             let mut w = Writer::new(&mut zip);
@@ -143,17 +162,25 @@ where
 }
 
 fn model_start<W: Write>(w: &mut Writer<W>, title: &str) -> Result<()> {
-    start(
-        w,
-        "model",
-        &[
-            ("unit", "millimeter"),
-            ("xml:lang", "en-US"),
-            ("xmlns", NS_CORE),
-            ("xmlns:m", NS_MAT),
-        ],
-    )?;
-    for (name, value) in [("Title", title), ("Application", "cac export")] {
+    model_start_with(w, title, &[("xmlns:m", NS_MAT)], &[])
+}
+
+/// The `<model>` element with extra namespaces and metadata, and `<resources>` opened.
+fn model_start_with<W: Write>(
+    w: &mut Writer<W>,
+    title: &str,
+    namespaces: &[(&str, &str)],
+    metadata: &[(&str, &str)],
+) -> Result<()> {
+    let mut attrs = vec![
+        ("unit", "millimeter"),
+        ("xml:lang", "en-US"),
+        ("xmlns", NS_CORE),
+    ];
+    attrs.extend_from_slice(namespaces);
+    start(w, "model", &attrs)?;
+    let base = [("Title", title), ("Application", "cac export")];
+    for &(name, value) in base.iter().chain(metadata) {
         start(w, "metadata", &[("name", name)])?;
         w.write_event(Event::Text(quick_xml::events::BytesText::new(value)))?;
         end(w, "metadata")?;
@@ -161,7 +188,8 @@ fn model_start<W: Write>(w: &mut Writer<W>, title: &str) -> Result<()> {
     start(w, "resources", &[])
 }
 
-/// Writes the object with its vertices and triangles; `props(i)` is triangle i's `(pid, [p1,p2,p3])`.
+/// Writes the object with its vertices and triangles; `props[i]` is triangle i's
+/// `(pid, [p1,p2,p3])`.
 fn object<W: Write>(
     w: &mut Writer<W>,
     id: u32,
@@ -183,13 +211,7 @@ fn object<W: Write>(
             ("pindex", &pindex),
         ],
     )?;
-    start(w, "mesh", &[])?;
-    start(w, "vertices", &[])?;
-    for p in positions {
-        let (x, y, z) = (p.x.to_string(), p.y.to_string(), p.z.to_string());
-        empty(w, "vertex", &[("x", &x), ("y", &y), ("z", &z)])?;
-    }
-    end(w, "vertices")?;
+    vertices(w, positions)?;
     start(w, "triangles", &[])?;
     for (t, (pid, p)) in tris.zip(props) {
         let s: [String; 7] = [t[0], t[1], t[2], *pid, p[0], p[1], p[2]].map(|x| x.to_string());
@@ -201,12 +223,28 @@ fn object<W: Write>(
             .collect();
         empty(w, "triangle", &attrs)?;
     }
+    object_end(w, &id)
+}
+
+/// Opens `<mesh>` and writes `<vertices>`.
+fn vertices<W: Write>(w: &mut Writer<W>, positions: &[Vec3]) -> Result<()> {
+    start(w, "mesh", &[])?;
+    start(w, "vertices", &[])?;
+    for p in positions {
+        let (x, y, z) = (p.x.to_string(), p.y.to_string(), p.z.to_string());
+        empty(w, "vertex", &[("x", &x), ("y", &y), ("z", &z)])?;
+    }
+    end(w, "vertices")
+}
+
+/// Closes `<triangles>`, the object and the resources, and writes the build (one item).
+fn object_end<W: Write>(w: &mut Writer<W>, id: &str) -> Result<()> {
     end(w, "triangles")?;
     end(w, "mesh")?;
     end(w, "object")?;
     end(w, "resources")?;
     start(w, "build", &[])?;
-    empty(w, "item", &[("objectid", &id)])?;
+    empty(w, "item", &[("objectid", id)])?;
     end(w, "build")?;
     end(w, "model")
 }
@@ -288,7 +326,7 @@ pub(crate) fn write_textured(mesh: &PrintMesh, path: &Path) -> Result<()> {
             Paint::Solid(c) => (colour_id, [colours.get(c); 3]),
         })
         .collect();
-    package(path, &pngs, |w| {
+    package(path, &pngs, &[], |w| {
         model_start(w, &mesh.name)?;
         let mut file = 0;
         for (k, ids) in tex_ids.iter().enumerate() {
@@ -344,7 +382,7 @@ pub(crate) fn write_colored(mesh: &PrintMesh, baked: &Baked, path: &Path) -> Res
         .iter()
         .map(|t| (1, t.colour.map(|c| colours.get(c))))
         .collect();
-    package(path, &[], |w| {
+    package(path, &[], &[], |w| {
         model_start(w, &mesh.name)?;
         colours.write(w, 1)?;
         object(
@@ -355,5 +393,70 @@ pub(crate) fn write_colored(mesh: &PrintMesh, baked: &Baked, path: &Path) -> Res
             baked.tris.iter().map(|t| t.v),
             &props,
         )
+    })
+}
+
+/// Painted multi-material 3MF for slicers: the mesh as it is, no colour properties; every
+/// triangle carries its painting ([`painted::encode`]) twice, as `slic3rpe:mmu_segmentation`
+/// (PrusaSlicer) and `paint_color` (Bambu Studio, OrcaSlicer); the model declares
+/// `slic3rpe:MmPaintingVersion` 1; the package holds `Metadata/Slic3r_PE.config` (PrusaSlicer's
+/// extruder count, colours and wipe tower, [`painted::prusa_config`]) and
+/// `Metadata/project_settings.config` (Bambu Studio / OrcaSlicer's filament colours,
+/// [`painted::bambu_config`]).
+pub(crate) fn write_painted(
+    mesh: &PrintMesh,
+    trees: &[painted::Node],
+    fdm: &cac_core::printer::Fdm,
+    palette: &[[f32; 3]],
+    printer_name: &str,
+    build_volume_mm: Option<[f32; 3]>,
+    path: &Path,
+) -> Result<()> {
+    anyhow::ensure!(
+        trees.len() == mesh.tris.len(),
+        "{} paintings for {} triangles",
+        trees.len(),
+        mesh.tris.len()
+    );
+    let extra = [
+        (
+            "Metadata/Slic3r_PE.config",
+            painted::prusa_config(fdm, palette, printer_name, build_volume_mm).into_bytes(),
+        ),
+        (
+            "Metadata/project_settings.config",
+            painted::bambu_config(fdm, palette).into_bytes(),
+        ),
+    ];
+    package(path, &[], &extra, |w| {
+        model_start_with(
+            w,
+            &mesh.name,
+            &[("xmlns:slic3rpe", NS_SLIC3RPE)],
+            &[("slic3rpe:MmPaintingVersion", "1")],
+        )?;
+        start(
+            w,
+            "object",
+            &[("id", "1"), ("type", "model"), ("name", &mesh.name)],
+        )?;
+        vertices(w, &mesh.positions)?;
+        start(w, "triangles", &[])?;
+        for (t, tree) in mesh.tris.iter().zip(trees) {
+            let [a, b, c] = t.v.map(|i| i.to_string());
+            let code = painted::encode(tree);
+            empty(
+                w,
+                "triangle",
+                &[
+                    ("v1", &a),
+                    ("v2", &b),
+                    ("v3", &c),
+                    ("slic3rpe:mmu_segmentation", &code),
+                    ("paint_color", &code),
+                ],
+            )?;
+        }
+        object_end(w, "1")
     })
 }

@@ -2,7 +2,8 @@
 //! [`Transport`] — a real serial port ([`SerialTransport`]), the simulator's pseudo-terminal, or its
 //! in-memory link (`crate::sim`) — camera frame sources (a V4L2 webcam checked with [`camera_check`]), the calibrated lens, the rig file, the
 //! one camera model of the rig ([`rig_camera`]), the digital twin, ground-truth boxes, capture sessions with their manifest, and
-//! the whole capture run on a real rig ([`capture`]; on the simulated rig: `crate::sim::rig`).
+//! the whole capture run on a real rig ([`capture`]; on the simulated rig: `crate::sim::rig`), and
+//! printer calibration from a photographed chart ([`print_calib`]).
 //!
 //! Crate `cac-physical`: this module (`cac::physical`), with [`sim`] (the simulated firmware and
 //! the simulated rig around it) beside it.
@@ -14,6 +15,7 @@ pub mod camera;
 pub mod camera_check;
 pub mod capture;
 pub mod manifest;
+pub mod print_calib;
 pub mod rig;
 pub mod rig_camera;
 pub mod score;

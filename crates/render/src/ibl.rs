@@ -117,7 +117,7 @@ fn luminance(c: [f32; 3]) -> f32 {
     0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
 }
 
-pub use cac_scene::srgb::{decode as srgb_decode, encode as srgb_encode};
+pub use cac_core::colour::{decode as srgb_decode, encode as srgb_encode};
 
 /// The unit direction (map frame) through the centre of texel `(x, y)` of a `w x h` map.
 fn texel_dir(x: usize, y: usize, w: usize, h: usize) -> Vec3 {

@@ -110,7 +110,7 @@ pub fn load(path: &Path) -> Result<Scene> {
                 .name()
                 .map(String::from)
                 .unwrap_or_else(|| format!("material{i}")),
-            base_color: [f[0], f[1], f[2]].map(|c| crate::srgb::encode(c.clamp(0.0, 1.0))),
+            base_color: [f[0], f[1], f[2]].map(|c| cac_core::colour::encode(c.clamp(0.0, 1.0))),
             texture,
             specular: 0.04 + 0.5 * metallic * (1.0 - rough) + 0.2 * (1.0 - rough),
             shininess: 2.0 + 126.0 * (1.0 - rough) * (1.0 - rough),

@@ -18,7 +18,6 @@ mod obj_load;
 pub mod obj_write;
 pub mod paint;
 pub mod polygon;
-pub mod srgb;
 pub mod textures;
 
 use anyhow::{bail, Context, Result};

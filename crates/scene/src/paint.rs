@@ -1,9 +1,25 @@
 //! Which texels of an atlas the paintable surfaces sample ([`paintable_texels`]), and a
 //! whole-atlas texture (a simple texture, an image) put on those texels only ([`paint`]), as
 //! every attack's atlas is. Used by the 2D baselines (`attack::baselines::atlas`) and by the
-//! benchmarks that paint simple textures (`eval::realism`).
+//! benchmarks that paint simple textures (`eval::realism`); and the size of a texel on the object
+//! ([`texel_size`]), which sets the smallest region a printer can draw.
 
 use super::{Scene, Texture};
+
+/// The mean side of one texel of a `res × res` atlas on the paintable surfaces, in scene units:
+/// `√(Σ surface area / (Σ UV area · res²))` over the paintable triangles (`None` when none has
+/// UV area). A printer that draws no finer than its nozzle needs regions of that many texels.
+pub fn texel_size(scene: &Scene, res: usize) -> Option<f32> {
+    let (mut area, mut uv_area) = (0.0f64, 0.0f64);
+    for t in scene.triangles.iter().filter(|t| scene.is_paintable(t)) {
+        let Some(uv) = t.uv else { continue };
+        let [a, b, c] = t.p.map(|i| scene.positions[i as usize]);
+        let [u, v, w] = uv.map(|i| scene.uvs[i as usize]);
+        area += 0.5 * (b - a).cross(c - a).length() as f64;
+        uv_area += 0.5 * ((v - u).perp_dot(w - u)).abs() as f64;
+    }
+    (uv_area > 0.0 && area > 0.0).then(|| (area / (uv_area * (res * res) as f64)).sqrt() as f32)
+}
 
 /// Per texel of a `res × res` atlas: could a paintable surface sample it? Paintable triangles
 /// are rasterised in UV space at 4 × 4 samples per texel, then the mask grows by one texel

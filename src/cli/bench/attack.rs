@@ -27,6 +27,10 @@ pub struct Args {
         default_value = "1x300x256,2x300x256,2x50x256,2x300x128,2x300x512"
     )]
     pub settings: String,
+    /// Also time each batch size trained through this printer profile, beside the plain run
+    /// (`cac train --printer`).
+    #[arg(long)]
+    pub printer: Option<PathBuf>,
     /// Skip the error-against-time part.
     #[arg(long)]
     pub split_only: bool,
@@ -53,7 +57,7 @@ pub fn run(a: Args) -> Result<()> {
     let dets = train::load_detectors(&["nanodet".into()])?;
     let det = [dets[0].as_ref()];
     let dev = device::inference();
-    let (split, scene) = time_split(a.runs, &det, &dev)?;
+    let (split, scene) = time_split(a.runs, &det, &dev, a.printer.as_deref())?;
     let p = csv_path(&a, "split");
     cac::io::write_atomic(&p, split.csv().as_bytes())?;
     println!("wrote {}", p.display());

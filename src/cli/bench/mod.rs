@@ -5,6 +5,7 @@
 
 pub mod agreement;
 pub mod attack;
+pub mod calibration;
 pub mod detect;
 pub mod eval;
 pub mod frcnn;

@@ -219,7 +219,7 @@ pub struct BlenderView {
 }
 
 /// sRGB decoding, extended linearly-in-power above 1 (cac's light levels may exceed 1).
-pub(crate) use cac_scene::srgb::decode as srgb_to_linear;
+pub(crate) use cac_core::colour::decode as srgb_to_linear;
 
 /// Blender's camera for a cac camera: `matrix_world` (row-major 4×4), lens and sensor (mm),
 /// sensor fit and shift. Assumes square pixels (`fx == fy`).

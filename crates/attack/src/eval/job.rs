@@ -31,6 +31,8 @@ pub struct EvalJob {
     pub examples_per_group: usize,
     /// Extra figures for the HTML report, `(caption, PNG path)`: e.g. the top-n study's plot.
     pub figures: Vec<(String, PathBuf)>,
+    /// Judge every texture as this printer makes it (a printer profile; `cac eval --printer`).
+    pub printer: Option<PathBuf>,
     pub out: PathBuf,
 }
 
@@ -182,7 +184,10 @@ fn prepare(job: &EvalJob, dets: &[&dyn Detector]) -> Result<Prepared> {
     super::Scorer::new(dets, &job.protocol)?;
     let scene = job.scene.object.load()?;
     let res = job.scene.render.atlas_res;
-    let texs = textures::resolve_all(&job.textures, &scene, res, job.plan.seed)?;
+    let mut texs = textures::resolve_all(&job.textures, &scene, res, job.plan.seed)?;
+    if let Some(path) = &job.printer {
+        textures::print_all(&mut texs, path)?;
+    }
     let env = Environment::new(job.scene.environment.clone())?;
     let groups = view_groups(&env, &job.plan);
     let views = all_views(&groups);
@@ -344,6 +349,7 @@ fn report_part(
         plan: job.plan.clone(),
         render: job.scene.render.clone(),
         light: hdri_text(&job.scene.environment),
+        printed: printed_text(job)?,
         textures: names,
         reference,
         models: p.models,
@@ -388,4 +394,18 @@ fn hdri_text(e: &cac_render::environment::EnvConfig) -> String {
         e.hdri_rotation_deg,
         e.hdri_exposure_stops
     )
+}
+
+/// The report's note of the printer the textures were judged through, or empty.
+fn printed_text(job: &EvalJob) -> Result<String> {
+    let Some(path) = &job.printer else {
+        return Ok(String::new());
+    };
+    let p = cac_core::printer::Profile::load(path)?;
+    Ok(format!(
+        ", each as printed by {:?} ({} profile {})",
+        p.name,
+        p.kind(),
+        path.display()
+    ))
 }

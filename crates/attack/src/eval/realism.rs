@@ -92,6 +92,10 @@ pub struct RealismJob {
     /// Save every rendered view under this folder.
     #[arg(long)]
     pub save: Option<PathBuf>,
+    /// Render every texture as this printer makes it (a printer profile; both renderers take the
+    /// same as-printed atlas).
+    #[arg(long)]
+    pub printer: Option<PathBuf>,
     #[arg(skip)]
     pub protocol: Protocol,
 }
@@ -277,8 +281,15 @@ impl Bench<'_> {
         let mask = cac_scene::paint::paintable_texels(&scene, cfg.render.atlas_res);
         let r = Renderer::new(scene, cfg.render.clone())?;
         let env = Environment::new(cfg.environment.clone())?;
+        let printer = match &a.printer {
+            Some(p) => Some(cac_core::printer::Profile::load(p)?.printer()?),
+            None => None,
+        };
         for tname in &a.textures {
-            let atlas = texture(tname, &original, &mask)?;
+            let mut atlas = texture(tname, &original, &mask)?;
+            if let Some(p) = &printer {
+                super::textures::as_printed(&mut atlas, p);
+            }
             for &set in &a.sets {
                 for (b, world) in self.lights()? {
                     let conds = views(set, cfg, a.views, b, a.seed, a.photometric)?;

@@ -20,6 +20,8 @@ pub struct EvalInfo {
     pub render: RenderSettings,
     /// How the views are lit when not by the sun and ambient (the HDRI protocol), else empty.
     pub light: String,
+    /// The printer every texture was judged as printed by (`; as printed by ...`), else empty.
+    pub printed: String,
     /// Row names, in order; `reference` is the one drops are taken against.
     pub textures: Vec<String>,
     pub reference: String,
@@ -46,7 +48,7 @@ pub(crate) fn protocol_text(i: &EvalInfo) -> String {
     let p = &i.protocol;
     let sets: Vec<&str> = i.plan.sets.iter().map(|&s| set_name(s)).collect();
     format!(
-        "object: {obj}; textures: {tex}; models: {models}\n\
+        "object: {obj}; textures: {tex}{printed}; models: {models}\n\
          views: {sets} (FV: free viewpoint; RV: side views, restricted viewpoint alpha = 120 deg), \
          bright L_b and dark L_d, {n} views per brightness level and set ({per} images per texture), \
          seed {seed}, each at a random condition of the virtual scene (distance, elevation, sun, sky or \
@@ -59,6 +61,7 @@ pub(crate) fn protocol_text(i: &EvalInfo) -> String {
          error bars: binomial standard error sqrt(p (1 - p) / n); breakdowns pool all sets and levels",
         obj = i.object,
         light = i.light,
+        printed = i.printed,
         tex = i.textures.join(", "),
         models = i.models.join(", "),
         sets = sets.join(" and "),

@@ -3,6 +3,7 @@
 //! resolution), or `NAME=PATH` where PATH is an atlas PNG/JPEG or a run folder (its `atlas.png`).
 
 use anyhow::{bail, Context, Result};
+use cac_core::printer::{Printer, Profile};
 use cac_scene::textures::{self, Kind};
 use cac_scene::{Scene, Texture};
 use std::path::Path;
@@ -77,4 +78,25 @@ pub(crate) fn resolve_all(
         bail!("no textures to evaluate");
     }
     Ok(out)
+}
+
+/// Puts every texture through the printer of the profile at `path`: each texel becomes what the
+/// printer makes of it ([`Printer::as_printed`]: the nearest filament by ΔE2000, or the fitted
+/// response). A texture trained through the same FDM printer is unchanged.
+pub(crate) fn print_all(texs: &mut [NamedTexture], path: &Path) -> Result<()> {
+    let profile = Profile::load(path)?;
+    let printer = profile.printer()?;
+    for t in texs.iter_mut() {
+        as_printed(&mut t.atlas, &printer);
+        t.source = format!("{} as printed by {}", t.source, path.display());
+    }
+    Ok(())
+}
+
+/// A texture as `printer` makes it, texel by texel.
+pub fn as_printed(atlas: &mut Texture, printer: &Printer) {
+    atlas
+        .texels
+        .iter_mut()
+        .for_each(|c| *c = printer.as_printed(*c));
 }

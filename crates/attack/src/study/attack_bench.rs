@@ -21,8 +21,14 @@ use cac_scene::{Scene, Texture};
 pub type Setting = (usize, usize, usize);
 
 /// (1) The iteration time split on the default scene (512², 4 spp, 512² atlas): the median of
-/// `runs` iterations after one warm-up, per batch size. Returns the table and the scene.
-pub fn time_split(runs: usize, det: &[&dyn Detector], device: &Device) -> Result<(Table, Scene)> {
+/// `runs` iterations after one warm-up, per batch size; with a `printer` profile, each batch
+/// also trained through it (side by side). Returns the table and the scene.
+pub fn time_split(
+    runs: usize,
+    det: &[&dyn Detector],
+    device: &Device,
+    printer: Option<&std::path::Path>,
+) -> Result<(Table, Scene)> {
     let cfg = SceneConfig::default();
     let config::Stage {
         renderer,
@@ -31,8 +37,15 @@ pub fn time_split(runs: usize, det: &[&dyn Detector], device: &Device) -> Result
     } = cfg.stage()?;
     println!("iteration time, nanodet, n = 300, {}x{} renders ({} spp), {}² atlas, CPU (median of {} after 1 warm-up)", cfg.render.width, cfg.render.height, cfg.render.samples, cfg.render.atlas_res, runs);
     println!(
-        "{:>5} {:>10} {:>11} {:>12} {:>13} {:>9} {:>8}",
-        "batch", "render_ms", "forward_ms", "backward_ms", "optimiser_ms", "total_ms", "peak_mb"
+        "{:>5} {:>8} {:>10} {:>11} {:>12} {:>13} {:>9} {:>8}",
+        "batch",
+        "printer",
+        "render_ms",
+        "forward_ms",
+        "backward_ms",
+        "optimiser_ms",
+        "total_ms",
+        "peak_mb"
     );
     let columns = [
         "render_ms",
@@ -42,17 +55,25 @@ pub fn time_split(runs: usize, det: &[&dyn Detector], device: &Device) -> Result
         "total_ms",
         "peak_mb",
     ];
-    let mut split = Table::new(std::iter::once("batch").chain(columns));
-    for batch in [1usize, 4] {
+    let mut split = Table::new(["batch", "printer"].into_iter().chain(columns));
+    let printers = std::iter::once(None).chain(printer.map(Some));
+    let printers: Vec<Option<&std::path::Path>> = printers.collect();
+    for (batch, printer) in [1usize, 4]
+        .into_iter()
+        .flat_map(|b| printers.iter().map(move |p| (b, *p)))
+    {
         let ac = AttackConfig {
             batch,
             iterations: runs + 1,
             checkpoint_every: 0,
+            printer: printer.map(|p| p.to_path_buf()),
             ..Default::default()
         };
         let training = Device::autodiff(device.clone());
         cac_core::memory::reset_peak_rss();
-        let mut tr = Trainer::new(ac, &renderer, &env, det.to_vec(), training, &init)?;
+        let tr = Trainer::new(ac.clone(), &renderer, &env, det.to_vec(), training, &init)?;
+        let mut tr = tr.through_printer(&ac)?;
+        let pname = if printer.is_some() { "fdm" } else { "none" };
         tr.step()?;
         let logs: Vec<_> = (0..runs).map(|_| tr.step()).collect::<Result<_>>()?;
         let m = |f: fn(&IterationLog) -> f64| median(logs.iter().map(f).collect());
@@ -64,9 +85,12 @@ pub fn time_split(runs: usize, det: &[&dyn Detector], device: &Device) -> Result
         );
         let total = r + f + b + o;
         let peak = cac_core::memory::peak_rss_mb();
-        println!("{batch:>5} {r:>10.0} {f:>11.0} {b:>12.0} {o:>13.1} {total:>9.0} {peak:>8.0}");
+        println!(
+            "{batch:>5} {pname:>8} {r:>10.0} {f:>11.0} {b:>12.0} {o:>13.1} {total:>9.0} {peak:>8.0}"
+        );
         split.row([
             batch.to_string(),
+            pname.to_string(),
             format!("{r:.1}"),
             format!("{f:.1}"),
             format!("{b:.1}"),

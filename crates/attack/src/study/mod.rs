@@ -131,6 +131,7 @@ pub(crate) fn protocol_job(
         protocol: Protocol::from_labels("car,truck", Some(target))?,
         examples_per_group: 1,
         figures: vec![],
+        printer: None,
         out: out.join("eval"),
     })
 }
