@@ -586,13 +586,23 @@ fn mismatches_are_refused_naming_both_sides() {
         "f.toml",
         "name = \"binder\"\n[full_colour.response]\nmatrix = [[1,0,0,0,0,0],[0,1,0,0,0,0],[0,0,1,0,0,0]]\n",
     );
-    let e = run(ExportOptions {
-        formats: vec![Format::ThreeMfTexture],
-        scale: "1:50".parse().unwrap(),
-        printer: Some(full),
-        ..Default::default()
-    });
-    assert!(e.contains("full-colour") && e.contains("[fdm]"), "{e}");
+    // A full-colour profile writes the texture as requested, and adds VRML.
+    let out = d.path().join("full");
+    let sum = export::export(
+        &mesh,
+        &tex,
+        &out,
+        &ExportOptions {
+            formats: vec![Format::ThreeMfTexture],
+            scale: "1:50".parse().unwrap(),
+            printer: Some(full),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert!(out.join("cube_texture.3mf").exists() && out.join("cube.wrl").exists());
+    assert!(format!("{sum}").contains("as requested"), "{sum}");
+    check_vrml(&out.join("cube.wrl"), 12);
     let e = run(ExportOptions {
         formats: vec![Format::ThreeMfPainted],
         scale: "1:50".parse().unwrap(),
@@ -612,6 +622,48 @@ fn mismatches_are_refused_naming_both_sides() {
         "3mf-painted".parse::<Format>().unwrap(),
         Format::ThreeMfPainted
     );
+}
+
+/// A VRML 2.0 file as a print service reads it: the header, every face a triangle of points that
+/// exist, as many texture corners as face corners, and the textures beside it.
+fn check_vrml(path: &Path, triangles: usize) {
+    let text = std::fs::read_to_string(path).unwrap();
+    assert!(text.starts_with("#VRML V2.0 utf8\n"), "{}", &text[..40]);
+    let list = |after: &str, from: usize| -> Vec<f64> {
+        let start = text[from..].find(after).unwrap() + from + after.len();
+        let end = text[start..].find(']').unwrap() + start;
+        text[start..end]
+            .split(|c: char| c == ',' || c.is_whitespace())
+            .filter(|t| !t.is_empty())
+            .map(|t| t.parse().unwrap())
+            .collect()
+    };
+    let (mut faces, mut from) = (0, 0);
+    while let Some(k) = text[from..].find("geometry IndexedFaceSet") {
+        let at = from + k;
+        let points = list("coord Coordinate { point [", at).len() / 3;
+        let index = list("coordIndex [", at);
+        for face in index.split(|v| *v == -1.0).filter(|f| !f.is_empty()) {
+            assert_eq!(face.len(), 3);
+            assert!(face.iter().all(|&i| i >= 0.0 && (i as usize) < points));
+            faces += 1;
+        }
+        if let Some(u) = text[at..].find("texCoordIndex [") {
+            let next = text[at + 1..].find("geometry IndexedFaceSet");
+            if next.is_none_or(|n| u < n + 1) {
+                let uvs = list("TextureCoordinate { point [", at).len() / 2;
+                let ui = list("texCoordIndex [", at);
+                assert_eq!(ui.len(), index.len(), "a texture corner per face corner");
+                assert!(ui.iter().all(|&i| i == -1.0 || (i as usize) < uvs));
+            }
+        }
+        from = at + 1;
+    }
+    assert_eq!(faces, triangles);
+    for url in text.split("url \"").skip(1) {
+        let name = &url[..url.find('"').unwrap()];
+        assert!(path.with_file_name(name).exists(), "{name}");
+    }
 }
 
 /// `cac export --printer four.toml [--slice]` from the command line: the painted 3MF instead of

@@ -109,6 +109,11 @@ doc = {
                    "summaries": [s for s in e["summaries"] if s.get("texture") == "CAC"
                                  or s.get("texture") == "Original"]},
 }
+# Trained through a printer: the profile (its filaments or response) beside the texture's record.
+if r["attack"].get("printer"):
+    import tomllib
+    with open(r["attack"]["printer"], "rb") as f:
+        doc["printer"] = {"profile": r["attack"]["printer"], **tomllib.load(f)}
 tmp = out + ".tmp"
 with open(tmp, "w") as f:
     json.dump(doc, f, indent=1)

@@ -461,13 +461,12 @@ fn map2(
     from_vec(out, &x)
 }
 
-/// A new buffer of `n` elements, each chunk filled by `fill(offset, chunk)` in parallel (the
-/// chunk is written before it is read: no zeroing pass).
+/// A new buffer of `n` elements, each chunk filled by `fill(offset, chunk)` in parallel. The
+/// buffer is zeroed first: a slice of uninitialised floats is undefined behaviour in Rust even
+/// when every element is written before it is read, and the zeroing pass costs a memset against
+/// the kernel's arithmetic.
 fn fresh(n: usize, fill: impl Fn(usize, &mut [f32]) + Sync) -> Vec<f32> {
-    let mut out: Vec<f32> = Vec::with_capacity(n);
-    // SAFETY: every element is written by `fill` (through `copy_from_slice`) before anything
-    // reads it, and f32 has no invalid bit patterns.
-    unsafe { out.set_len(n) };
+    let mut out = vec![0.0f32; n];
     out.par_chunks_mut(CHUNK)
         .enumerate()
         .for_each(|(k, y)| fill(k * CHUNK, y));

@@ -391,11 +391,9 @@ fn tensor(v: Vec<f32>, shape: &[usize]) -> FlexTensor {
 /// Forward: `y[b][:, tile] = W · col(x[b])[:, tile]`, tiles in parallel.
 fn forward(x: &[f32], w: &[f32], g: &Geometry) -> Vec<f32> {
     let (k, p, img) = (g.k(), g.p(), g.ci * g.h * g.w);
-    let mut y: Vec<f32> = Vec::with_capacity(g.n * g.co * p);
-    // SAFETY: every element is written below before it is read (the products overwrite their
-    // whole destination: all co rows of every column, tile by tile or image by image), and f32
-    // has no invalid bit patterns. Not zeroing saves a pass over the output.
-    unsafe { y.set_len(g.n * g.co * p) };
+    // Zeroed, although the products overwrite all of it: uninitialised floats behind a pointer
+    // that becomes a slice are undefined behaviour; a memset is small against the products.
+    let mut y = vec![0.0f32; g.n * g.co * p];
     let out = Shared(y.as_mut_ptr());
     let tiles = g.tiles();
     let jobs: Vec<(usize, (usize, usize))> = (0..g.n)

@@ -13,6 +13,7 @@
 //!   FDM printer profile, the painted 3MF that slicers open as a painted object ([`painted`]:
 //!   the slicers' per-triangle painting trees, and the G-code's cost when sliced);
 //! - [`obj`]: OBJ + MTL + PNG (optionally zipped) and a vertex-colour OBJ from the same bake;
+//! - [`vrml`]: VRML 2.0 + PNG for full-colour print services (with a full-colour profile);
 //! - [`sheets`]: paste-on sheets at true physical size (PNG pages, PDF, JSON sidecar).
 //!
 //! See `docs/export.md` for the conventions, tolerances and the bake's error/run-time table.
@@ -29,6 +30,7 @@ pub mod sheets;
 pub mod solidify;
 pub mod surface;
 pub mod threemf;
+pub mod vrml;
 
 use anyhow::{bail, ensure, Context, Result};
 use cac_core::memory::MemoryBudget;
@@ -98,6 +100,9 @@ pub enum Format {
     Sheets,
     /// `<name>_painted.3mf`: multi-material painting for slicers (needs an FDM printer profile).
     ThreeMfPainted,
+    /// `<name>.wrl` + PNGs: VRML 2.0 for full-colour print services (added with a full-colour
+    /// printer profile).
+    Vrml,
 }
 
 impl FromStr for Format {
@@ -107,11 +112,13 @@ impl FromStr for Format {
         if s == "3mf-colour" {
             return Ok(Format::ThreeMfColor);
         }
-        let all = Format::ALL.into_iter().chain([Format::ThreeMfPainted]);
+        let all = Format::ALL
+            .into_iter()
+            .chain([Format::ThreeMfPainted, Format::Vrml]);
         Ok(match all.into_iter().find(|f| f.name() == s) {
             Some(f) => f,
             None => bail!(
-                "unknown export format '{s}' (expected 3mf-texture, 3mf-color, obj, obj-vc, sheets, 3mf-painted)"
+                "unknown export format '{s}' (expected 3mf-texture, 3mf-color, obj, obj-vc, sheets, 3mf-painted, wrl)"
             ),
         })
     }
@@ -135,6 +142,7 @@ impl Format {
             Format::ObjVc => "obj-vc",
             Format::Sheets => "sheets",
             Format::ThreeMfPainted => "3mf-painted",
+            Format::Vrml => "wrl",
         }
     }
 
@@ -147,6 +155,7 @@ impl Format {
             Format::ObjVc => "vertex-colour OBJ",
             Format::Sheets => "paste-on sheets",
             Format::ThreeMfPainted => "painted 3MF",
+            Format::Vrml => "VRML",
         }
     }
 
@@ -600,6 +609,7 @@ pub fn export(
                 files.push(p);
             }
             Format::Obj => files.extend(obj::write_textured(&mesh, out, &stem, opts.zip_obj)?),
+            Format::Vrml => files.extend(vrml::write(&mesh, out, &stem)?),
             Format::ObjVc => {
                 let p = out.join(format!("{stem}_vc.obj"));
                 obj::write_vertex_colour(baked.as_ref().unwrap(), &p)?;
@@ -692,24 +702,18 @@ fn formats_for_printer(
                 .printer()
                 .with_context(|| format!("printer profile {}", profile.name))?;
             if !matches!(printer, Printer::Fdm { .. }) {
-                if opts.formats.iter().any(is_3mf) {
-                    bail!(
-                        "printer profile {:?} is a {} profile; the printer-aware 3MF is the painted multi-material one, for [fdm] profiles only: drop --printer or the 3MF formats",
-                        profile.name,
-                        profile.kind()
-                    );
+                // A full-colour or paper printer prints the texture as sent: every format is
+                // written with the requested colours (what `cac train --printer` trains), and a
+                // full-colour profile adds VRML for the services that ask for it.
+                formats = opts.formats.clone();
+                if profile.full_colour.is_some() && !formats.contains(&Format::Vrml) {
+                    formats.push(Format::Vrml);
                 }
                 notes.push(format!(
-                    "printer profile {:?} ({}) is not used by {}",
+                    "printer profile {:?} ({}): the texture is written as requested, the colours sent to the printer; the profile's response is what it prints (cac eval --printer judges that)",
                     profile.name,
-                    profile.kind(),
-                    opts.formats
-                        .iter()
-                        .map(Format::name)
-                        .collect::<Vec<_>>()
-                        .join(", ")
+                    profile.kind()
                 ));
-                formats = opts.formats.clone();
                 None
             } else {
                 for f in &opts.formats {

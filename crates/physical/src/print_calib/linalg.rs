@@ -1,61 +1,45 @@
-//! The little linear algebra calibration needs: a dense solve, least squares by the normal
-//! equations, and the plane homography of four point pairs.
+//! The little linear algebra calibration needs, on `nalgebra` (a maintained dense linear algebra
+//! crate; chosen over hand-written elimination for its pivoted LU and Householder QR): a dense
+//! solve, weighted least squares, and the plane homography of four point pairs.
 
-/// Solves `a · x = b` (`a` is n×n, row-major) by Gaussian elimination with partial pivoting;
-/// `None` when `a` is singular.
-pub(crate) fn solve(mut a: Vec<f64>, mut b: Vec<f64>) -> Option<Vec<f64>> {
+use nalgebra::{DMatrix, DVector};
+
+/// Solves `a · x = b` (`a` is n×n, row-major) by LU with partial pivoting; `None` when `a` is
+/// singular (a pivot below 1e-13 of its largest entry).
+pub(crate) fn solve(a: Vec<f64>, b: Vec<f64>) -> Option<Vec<f64>> {
     let n = b.len();
     debug_assert_eq!(a.len(), n * n);
     let scale = a.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-300);
-    for col in 0..n {
-        let piv =
-            (col..n).max_by(|&i, &j| a[i * n + col].abs().total_cmp(&a[j * n + col].abs()))?;
-        if a[piv * n + col].abs() <= 1e-13 * scale {
-            return None;
-        }
-        if piv != col {
-            for k in 0..n {
-                a.swap(piv * n + k, col * n + k);
-            }
-            b.swap(piv, col);
-        }
-        for r in col + 1..n {
-            let f = a[r * n + col] / a[col * n + col];
-            if f != 0.0 {
-                for k in col..n {
-                    a[r * n + k] -= f * a[col * n + k];
-                }
-                b[r] -= f * b[col];
-            }
-        }
+    let lu = DMatrix::from_row_slice(n, n, &a).lu();
+    let u = lu.u();
+    if (0..n).any(|i| u[(i, i)].abs() <= 1e-13 * scale) {
+        return None;
     }
-    let mut x = vec![0.0; n];
-    for r in (0..n).rev() {
-        let s: f64 = (r + 1..n).map(|k| a[r * n + k] * x[k]).sum();
-        x[r] = (b[r] - s) / a[r * n + r];
-    }
-    Some(x)
+    lu.solve(&DVector::from_vec(b))
+        .map(|x| x.as_slice().to_vec())
 }
 
-/// Weighted least squares: the `x` minimising `Σ w_i (rows_i · x − y_i)²`, by the normal
-/// equations (a tiny ridge keeps a rank-deficient design solvable).
+/// Weighted least squares: the `x` minimising `Σ w_i (rows_i · x − y_i)²`, by Householder QR of
+/// the weighted design (not the normal equations, whose condition number is the square); `None`
+/// when the design is rank-deficient.
 pub(crate) fn least_squares(rows: &[Vec<f64>], y: &[f64], w: &[f64]) -> Option<Vec<f64>> {
     let n = rows.first()?.len();
-    let mut ata = vec![0.0; n * n];
-    let mut aty = vec![0.0; n];
-    for ((r, &yi), &wi) in rows.iter().zip(y).zip(w) {
-        for i in 0..n {
-            aty[i] += wi * r[i] * yi;
-            for j in 0..n {
-                ata[i * n + j] += wi * r[i] * r[j];
-            }
-        }
+    let m = rows.len();
+    if m < n {
+        return None;
     }
-    let trace: f64 = (0..n).map(|i| ata[i * n + i]).sum();
-    for i in 0..n {
-        ata[i * n + i] += 1e-10 * trace / n as f64;
+    let sw: Vec<f64> = w.iter().map(|v| v.max(0.0).sqrt()).collect();
+    let a = DMatrix::from_fn(m, n, |i, j| rows[i][j] * sw[i]);
+    let b = DVector::from_fn(m, |i, _| y[i] * sw[i]);
+    let scale = a.iter().fold(0.0f64, |s, v| s.max(v.abs())).max(1e-300);
+    let qr = a.qr();
+    let r = qr.r();
+    if (0..n).any(|i| r[(i, i)].abs() <= 1e-12 * scale) {
+        return None;
     }
-    solve(ata, aty)
+    let qtb = qr.q().transpose() * b;
+    let x = r.solve_upper_triangular(&qtb)?;
+    Some(x.as_slice().to_vec())
 }
 
 /// The homography `H` (row-major, `h[8] = 1`) with `H · [from, 1] ∝ [to, 1]` for four pairs.
