@@ -74,12 +74,17 @@ pub struct Paper {
     pub media_width_mm: f32,
 }
 
-/// Requested → printed colour: the degree-2 root-polynomial of Finlayson, Mackiewicz & Hurlbert
-/// (2015) in linear light, `printed = M · [r, g, b, √(rg), √(gb), √(rb)]`, clipped to 0..1. Its
-/// terms are of degree one, so it scales with exposure as a print does.
+/// Requested → printed colour: a per-channel tone curve, then the degree-2 root-polynomial of
+/// Finlayson, Mackiewicz & Hurlbert (2015) in linear light: with `c' = c^γ_c` for each linear
+/// channel `c`, `printed = M · [r', g', b', √(r'g'), √(g'b'), √(r'b')]`, clipped to 0..1. The
+/// polynomial's terms are of degree one, so alone it cannot bend the grey axis; the curve is
+/// what follows a printer's dot gain.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Response {
+    /// Per-channel exponent of the tone curve on the requested linear colour (1: none).
+    #[serde(default = "unit_gamma", skip_serializing_if = "is_unit_gamma")]
+    pub gamma: [f32; 3],
     /// Rows: printed linear R, G, B; columns: the six terms.
     pub matrix: [[f32; 6]; 3],
     /// How the fit was judged: mean and 95th-percentile ΔE2000 on patches held out of it.
@@ -106,20 +111,21 @@ impl Response {
         let mut m = [[0.0; 6]; 3];
         (0..3).for_each(|i| m[i][i] = 1.0);
         Response {
+            gamma: [1.0; 3],
             matrix: m,
             held_out_de2000: None,
         }
     }
 
-    /// The six terms of a linear-light colour.
-    pub fn terms(lin: [f32; 3]) -> [f32; 6] {
-        let [r, g, b] = lin.map(|v| v.max(0.0));
+    /// The six terms of a linear-light colour after the tone curves `gamma`.
+    pub fn terms(lin: [f32; 3], gamma: [f32; 3]) -> [f32; 6] {
+        let [r, g, b] = std::array::from_fn(|i| lin[i].max(0.0).powf(gamma[i]));
         [r, g, b, (r * g).sqrt(), (g * b).sqrt(), (r * b).sqrt()]
     }
 
     /// The printed sRGB colour of a requested sRGB colour.
     pub fn apply(&self, srgb: [f32; 3]) -> [f32; 3] {
-        let t = Self::terms(srgb.map(|v| colour::decode(v.clamp(0.0, 1.0))));
+        let t = Self::terms(srgb.map(|v| colour::decode(v.clamp(0.0, 1.0))), self.gamma);
         let row = |m: &[f32; 6]| m.iter().zip(&t).map(|(a, b)| a * b).sum::<f32>();
         self.matrix.map(|m| colour::encode(row(&m).clamp(0.0, 1.0)))
     }
@@ -171,9 +177,20 @@ impl Profile {
     }
 }
 
+fn unit_gamma() -> [f32; 3] {
+    [1.0; 3]
+}
+
+fn is_unit_gamma(g: &[f32; 3]) -> bool {
+    *g == [1.0; 3]
+}
+
 fn checked(r: &Response) -> Result<Response> {
     if r.matrix.iter().flatten().any(|v| !v.is_finite()) {
         bail!("the response matrix has a value that is not finite");
+    }
+    if r.gamma.iter().any(|g| !(0.1..=10.0).contains(g)) {
+        bail!("the response's gamma {:?} is outside 0.1..10", r.gamma);
     }
     Ok(r.clone())
 }

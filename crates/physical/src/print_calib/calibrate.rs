@@ -11,7 +11,7 @@ use super::fit::{self, CameraCorrection};
 use crate::calib::CameraModel;
 use anyhow::{bail, Context, Result};
 use cac_core::colour;
-use cac_core::printer::{Fdm, Filament, FullColour, Paper, Profile, Response};
+use cac_core::printer::{Fdm, Filament, FullColour, Paper, Profile};
 use cac_core::report::timer::Stopwatch;
 use image::RgbImage;
 use rand::seq::SliceRandom;
@@ -309,12 +309,8 @@ pub fn calibrate(
         let measured = |i: usize| camera.apply(readings[i].linear);
         let req: Vec<[f32; 3]> = fitted.iter().map(|&i| chart.srgb(i)).collect();
         let got: Vec<[f32; 3]> = fitted.iter().map(|&i| measured(i)).collect();
-        let Some(matrix) = fit::fit_response(&req, &got) else {
+        let Some(mut response) = fit::fit_response(&req, &got) else {
             bail!("the printed patches do not determine a response (too few distinct colours)");
-        };
-        let mut response = Response {
-            matrix,
-            held_out_de2000: None,
         };
         let de = |set: &[usize]| -> Vec<f32> {
             set.iter()
