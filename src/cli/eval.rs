@@ -72,6 +72,11 @@ pub struct Args {
     /// which printer judged.
     #[arg(long)]
     pub printer: Option<PathBuf>,
+    /// Input defences in front of every detector, each a column group beside the detector as
+    /// it is: NAME[:PARAM] of jpeg, blur, median, bits, resize-pad, tv, lgs (`+` chains several;
+    /// docs/eval.md "Defences"), comma-separated.
+    #[arg(long = "defence", value_delimiter = ',')]
+    pub defences: Vec<String>,
     /// Output folder (finished textures are reused from its cache/ on a rerun).
     #[arg(long, default_value = "eval-out")]
     pub out: PathBuf,
@@ -102,6 +107,7 @@ pub fn job(a: &Args) -> Result<EvalJob> {
         scene.environment.hdri_share = 1.0;
     }
     scene.render.validate()?;
+    cac::detect::defence::parse_chains(&a.defences)?;
     if a.views == 0 {
         bail!("--views must be at least 1");
     }
@@ -125,7 +131,8 @@ pub fn job(a: &Args) -> Result<EvalJob> {
 
 pub fn run(a: Args) -> Result<()> {
     let job = job(&a)?;
-    let dets = train::load_detectors(&a.models)?;
+    let chains = cac::detect::defence::parse_chains(&a.defences)?;
+    let dets = cac::detect::defence::defend(train::load_detectors(&a.models)?, &chains);
     let refs = cac::detect::refs(&dets);
     let pb = ProgressBar::new(0);
     pb.set_style(

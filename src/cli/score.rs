@@ -19,12 +19,18 @@ pub struct Args {
     /// True classes (class names, comma-separated, each one of every model's classes).
     #[arg(long, default_value = "car,truck")]
     pub true_classes: String,
+    /// Input defences in front of every detector, each a column group beside the detector as
+    /// it is: NAME[:PARAM] of jpeg, blur, median, bits, resize-pad, tv, lgs (`+` chains several;
+    /// docs/eval.md "Defences"), comma-separated.
+    #[arg(long = "defence", value_delimiter = ',')]
+    pub defences: Vec<String>,
 }
 
 pub fn run(a: Args) -> Result<()> {
     let device = super::device::inference();
     let names: Vec<&str> = a.models.split(',').map(str::trim).collect();
-    let models = detect::load_all(&names, None, &device)?;
+    let chains = detect::defence::parse_chains(&a.defences)?;
+    let models = detect::defence::defend(detect::load_all(&names, None, &device)?, &chains);
     let refs: Vec<&dyn detect::Detector> = models.iter().map(|m| m.as_ref()).collect();
     let protocol = Protocol::from_labels(&a.true_classes, None)?;
     let s = cac::physical::score::score(&a.session, &refs, &protocol, &device, true)?;

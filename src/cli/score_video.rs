@@ -79,17 +79,25 @@ pub struct Args {
     /// Folder holding the model files (default: the cache, fetched on first use).
     #[arg(long = "models-dir")]
     pub models_dir: Option<PathBuf>,
+    /// Input defences in front of every detector, each a column group beside the detector as
+    /// it is: NAME[:PARAM] of jpeg, blur, median, bits, resize-pad, tv, lgs (`+` chains several;
+    /// docs/eval.md "Defences"), comma-separated.
+    #[arg(long = "defence", value_delimiter = ',')]
+    pub defences: Vec<String>,
 }
 
 pub fn run(a: Args) -> Result<()> {
     let job = job(&a)?;
     let opened = job.open()?;
     let device = super::device::inference();
+    let chains = detect::defence::parse_chains(&a.defences)?;
     let dets = detect::load_all(&a.models, a.models_dir.as_deref(), &device)?;
+    let dets = detect::defence::defend(dets, &chains);
     let refs = cac::detect::refs(&dets);
+    let names: Vec<String> = dets.iter().map(|d| d.name().to_string()).collect();
     println!("scoring {}", opened.source());
     println!("ground truth: {}", opened.truth());
-    let o = opened.run(&refs, &a.models, &device)?;
+    let o = opened.run(&refs, &names, &device)?;
     print!("{o}");
     if o.scores.frames.is_empty() {
         bail!("no frame was scored: check the ground truth covers the sampled frames");

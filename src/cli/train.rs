@@ -43,7 +43,7 @@ pub fn run(a: Args) -> Result<()> {
         None => {
             let ac = attack_config(&a);
             ac.validate()?;
-            let dets = load_detectors(&ac.models)?;
+            let dets = defended(load_detectors(&ac.models)?, &ac)?;
             for d in &dets {
                 ac.goal_for(d.as_ref())?;
             }
@@ -75,7 +75,7 @@ pub fn run(a: Args) -> Result<()> {
     };
     let dets = match checked {
         Some(d) => d,
-        None => load_detectors(&run.attack.models)?,
+        None => defended(load_detectors(&run.attack.models)?, &run.attack)?,
     };
     let dets_ref = cac::detect::refs(&dets);
     let tr = Trainer::new(
@@ -119,6 +119,12 @@ fn attack_config(a: &Args) -> AttackConfig {
         c.viewpoints = ViewpointSet::Restricted;
     }
     c
+}
+
+/// The source models behind the run's defences (one drawn per view; unchanged without any).
+fn defended(dets: Vec<Box<dyn Detector>>, ac: &AttackConfig) -> Result<Vec<Box<dyn Detector>>> {
+    let chains = detect::defence::parse_chains(&ac.defences)?;
+    Ok(detect::defence::through(dets, &chains))
 }
 
 /// Loads detectors by name on the inference device (gradients flow through their inputs).

@@ -131,6 +131,12 @@ pub struct AttackConfig {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     #[arg(long)]
     pub printer: Option<std::path::PathBuf>,
+    /// Train through these input defences (an adaptive attack; docs/eval.md "Defences"): each
+    /// training view goes through one of them, drawn per view, in front of every source model;
+    /// gradients pass exactly (blur, resize-pad) or straight through (the others).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    #[arg(long = "defence", value_delimiter = ',')]
+    pub defences: Vec<String>,
     /// 2D methods: side of the trained patch in texels.
     #[arg(long, default_value_t = 128)]
     pub patch_res: usize,
@@ -255,6 +261,7 @@ impl AttackConfig {
         if self.models.is_empty() {
             bail!("at least one source model is needed");
         }
+        cac_detect::defence::parse_chains(&self.defences).context("--defence")?;
         if self.batch == 0 || self.top_n == 0 {
             bail!("batch and top_n must be positive");
         }

@@ -6,9 +6,10 @@
 //! What is here: the [`Detector`] interface the attack and the evaluation use, the detector
 //! catalogue ([`MODELS`], [`load`], [`load_all`]: the one place a detector is named and loaded;
 //! [`spec`] makes it clap's value parser), the detectors, a general TFJS graph-model importer
-//! ([`tfjs`]), the pre-processing, tfjs NMS, COCO labels and the model fetcher, and users' own
-//! ONNX detectors ([`onnx`]). Not here: rendering, losses, training loops, and the choice of
-//! compute device (callers pass one).
+//! ([`tfjs`]), the pre-processing, tfjs NMS, COCO labels and the model fetcher, users' own ONNX
+//! detectors ([`onnx`]), and the input defences a detector's owner may put in front of it
+//! ([`defence`]: a defended detector is itself a [`Detector`]). Not here: rendering, losses,
+//! training loops, and the choice of compute device (callers pass one).
 //!
 //! Images go in as `[B, 3, H, W]` floats in [0, 1] on any device; the detector resizes them
 //! inside (differentiably), so gradients of any output reach the input image.
@@ -25,6 +26,7 @@ pub mod broadcast;
 pub mod centernet;
 #[cfg_attr(feature = "tch", allow(deprecated))]
 pub mod conv;
+pub mod defence;
 pub mod draw;
 pub mod exec;
 pub mod fetch;
