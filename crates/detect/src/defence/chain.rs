@@ -114,10 +114,7 @@ impl Defence {
                 let s = tv::TvSettings::guo(weight, seed);
                 (on_host(x, grad, |p| tv::tv_minimise(p, &s)), same)
             }
-            Defence::LocalGradientSmoothing { strength } => {
-                let f = |p: Planes| lgs::local_gradient_smoothing(p, strength);
-                (on_host(x, grad, f), same)
-            }
+            Defence::LocalGradientSmoothing { strength } => (smooth_gradients(x, strength), same),
         }
     }
 }
@@ -262,6 +259,22 @@ fn on_host(x: Tensor<4>, grad: bool, f: impl FnOnce(Planes) -> Vec<f32>) -> Tens
         true => x.clone() + (y - x.detach()),
         false => y,
     }
+}
+
+/// Local gradient smoothing as `x · M`, the mask `M` computed on the host from `x`: exact in
+/// `x` with the mask held fixed (BPDA through the mask only).
+fn smooth_gradients(x: Tensor<4>, strength: f32) -> Tensor<4> {
+    let [b, c, h, w] = x.dims();
+    assert_eq!((b, c), (1, 3), "a defence takes one RGB image at a time");
+    let data = host(&x);
+    let planes = Planes {
+        data: &data,
+        height: h,
+        width: w,
+    };
+    let m = lgs::lgs_mask(planes, strength);
+    let m: Vec<f32> = (0..c).flat_map(|_| m.iter().copied()).collect();
+    x.clone() * Tensor::<4>::from_data(TensorData::new(m, [b, c, h, w]), &x.device())
 }
 
 /// Separable Gaussian blur, edges repeated; a tensor operation (exact gradient).

@@ -12,6 +12,17 @@ const THRESHOLD: f32 = 0.1;
 
 /// The image with its busy regions suppressed by `strength` (λ; the paper's 2.3).
 pub fn local_gradient_smoothing(p: Planes, strength: f32) -> Vec<f32> {
+    let m = lgs_mask(p, strength);
+    let n = m.len();
+    p.data
+        .iter()
+        .enumerate()
+        .map(|(i, v)| v * m[i % n])
+        .collect()
+}
+
+/// The factor `clamp(1 − λ·g, 0, 1)` each pixel is multiplied by (one per pixel, all channels).
+pub fn lgs_mask(p: Planes, strength: f32) -> Vec<f32> {
     let (h, w) = (p.height, p.width);
     let g = normalised_gradient(p);
     let mut kept = vec![0f32; h * w];
@@ -29,11 +40,8 @@ pub fn local_gradient_smoothing(p: Planes, strength: f32) -> Vec<f32> {
             }
         }
     }
-    let n = h * w;
-    p.data
-        .iter()
-        .enumerate()
-        .map(|(i, v)| v * (1.0 - strength * kept[i % n]).clamp(0.0, 1.0))
+    kept.iter()
+        .map(|g| (1.0 - strength * g).clamp(0.0, 1.0))
         .collect()
 }
 

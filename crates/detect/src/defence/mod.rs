@@ -14,8 +14,9 @@
 //! the chain drawn) is seeded by a hash of the image's own values, so a defence is a fixed
 //! function of its input: a view scores the same in a whole evaluation and in any shard, and a
 //! rerun reproduces it. Gradients: Gaussian blur and resize-and-pad are tensor operations and
-//! pass the exact gradient; the others (JPEG's rounding, the median, bit-depth reduction, the TV
-//! solver, local gradient smoothing) pass the identity (BPDA, straight-through).
+//! pass the exact gradient; local gradient smoothing multiplies by a mask and passes the gradient
+//! through the product with the mask held fixed; the others (JPEG's rounding, the median,
+//! bit-depth reduction, the TV solver) pass the identity (BPDA, straight-through).
 
 mod chain;
 mod defended;
@@ -28,7 +29,7 @@ pub use chain::{parse_chains, Affine, Chain, Defence, ACCEPTED};
 pub use defended::{defend, image_seed, through, Defended};
 pub use filters::{bit_depth, median};
 pub use jpeg::jpeg;
-pub use lgs::local_gradient_smoothing;
+pub use lgs::{lgs_mask, local_gradient_smoothing};
 pub use tv::{tv_minimise, tv_objective, TvSettings};
 
 /// One image's planes, channel-major (`[3, H, W]` as a flat slice), with its size.
