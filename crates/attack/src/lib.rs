@@ -133,7 +133,8 @@ pub struct AttackConfig {
     pub printer: Option<std::path::PathBuf>,
     /// Train through these input defences (an adaptive attack; docs/eval.md "Defences"): each
     /// training view goes through one of them, drawn per view, in front of every source model;
-    /// gradients pass exactly (blur, resize-pad) or straight through (the others).
+    /// gradients pass exactly (blur, resize-pad), through the mask held fixed (lgs) or straight
+    /// through (the others).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     #[arg(long = "defence", value_delimiter = ',')]
     pub defences: Vec<String>,
