@@ -243,18 +243,23 @@ pub(crate) fn host(x: &Tensor<4>) -> Vec<f32> {
         .expect("an f32 image")
 }
 
-/// A transform computed on the host; with `grad` its gradient is the identity
-/// (`x + (f(x) - x)` with the difference detached: BPDA).
-fn on_host(x: Tensor<4>, grad: bool, f: impl FnOnce(Planes) -> Vec<f32>) -> Tensor<4> {
+/// `f` of one image's host values as a constant tensor of the image's shape (no gradient).
+fn host_map(x: &Tensor<4>, f: impl FnOnce(Planes) -> Vec<f32>) -> Tensor<4> {
     let [b, c, h, w] = x.dims();
     assert_eq!((b, c), (1, 3), "a defence takes one RGB image at a time");
-    let data = host(&x);
+    let data = host(x);
     let y = f(Planes {
         data: &data,
         height: h,
         width: w,
     });
-    let y = Tensor::<4>::from_data(TensorData::new(y, [b, c, h, w]), &x.device());
+    Tensor::<4>::from_data(TensorData::new(y, [b, c, h, w]), &x.device())
+}
+
+/// A transform computed on the host; with `grad` its gradient is the identity
+/// (`x + (f(x) - x)` with the difference detached: BPDA).
+fn on_host(x: Tensor<4>, grad: bool, f: impl FnOnce(Planes) -> Vec<f32>) -> Tensor<4> {
+    let y = host_map(&x, f);
     match grad {
         true => x.clone() + (y - x.detach()),
         false => y,
@@ -264,17 +269,11 @@ fn on_host(x: Tensor<4>, grad: bool, f: impl FnOnce(Planes) -> Vec<f32>) -> Tens
 /// Local gradient smoothing as `x · M`, the mask `M` computed on the host from `x`: exact in
 /// `x` with the mask held fixed (BPDA through the mask only).
 fn smooth_gradients(x: Tensor<4>, strength: f32) -> Tensor<4> {
-    let [b, c, h, w] = x.dims();
-    assert_eq!((b, c), (1, 3), "a defence takes one RGB image at a time");
-    let data = host(&x);
-    let planes = Planes {
-        data: &data,
-        height: h,
-        width: w,
-    };
-    let m = lgs::lgs_mask(planes, strength);
-    let m: Vec<f32> = (0..c).flat_map(|_| m.iter().copied()).collect();
-    x.clone() * Tensor::<4>::from_data(TensorData::new(m, [b, c, h, w]), &x.device())
+    let mask = host_map(&x, |p| {
+        let m = lgs::lgs_mask(p, strength);
+        (0..3).flat_map(|_| m.iter().copied()).collect()
+    });
+    x * mask
 }
 
 /// Separable Gaussian blur, edges repeated; a tensor operation (exact gradient).

@@ -194,11 +194,7 @@ fn gradients_pass_straight_through_or_exactly() {
     let jpeg = Defended::new(Rc::new(BrightBox), vec![Chain::parse("jpeg:30").unwrap()]);
     let (y, _) = jpeg.defend(x.clone());
     let g = x.grad(&(y * wt).sum().backward()).unwrap();
-    let g = g
-        .into_data()
-        .convert::<f32>()
-        .try_into_vec::<f32>()
-        .unwrap();
+    let g = chain::host(&g);
     assert!(g.iter().zip(&weights).all(|(a, b)| (a - b).abs() <= 1e-6));
 
     let x = scene(0, &dev).require_grad();
@@ -209,11 +205,7 @@ fn gradients_pass_straight_through_or_exactly() {
     one[p] = 1.0;
     let one = Tensor::<4>::from_data(TensorData::new(one, [1, 3, h, w]), &dev);
     let g = x.grad(&(y * one).sum().backward()).unwrap();
-    let g = g
-        .into_data()
-        .convert::<f32>()
-        .try_into_vec::<f32>()
-        .unwrap();
+    let g = chain::host(&g);
     let taps: Vec<f32> = (-3..=3)
         .map(|i: i32| (-(i * i) as f32 / 2.0).exp())
         .collect();

@@ -222,26 +222,15 @@ mod tests {
 
     #[test]
     fn a_root_polynomial_printer_is_recovered_exactly() {
-        let truth = [
-            [0.85, 0.05, 0.02, 0.03, 0.0, 0.02],
-            [0.04, 0.8, 0.06, 0.02, 0.03, 0.0],
-            [0.01, 0.07, 0.78, 0.0, 0.04, 0.03],
-        ];
         let r = Response {
             gamma: [1.0; 3],
-            matrix: truth,
+            matrix: MATRIX,
             held_out_de2000: None,
         };
-        let req: Vec<[f32; 3]> = (0..60)
-            .map(|k| [k % 4, (k / 4) % 4, (k / 16) % 4].map(|v| v as f32 / 3.0))
-            .collect();
-        let printed: Vec<[f32; 3]> = req
-            .iter()
-            .map(|&s| r.apply(s).map(colour::decode))
-            .collect();
+        let (req, printed) = grid_prints(&r, 4);
         let m = fit_response(&req, &printed).unwrap();
         assert_eq!(m.gamma, [1.0; 3]);
-        for (a, b) in m.matrix.iter().flatten().zip(truth.iter().flatten()) {
+        for (a, b) in m.matrix.iter().flatten().zip(MATRIX.iter().flatten()) {
             assert!((a - b).abs() < 1e-3, "{m:?}");
         }
     }
@@ -250,20 +239,10 @@ mod tests {
     fn a_printer_with_dot_gain_is_recovered_through_its_tone_curves() {
         let truth = Response {
             gamma: [1.3, 1.2, 1.4],
-            matrix: [
-                [0.85, 0.05, 0.02, 0.03, 0.0, 0.02],
-                [0.04, 0.8, 0.06, 0.02, 0.03, 0.0],
-                [0.01, 0.07, 0.78, 0.0, 0.04, 0.03],
-            ],
+            matrix: MATRIX,
             held_out_de2000: None,
         };
-        let req: Vec<[f32; 3]> = (0..125)
-            .map(|k| [k % 5, (k / 5) % 5, (k / 25) % 5].map(|v| v as f32 / 4.0))
-            .collect();
-        let printed: Vec<[f32; 3]> = req
-            .iter()
-            .map(|&s| truth.apply(s).map(colour::decode))
-            .collect();
+        let (req, printed) = grid_prints(&truth, 5);
         let fit = fit_response(&req, &printed).unwrap();
         let de = |r: &Response| -> f32 {
             (0..200)
@@ -286,6 +265,27 @@ mod tests {
             held_out_de2000: None,
         };
         assert!(de(&old) > 3.0 * de(&fit), "{} vs {}", de(&old), de(&fit));
+    }
+
+    /// A printer's response matrix with some crosstalk between the channels.
+    const MATRIX: [[f32; 6]; 3] = [
+        [0.85, 0.05, 0.02, 0.03, 0.0, 0.02],
+        [0.04, 0.8, 0.06, 0.02, 0.03, 0.0],
+        [0.01, 0.07, 0.78, 0.0, 0.04, 0.03],
+    ];
+
+    /// A `steps`³ grid of requested colours and what `printer` prints of them (linear light).
+    fn grid_prints(printer: &Response, steps: usize) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
+        let n = steps * steps * steps;
+        let req: Vec<[f32; 3]> = (0..n)
+            .map(|k| [k % steps, (k / steps) % steps, k / (steps * steps)])
+            .map(|i| i.map(|v| v as f32 / (steps - 1) as f32))
+            .collect();
+        let printed = req
+            .iter()
+            .map(|&s| printer.apply(s).map(colour::decode))
+            .collect();
+        (req, printed)
     }
 
     #[test]
