@@ -87,10 +87,10 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    let chains = detect::defence::parse_chains(&a.defences)?;
     let job = job(&a)?;
     let opened = job.open()?;
     let device = super::device::inference();
-    let chains = detect::defence::parse_chains(&a.defences)?;
     let dets = detect::load_all(&a.models, a.models_dir.as_deref(), &device)?;
     let dets = detect::defence::defend(dets, &chains);
     let refs = cac::detect::refs(&dets);
