@@ -330,3 +330,193 @@ fn loss_and_gradients_stay_finite_at_environment_extremes() {
         }
     }
 }
+
+/// Loss, gradient norm and the atlas's range logged, all finite, the atlas within [0, 1].
+fn assert_healthy(what: &str, log: &attack::IterationLog) {
+    assert!(
+        log.loss.is_finite() && log.grad_norm.is_finite(),
+        "{what}: {log:?}"
+    );
+    assert!(
+        0.0 <= log.atlas_min && log.atlas_min <= log.atlas_max && log.atlas_max <= 1.0,
+        "{what}: {log:?}"
+    );
+}
+
+#[test]
+fn a_run_stays_finite_at_extreme_settings() {
+    use cac::attack::loss::TargetLoss;
+    let (r, env, d) = setup();
+    let dev = burn::tensor::Device::autodiff(inference());
+    let init = r.scene.initial_atlas(64);
+    let one_pixel = Renderer::new(
+        r.scene.clone(),
+        RenderSettings {
+            width: 1,
+            height: 1,
+            ..r.settings.clone()
+        },
+    )
+    .unwrap();
+    let lr100 = AttackConfig {
+        lr: config(0).lr * 100.0,
+        ..config(4)
+    };
+    let cases = [
+        ("learning rate x100", &r, lr100.clone()),
+        (
+            "logit target (unbounded) at learning rate x100",
+            &r,
+            AttackConfig {
+                target_loss: TargetLoss::Logit,
+                ..lr100.clone()
+            },
+        ),
+        (
+            "image power 16",
+            &r,
+            AttackConfig {
+                image_power: 16.0,
+                ..config(3)
+            },
+        ),
+        ("a one-pixel render", &one_pixel, config(3)),
+    ];
+    for (what, renderer, cfg) in cases {
+        let n = cfg.iterations;
+        let mut t =
+            Trainer::new(cfg, renderer, &env, vec![d.as_ref()], dev.clone(), &init).unwrap();
+        for _ in 0..n {
+            let log = t.step().unwrap_or_else(|e| panic!("{what}: {e:#}"));
+            eprintln!(
+                "{what}: iteration {} loss {:.4} gradient norm {:.3e} atlas [{}, {}]",
+                log.iteration, log.loss, log.grad_norm, log.atlas_min, log.atlas_max
+            );
+            assert_healthy(what, &log);
+        }
+        if what.contains("x100") {
+            // The step is far past the atlas's range: Adam's first step moves every texel with a
+            // gradient by the learning rate, so the clip to [0, 1] is what keeps it bounded.
+            let last = t.state.log.last().unwrap();
+            assert!(
+                last.atlas_min == 0.0 || last.atlas_max == 1.0,
+                "{what}: {last:?}"
+            );
+        }
+    }
+}
+
+#[test]
+fn a_budget_fits_the_iterations_starts_over_and_stops_cleanly() {
+    use cac::attack::run::{fit_to_budget, Along, Progress, RunDir};
+    let (r, env, d) = setup();
+    let dev = burn::tensor::Device::autodiff(inference());
+    let init = r.scene.initial_atlas(64);
+    let new =
+        || Trainer::new(config(1000), &r, &env, vec![d.as_ref()], dev.clone(), &init).unwrap();
+    // Fitted to a budget: the trainer is back at its start, with iterations set.
+    let mut fitted = new();
+    let spent = fit_to_budget(&mut fitted, 1e6).unwrap();
+    assert!(spent > 0.0);
+    assert_eq!((fitted.state.iteration, fitted.state.log.len()), (0, 0));
+    assert_eq!(fitted.state.atlas, new().state.atlas);
+    assert!(
+        fitted.config.iterations > 1000,
+        "{}",
+        fitted.config.iterations
+    );
+    // Then it runs as a run of those iterations does: the same atlas after two steps.
+    fitted.config.iterations = 2;
+    let mut plain =
+        Trainer::new(config(2), &r, &env, vec![d.as_ref()], dev.clone(), &init).unwrap();
+    for _ in 0..2 {
+        fitted.step().unwrap();
+        plain.step().unwrap();
+    }
+    assert_eq!(fitted.state.atlas, plain.state.atlas);
+    for bad in [0.0, -1.0, f64::NAN] {
+        assert!(fit_to_budget(&mut new(), bad).is_err(), "{bad}");
+    }
+    // A budget spent before the first iteration: a clean stop, checkpointed, not finished, and
+    // --resume goes on.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run");
+    let scene = cac::config::SceneConfig::training();
+    let run = RunDir::create(&path, scene, config(1000)).unwrap();
+    let mut t = new();
+    let along = Along {
+        budget_s: Some(1e-6),
+        ..Along::new(Progress::Quiet)
+    };
+    assert!(!run.train_along(&mut t, along).unwrap(), "not finished");
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(path.join("run.json")).unwrap()).unwrap();
+    assert_eq!(json["finished"], false);
+    assert_eq!(json["budget_seconds"], 1e-6);
+    assert_eq!(json["attack"]["iterations"], 1);
+    assert!(json["train_seconds"].as_f64().unwrap() > 0.0);
+    let opened = RunDir::open(&path).unwrap();
+    let mut t = opened.resume(new()).unwrap();
+    t.config.iterations = 1;
+    assert!(opened
+        .train_along(&mut t, Along::new(Progress::Quiet))
+        .unwrap());
+    assert_eq!(t.state.iteration, 1);
+}
+
+#[test]
+fn the_curve_scores_the_texture_along_the_run_off_the_runs_clock() {
+    use cac::attack::curve::{Curve, CurveSpec};
+    use cac::attack::run::{Along, Progress, RunDir};
+    let (r, env, d) = setup();
+    let dev = burn::tensor::Device::autodiff(inference());
+    let init = r.scene.initial_atlas(64);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run");
+    let scene = cac::config::SceneConfig::training();
+    let run = RunDir::create(&path, scene.clone(), config(2)).unwrap();
+    let mut t = Trainer::new(config(2), &r, &env, vec![d.as_ref()], dev, &init).unwrap();
+    let spec = CurveSpec {
+        every_s: 1e-9,
+        views_per_level: 1,
+        models: vec!["nanodet".into()],
+        ..Default::default()
+    };
+    let curve = Curve::new(spec, &scene, vec![d.as_ref()], Some("person"), inference()).unwrap();
+    let along = Along {
+        curve: Some(curve),
+        ..Along::new(Progress::Lines { every_s: 0.0 })
+    };
+    let wall = std::time::Instant::now();
+    assert!(run.train_along(&mut t, along).unwrap());
+    let wall = wall.elapsed().as_secs_f64();
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(path.join("run.json")).unwrap()).unwrap();
+    let points = json["curve"].as_array().unwrap();
+    // At the start and after each iteration (every 1 ns of training).
+    let its: Vec<u64> = points
+        .iter()
+        .map(|p| p["iteration"].as_u64().unwrap())
+        .collect();
+    assert_eq!(its, [0, 1, 2]);
+    let scoring: f64 = points.iter().map(|p| p["score_s"].as_f64().unwrap()).sum();
+    let trained = json["train_seconds"].as_f64().unwrap();
+    assert!(scoring > 0.0 && trained > 0.0);
+    assert!(trained <= wall - scoring, "the clock stops while the curve scores: {trained} s trained, {scoring} s scoring, {wall} s in all");
+    for p in points {
+        let f = p["figures"].as_array().unwrap();
+        let sets: Vec<&str> = f.iter().map(|x| x["set"].as_str().unwrap()).collect();
+        assert_eq!(sets, ["FV", "RV"]);
+        for x in f {
+            assert_eq!(x["images"], 2, "one view per brightness level and set");
+            let (p, s) = (
+                x["p_at_05"].as_f64().unwrap(),
+                x["targeted_success"].as_f64().unwrap(),
+            );
+            assert!((0.0..=1.0).contains(&p) && (0.0..=1.0).contains(&s));
+        }
+    }
+    let csv = std::fs::read_to_string(path.join("curve.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + 3 * 2, "{csv}");
+    assert!(path.join("curve.png").exists());
+}

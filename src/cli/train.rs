@@ -4,10 +4,13 @@
 
 use super::device;
 use anyhow::{Context, Result};
-use cac::attack::{run::RunDir, AttackConfig, Trainer};
+use cac::attack::curve::{Curve, CurveSpec};
+use cac::attack::run::{Along, Progress, RunDir};
+use cac::attack::{AttackConfig, Trainer};
 use cac::config::SceneConfig;
 use cac::detect::{self, Detector};
 use cac::environment::ViewpointSet;
+use std::io::IsTerminal;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -33,6 +36,40 @@ pub struct Args {
     /// Train on side views only (the restricted viewpoint set).
     #[arg(long)]
     pub restricted: bool,
+    /// Train for this long at most (e.g. `10m`, `1h30m`): a new run's iterations are set to
+    /// what fits (timed on its first iterations, then started over; run.json records them) and
+    /// the run stops cleanly, checkpointed, when the time is spent. The curve's scoring is not
+    /// counted (docs/attack.md, "Quality against run time").
+    #[arg(long, value_parser = budget)]
+    pub budget: Option<f64>,
+    /// Score the texture under the protocol every this many seconds of training (and at the
+    /// start and end): curve.csv and curve.png in the run folder, on protocol views the training
+    /// never draws (--eval-views per group, view seed --eval-seed, 512², 4 spp, --eval-models).
+    /// The run's clock stops while it scores.
+    #[arg(long)]
+    pub eval_every: Option<f64>,
+    /// The curve's views per brightness level and viewpoint set (FV/RV × bright/dark).
+    #[arg(long, default_value_t = CurveSpec::default().views_per_level)]
+    pub eval_views: usize,
+    /// The curve's view seed (default 7, the development seed; the protocol judges on 31 and 1234).
+    #[arg(long, default_value_t = CurveSpec::default().seed)]
+    pub eval_seed: u64,
+    /// The curve's models (the protocol's: the source and an unseen one).
+    #[arg(long, value_delimiter = ',', default_value = "nanodet,centernet", value_parser = detect::spec::MODEL_SPECS)]
+    pub eval_models: Vec<String>,
+    /// Where stderr is not a terminal (a file, a pipe, a Slurm job), a progress line every this
+    /// many seconds (iteration, loss, ms per iteration, the latest curve point, time left); on a
+    /// terminal, a progress bar.
+    #[arg(long, default_value_t = 30.0)]
+    pub progress_every: f64,
+}
+
+/// `--budget`'s duration in seconds.
+fn budget(s: &str) -> Result<f64, String> {
+    match cac::report::timer::parse_duration(s) {
+        Some(v) if v > 0.0 => Ok(v),
+        _ => Err(format!("{s:?} is not a duration such as 10m, 90s or 1h30m")),
+    }
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -98,9 +135,42 @@ pub fn run(a: Args) -> Result<()> {
             tr.state.iteration
         );
     }
-    run.train(&mut tr, true)?;
+    let curve_dets = match a.eval_every {
+        Some(_) => detect::load_all(&a.eval_models, None, &device::inference())?,
+        None => vec![],
+    };
+    let along = Along {
+        progress: progress(a.progress_every),
+        budget_s: a.budget,
+        curve: match a.eval_every {
+            Some(every_s) => Some(Curve::new(
+                CurveSpec {
+                    every_s,
+                    views_per_level: a.eval_views,
+                    seed: a.eval_seed,
+                    models: a.eval_models.clone(),
+                },
+                &run.scene,
+                cac::detect::refs(&curve_dets),
+                (!run.attack.hide && run.attack.method.is_targeted())
+                    .then_some(run.attack.target.as_str()),
+                device::inference(),
+            )?),
+            None => None,
+        },
+    };
+    run.train_along(&mut tr, along)?;
     println!("wrote {}", run.path.display());
     Ok(())
+}
+
+/// A progress bar on a terminal; otherwise a line every `every_s` seconds.
+fn progress(every_s: f64) -> Progress {
+    if std::io::stderr().is_terminal() {
+        Progress::Bar
+    } else {
+        Progress::Lines { every_s }
+    }
 }
 
 /// The scene of a new run: the config file or the training preset, `--texture-res` applied.

@@ -23,6 +23,7 @@ pub mod study;
 pub mod adam;
 pub mod baselines;
 pub mod checkpoint;
+pub mod curve;
 pub mod filaments;
 pub mod loss;
 pub mod pyramid;
@@ -374,6 +375,47 @@ pub struct IterationLog {
     pub ms_forward: f64,
     pub ms_backward: f64,
     pub ms_optimiser: f64,
+    /// The range of the atlas this iteration rendered (its least and greatest channel value):
+    /// the run's numerical health beside the loss and the gradient's norm. Runs logged before
+    /// the field existed read as 0 and 1.
+    #[serde(default)]
+    pub atlas_min: f32,
+    #[serde(default = "one")]
+    pub atlas_max: f32,
+}
+
+fn one() -> f32 {
+    1.0
+}
+
+/// The least and greatest of `values`; NaN for both where any value is not finite.
+pub fn value_range(values: &[f32]) -> (f32, f32) {
+    if values.iter().any(|v| !v.is_finite()) {
+        return (f32::NAN, f32::NAN);
+    }
+    values
+        .iter()
+        .fold((f32::MAX, f32::MIN), |(lo, hi), &v| (lo.min(v), hi.max(v)))
+}
+
+/// The run's numerical health at iteration `i`: the loss, every gradient component and the
+/// atlas's range (from [`value_range`]) finite; otherwise an error that says which and where,
+/// before any step is taken with it.
+pub fn check_health(i: usize, loss: f64, gradient: &[f32], atlas_range: (f32, f32)) -> Result<()> {
+    if !loss.is_finite() {
+        bail!("iteration {i}: the loss is not finite ({loss})");
+    }
+    if let Some(k) = gradient.iter().position(|g| !g.is_finite()) {
+        bail!(
+            "iteration {i}: the gradient is not finite ({} at parameter {k} of {})",
+            gradient[k],
+            gradient.len()
+        );
+    }
+    if !(atlas_range.0.is_finite() && atlas_range.1.is_finite()) {
+        bail!("iteration {i}: the atlas holds a value that is not finite");
+    }
+    Ok(())
 }
 
 /// The batch of conditions of iteration `i`: a pure function of the run seed and `i`, so a
@@ -438,6 +480,38 @@ pub fn ensemble_loss(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn health_names_the_first_value_that_is_not_finite() {
+        assert_eq!(value_range(&[0.25, -1.0, 3.0]), (-1.0, 3.0));
+        assert!(value_range(&[0.25, f32::NAN]).0.is_nan());
+        assert!(value_range(&[f32::INFINITY]).1.is_nan());
+        check_health(3, 0.5, &[0.0, -1e30], (0.0, 1.0)).unwrap();
+        let e = |l, g: &[f32], a: &[f32]| {
+            check_health(7, l, g, value_range(a))
+                .unwrap_err()
+                .to_string()
+        };
+        assert!(e(f64::NAN, &[], &[]).contains("iteration 7: the loss is not finite (NaN)"));
+        assert!(e(f64::INFINITY, &[], &[]).contains("loss is not finite (inf)"));
+        let g = e(1.0, &[0.0, 2.0, f32::NEG_INFINITY], &[0.5]);
+        assert!(
+            g.contains("gradient is not finite (-inf at parameter 2 of 3)"),
+            "{g}"
+        );
+        let a = e(1.0, &[0.0], &[f32::NAN, 0.5]);
+        assert!(
+            a.contains("iteration 7: the atlas holds a value that is not finite"),
+            "{a}"
+        );
+        // A run.json logged before the range existed reads as the full range.
+        let old: IterationLog = serde_json::from_str(
+            r#"{"iteration": 0, "loss": 1.0, "grad_norm": 0.0, "proposals": 3, "ms_render": 1.0,
+                "ms_forward": 1.0, "ms_backward": 1.0, "ms_optimiser": 1.0}"#,
+        )
+        .unwrap();
+        assert_eq!((old.atlas_min, old.atlas_max), (0.0, 1.0));
+    }
 
     #[test]
     fn cosine_decay_and_image_power_are_checked() {

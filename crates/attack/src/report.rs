@@ -82,6 +82,8 @@ mod tests {
                 ms_forward: 0.0,
                 ms_backward: 0.0,
                 ms_optimiser: 0.0,
+                atlas_min: 0.0,
+                atlas_max: 1.0,
             })
             .collect();
         let img = loss_plot(&log, "test", 320, 200).unwrap();

@@ -9,12 +9,15 @@
 //! every `checkpoint_every` and rewriting the folder. `cac train`, `cac demo` and `cac study`
 //! all go through here. Not here: the optimiser ([`super::Trainer`]).
 
+use super::curve::{self, Curve, CurvePoint};
 use super::{checkpoint, report, AttackConfig, IterationLog, Method, Trainer};
 use anyhow::{bail, Context, Result};
+use cac_core::report::timer::format_duration;
 use cac_render::config::SceneConfig;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 /// The burn version the run was made with (recorded in run.json).
 const BURN_VERSION: &str = "0.22.1";
@@ -38,6 +41,16 @@ pub(crate) struct RunFile {
     pub iteration: usize,
     #[serde(default)]
     pub log: Vec<IterationLog>,
+    /// Seconds of training so far: the run's clock, across resumes, without the curve's
+    /// scoring ([`super::curve`]).
+    #[serde(default)]
+    pub train_seconds: f64,
+    /// The time budget the run's iterations were chosen for (`cac train --budget`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub budget_seconds: Option<f64>,
+    /// The texture scored along the run (`cac train --eval-every`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub curve: Vec<CurvePoint>,
 }
 
 impl RunFile {
@@ -160,38 +173,115 @@ impl RunDir {
     /// `progress`, checkpointing every `checkpoint_every` iterations and at the end, and writes
     /// the folder before, at each checkpoint and when finished.
     pub fn train(&self, tr: &mut Trainer, progress: bool) -> Result<()> {
+        let progress = if progress {
+            Progress::Bar
+        } else {
+            Progress::Quiet
+        };
+        self.train_along(tr, Along::new(progress)).map(|_| ())
+    }
+
+    /// [`RunDir::train`] with what `along` asks besides: progress as a bar or as lines, a time
+    /// budget (which sets a new run's iterations and stops the run cleanly when it is spent),
+    /// and the curve (the texture scored at fixed points of the training clock). Returns
+    /// whether the run reached its iterations.
+    pub fn train_along(&self, tr: &mut Trainer, mut along: Along) -> Result<bool> {
         std::fs::create_dir_all(&self.path)
             .with_context(|| format!("cannot create run folder {}", self.path.display()))?;
-        let total = tr.config.iterations;
-        let pb = if progress {
-            ProgressBar::new(total as u64)
-        } else {
-            ProgressBar::hidden()
+        let prior = RunFile::read(&self.path)
+            .ok()
+            .filter(|_| tr.state.iteration > 0);
+        let mut record = Record {
+            train_seconds: prior.as_ref().map_or(0.0, |p| p.train_seconds),
+            budget_seconds: prior.as_ref().and_then(|p| p.budget_seconds),
+            curve: prior.map_or(vec![], |p| p.curve),
         };
-        pb.set_style(
-            ProgressStyle::with_template("{bar:30} {pos}/{len} iterations, loss {msg}, ETA {eta}")
-                .expect("template"),
-        );
-        pb.set_position(tr.state.iteration as u64);
-        self.write(tr, false)?;
-        while tr.state.iteration < total {
-            let log = tr.step()?;
-            pb.set_message(format!("{:.4}", log.loss));
-            pb.inc(1);
-            let (k, it) = (tr.config.checkpoint_every, tr.state.iteration);
-            if k > 0 && it % k == 0 && it < total {
-                checkpoint::save(&self.path, &tr.state)?;
-                self.write(tr, false)?;
+        if let Some(budget) = along.budget_s {
+            if tr.state.iteration > 0 {
+                bail!("--budget sets a new run's iterations; a resumed run continues to the {} its run.json records", tr.config.iterations);
+            }
+            let spent = fit_to_budget(tr, budget)?;
+            record.train_seconds = spent;
+            record.budget_seconds = Some(budget);
+        }
+        let mut clock = Clock::from(record.train_seconds);
+        let mut ticker = Ticker::new(&along.progress, tr);
+        self.write_record(tr, false, &record)?;
+        if let Some(c) = &along.curve {
+            if record.curve.is_empty() {
+                record.curve.push(self.curve_point(c, tr, &mut clock)?);
+                ticker.curve(record.curve.last());
             }
         }
-        pb.finish_and_clear();
+        let total = tr.config.iterations;
+        let mut stopped = false;
+        while tr.state.iteration < total {
+            if along.budget_s.is_some_and(|b| clock.seconds() >= b) {
+                stopped = true;
+                break;
+            }
+            let log = tr.step()?;
+            ticker.step(&log, total, clock.seconds(), along.budget_s);
+            let (k, it) = (tr.config.checkpoint_every, tr.state.iteration);
+            let due = along.curve.as_ref().and_then(|c| {
+                let last = record.curve.last().map_or(0.0, |p| p.train_s);
+                (clock.seconds() >= last + c.spec.every_s && it < total).then_some(c)
+            });
+            if let Some(c) = due {
+                record.curve.push(self.curve_point(c, tr, &mut clock)?);
+                ticker.curve(record.curve.last());
+            }
+            if k > 0 && it % k == 0 && it < total {
+                checkpoint::save(&self.path, &tr.state)?;
+                record.train_seconds = clock.seconds();
+                self.write_record(tr, false, &record)?;
+            }
+        }
+        if let Some(c) = along.curve.take() {
+            if record.curve.last().map(|p| p.iteration) != Some(tr.state.iteration) {
+                record.curve.push(self.curve_point(&c, tr, &mut clock)?);
+                ticker.curve(record.curve.last());
+            }
+        }
+        ticker.finish();
         checkpoint::save(&self.path, &tr.state)?;
-        self.write(tr, true)
+        record.train_seconds = clock.seconds();
+        if stopped {
+            eprintln!(
+                "stopped at the budget ({}) at iteration {} of {}; --resume {} continues",
+                format_duration(along.budget_s.unwrap_or(0.0)),
+                tr.state.iteration,
+                total,
+                self.path.display()
+            );
+        }
+        self.write_record(tr, !stopped, &record)?;
+        Ok(!stopped)
+    }
+
+    /// The curve's point for the atlas as it stands, with the run's clock stopped while it
+    /// scores; `curve.csv` and `curve.png` are written with it.
+    fn curve_point(&self, c: &Curve, tr: &Trainer, clock: &mut Clock) -> Result<CurvePoint> {
+        let t = Instant::now();
+        let p = c.score(&tr.atlas(), tr.state.iteration, clock.seconds());
+        clock.pause(t.elapsed().as_secs_f64());
+        p
     }
 
     /// Writes run.json, atlas.png, the trainer's extra images and loss.png; views.png (rendered
     /// on the trainer's inner device) when `finished`.
     pub fn write(&self, tr: &Trainer, finished: bool) -> Result<()> {
+        let record = RunFile::read(&self.path)
+            .ok()
+            .map_or(Record::default(), |p| Record {
+                train_seconds: p.train_seconds,
+                budget_seconds: p.budget_seconds,
+                curve: p.curve,
+            });
+        self.write_record(tr, finished, &record)
+    }
+
+    fn write_record(&self, tr: &Trainer, finished: bool, record: &Record) -> Result<()> {
         let run = RunFile {
             cac_version: env!("CARGO_PKG_VERSION").into(),
             burn_version: BURN_VERSION.into(),
@@ -202,6 +292,9 @@ impl RunDir {
             scene: self.scene.clone(),
             iteration: tr.state.iteration,
             log: tr.state.log.clone(),
+            train_seconds: record.train_seconds,
+            budget_seconds: record.budget_seconds,
+            curve: record.curve.clone(),
         };
         // Through a JSON value: its keys are written sorted, as run.json always had them.
         let json = serde_json::to_string_pretty(&serde_json::to_value(&run)?)?;
@@ -214,12 +307,190 @@ impl RunDir {
         let title = format!("{} loss", tr.config.method.name());
         let plot = report::loss_plot(&tr.state.log, &title, 640, 400)?;
         cac_core::io::save_png_atomic(&self.path.join("loss.png"), &plot)?;
+        if !record.curve.is_empty() {
+            curve::write(&self.path, &record.curve)?;
+        }
         if finished {
             let dev = tr.device.clone().inner();
             let sheet = report::views_sheet(tr.renderer, tr.env, &atlas, 8, &dev)?;
             cac_core::io::save_png_atomic(&self.path.join("views.png"), &sheet)?;
         }
         Ok(())
+    }
+}
+
+/// What run.json records beside the trainer's state.
+#[derive(Clone, Debug, Default)]
+struct Record {
+    train_seconds: f64,
+    budget_seconds: Option<f64>,
+    curve: Vec<CurvePoint>,
+}
+
+/// How the loop reports progress.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Progress {
+    /// A progress bar (on a terminal).
+    Bar,
+    /// A line on stderr every this many seconds (a file, a pipe, a Slurm job): iteration, loss,
+    /// ms per iteration, the latest curve point, time left.
+    Lines { every_s: f64 },
+    /// Nothing.
+    Quiet,
+}
+
+/// What a run does besides training ([`RunDir::train_along`]).
+pub struct Along<'c> {
+    pub progress: Progress,
+    /// Seconds of training at most: a new run's iterations are fitted to it
+    /// ([`fit_to_budget`]), and the run stops cleanly when it is spent.
+    pub budget_s: Option<f64>,
+    /// The texture scored along the run.
+    pub curve: Option<Curve<'c>>,
+}
+
+impl Along<'_> {
+    /// Progress only.
+    pub fn new(progress: Progress) -> Self {
+        Along {
+            progress,
+            budget_s: None,
+            curve: None,
+        }
+    }
+}
+
+/// Iterations timed to fit a new run to a budget (after one warm-up iteration).
+const TIMED_ITERATIONS: usize = 3;
+
+/// Sets `tr`'s iterations to what fits in `budget_s` seconds: times one warm-up and
+/// [`TIMED_ITERATIONS`] iterations, then puts the trainer back at its start (the run is the one
+/// `--iterations N` gives, N written to run.json) and returns the seconds spent timing, which
+/// the budget includes. The iterations are the budget left over the slowest timed iteration,
+/// less 3 % for checkpoints and the closing writes; at least one.
+pub fn fit_to_budget(tr: &mut Trainer, budget_s: f64) -> Result<f64> {
+    if !(budget_s > 0.0 && budget_s.is_finite()) {
+        bail!("--budget must be a positive time, got {budget_s} s");
+    }
+    let start = tr.state.clone();
+    let t = Instant::now();
+    tr.step()?;
+    let mut times = vec![];
+    for _ in 0..TIMED_ITERATIONS {
+        let s = Instant::now();
+        tr.step()?;
+        times.push(s.elapsed().as_secs_f64());
+    }
+    tr.state = start;
+    let spent = t.elapsed().as_secs_f64();
+    let left = (budget_s - spent) * 0.97;
+    let per = cac_core::report::timer::median(times);
+    tr.config.iterations = ((left / per).floor() as usize).max(1);
+    Ok(spent)
+}
+
+/// The run's clock: seconds of training before this session plus this session's, less the
+/// time the curve's scoring took.
+struct Clock {
+    before: f64,
+    started: Instant,
+    paused: f64,
+}
+
+impl Clock {
+    fn from(before: f64) -> Self {
+        Clock {
+            before,
+            started: Instant::now(),
+            paused: 0.0,
+        }
+    }
+    fn seconds(&self) -> f64 {
+        self.before + self.started.elapsed().as_secs_f64() - self.paused
+    }
+    fn pause(&mut self, s: f64) {
+        self.paused += s;
+    }
+}
+
+/// Progress as the run goes: a bar, lines at a steady interval, or nothing.
+struct Ticker {
+    bar: Option<ProgressBar>,
+    every_s: Option<f64>,
+    last_line: Instant,
+    curve: Option<String>,
+}
+
+impl Ticker {
+    fn new(progress: &Progress, tr: &Trainer) -> Self {
+        let bar = (*progress == Progress::Bar).then(|| {
+            let pb = ProgressBar::new(tr.config.iterations as u64);
+            pb.set_style(
+                ProgressStyle::with_template(
+                    "{bar:30} {pos}/{len} iterations, loss {msg}, ETA {eta}",
+                )
+                .expect("template"),
+            );
+            pb.set_position(tr.state.iteration as u64);
+            pb
+        });
+        let every_s = match progress {
+            Progress::Lines { every_s } => Some(every_s.max(0.0)),
+            _ => None,
+        };
+        Ticker {
+            bar,
+            every_s,
+            last_line: Instant::now(),
+            curve: None,
+        }
+    }
+
+    fn step(&mut self, log: &IterationLog, total: usize, train_s: f64, budget_s: Option<f64>) {
+        if let Some(pb) = &self.bar {
+            pb.set_length(total as u64);
+            pb.set_message(format!("{:.4}", log.loss));
+            pb.inc(1);
+        }
+        let Some(every) = self.every_s else { return };
+        let done = log.iteration + 1;
+        if self.last_line.elapsed().as_secs_f64() < every && done < total {
+            return;
+        }
+        self.last_line = Instant::now();
+        let ms = log.ms_render + log.ms_forward + log.ms_backward + log.ms_optimiser;
+        let per = train_s / done.max(1) as f64;
+        let mut left = (total - done.min(total)) as f64 * per;
+        if let Some(b) = budget_s {
+            left = left.min((b - train_s).max(0.0));
+        }
+        let mut line = format!(
+            "iteration {done}/{total}, loss {:.4}, {ms:.0} ms/iteration, {} trained, about {} left",
+            log.loss,
+            format_duration(train_s),
+            format_duration(left)
+        );
+        if let Some(c) = &self.curve {
+            line.push_str(&format!("; curve {c}"));
+        }
+        eprintln!("{line}");
+    }
+
+    fn curve(&mut self, p: Option<&CurvePoint>) {
+        let Some(p) = p else { return };
+        let brief = p.brief();
+        match &self.bar {
+            Some(pb) => pb.println(format!("curve {brief}")),
+            None if self.every_s.is_some() => eprintln!("curve {brief}"),
+            None => {}
+        }
+        self.curve = Some(brief);
+    }
+
+    fn finish(&self) {
+        if let Some(pb) = &self.bar {
+            pb.finish_and_clear();
+        }
     }
 }
 
@@ -261,6 +532,9 @@ mod tests {
             scene: scene.clone(),
             iteration: 0,
             log: vec![],
+            train_seconds: 0.0,
+            budget_seconds: None,
+            curve: vec![],
         };
         std::fs::create_dir_all(dir).unwrap();
         std::fs::write(dir.join("run.json"), serde_json::to_vec(&run).unwrap()).unwrap();

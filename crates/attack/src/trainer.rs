@@ -12,7 +12,7 @@ use super::baselines::patch::{self, Patch};
 use super::baselines::{self, Method};
 use super::checkpoint::{self, Checkpoint};
 use super::filaments::{Filaments, Forward};
-use super::{draw_conditions, ensemble_loss, pyramid, AttackConfig, IterationLog};
+use super::{check_health, draw_conditions, ensemble_loss, pyramid, AttackConfig, IterationLog};
 use anyhow::{bail, Context, Result};
 use burn::tensor::{Device, Tensor, TensorData};
 use cac_core::printer::{Printer, Profile, Response};
@@ -354,6 +354,7 @@ impl<'a> Trainer<'a> {
         let t0 = Instant::now();
         let r = self.state.atlas_res;
         let (values, fw) = self.leaf_at(i);
+        let atlas_range = super::value_range(&values);
         let leaf = Tensor::<4>::from_data(TensorData::new(values, [1, r, r, 3]), &self.device)
             .require_grad();
         let (images, objects) = self.images(i, leaf.clone())?;
@@ -379,9 +380,8 @@ impl<'a> Trainer<'a> {
             self.next_plans = next.ok().map(|plans| (i + 1, plans));
             ms_render += ms_wait;
         }
-        if !loss_value.is_finite() {
-            bail!("iteration {i}: the loss is not finite ({loss_value})");
-        }
+        check_health(i, loss_value, &g, atlas_range)?;
+        let (atlas_min, atlas_max) = atlas_range;
         let t3 = Instant::now();
         let grad_norm = g.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
         self.state.adam.lr = self.config.lr_at(i);
@@ -395,6 +395,8 @@ impl<'a> Trainer<'a> {
             ms_forward,
             ms_backward,
             ms_optimiser: t3.elapsed().as_secs_f64() * 1e3,
+            atlas_min,
+            atlas_max,
         };
         self.state.log.push(log.clone());
         self.state.iteration += 1;

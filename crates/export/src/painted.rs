@@ -42,6 +42,7 @@
 use crate::{Paint, PrintMesh, PrintTri};
 use anyhow::{bail, ensure, Context, Result};
 use cac_core::printer::{Fdm, Printer};
+use cac_core::report::timer::{format_duration, parse_duration};
 use cac_scene::Texture;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -652,7 +653,7 @@ impl SliceCost {
         let mm: Vec<String> = self.filament_mm.iter().map(|v| format!("{v:.0}")).collect();
         let time = self
             .print_time_s
-            .map_or("not estimated".into(), fmt_duration);
+            .map_or("not estimated".into(), format_duration);
         format!(
             "sliced with {}: {} tool changes; filament {} mm (extruders 1..{}), {:.1} cm3; purge {:.0} mm (wipe tower {:.0} mm, priming {:.0} mm) = {:.1} % of the filament; estimated print time {time}",
             if self.slicer.is_empty() { "the slicer" } else { &self.slicer },
@@ -666,35 +667,6 @@ impl SliceCost {
             self.waste_share() * 100.0
         )
     }
-}
-
-fn fmt_duration(s: f64) -> String {
-    let s = s.round() as u64;
-    let (h, m, sec) = (s / 3600, s / 60 % 60, s % 60);
-    if h > 0 {
-        format!("{h}h {m}m {sec}s")
-    } else {
-        format!("{m}m {sec}s")
-    }
-}
-
-/// `1d 2h 3m 4s` → seconds (`None` for anything else, or a negative time).
-fn parse_duration(s: &str) -> Option<f64> {
-    let mut total = 0.0;
-    let mut any = false;
-    for part in s.split_whitespace() {
-        let (num, unit) = part.split_at(part.find(|c: char| c.is_ascii_alphabetic())?);
-        let v: f64 = num.parse().ok()?;
-        total += v * match unit {
-            "d" => 86400.0,
-            "h" => 3600.0,
-            "m" => 60.0,
-            "s" => 1.0,
-            _ => return None,
-        };
-        any = true;
-    }
-    (any && total >= 0.0).then_some(total)
 }
 
 fn numbers(s: &str) -> Vec<f64> {
@@ -863,14 +835,6 @@ pub fn slice(threemf: &Path, gcode: &Path) -> Result<SliceCost> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn durations_parse() {
-        assert_eq!(parse_duration("3h 33m 16s"), Some(12796.0));
-        assert_eq!(parse_duration("1d 0h 0m 1s"), Some(86401.0));
-        assert_eq!(parse_duration("-2147483648s"), None);
-        assert_eq!(parse_duration("soon"), None);
-    }
 
     #[test]
     fn gcode_cost_counts_switches_and_wipe_tower() {
