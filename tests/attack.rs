@@ -466,8 +466,8 @@ fn a_budget_fits_the_iterations_starts_over_and_stops_cleanly() {
 
 #[test]
 fn the_curve_scores_the_texture_along_the_run_off_the_runs_clock() {
-    use cac::attack::curve::{Curve, CurveSpec};
     use cac::attack::run::{Along, Progress, RunDir};
+    use cac::eval::curve::{Curve, CurveSpec};
     let (r, env, d) = setup();
     let dev = burn::tensor::Device::autodiff(inference());
     let init = r.scene.initial_atlas(64);
@@ -484,7 +484,7 @@ fn the_curve_scores_the_texture_along_the_run_off_the_runs_clock() {
     };
     let curve = Curve::new(spec, &scene, vec![d.as_ref()], Some("person"), inference()).unwrap();
     let along = Along {
-        curve: Some(curve),
+        curve: Some(Box::new(curve)),
         ..Along::new(Progress::Lines { every_s: 0.0 })
     };
     let wall = std::time::Instant::now();

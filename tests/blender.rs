@@ -249,7 +249,7 @@ fn with_a_ground_the_box_still_matches_and_the_ground_is_opaque() {
         threads: 2,
         ..cycles()
     };
-    let v = blender::render_views(&r, &env, &[c.clone()], &atlas, &s, &device())
+    let v = blender::render_views(&r, &env, std::slice::from_ref(&c), &atlas, &s, &device())
         .unwrap()
         .remove(0);
     let plan = cac::environment::plan(&r, &env, &c).unwrap();
@@ -370,9 +370,10 @@ fn cac_and_cycles_light_the_object_alike_under_an_hdr_environment() {
     let mut unsaturated_sky = 0;
     for v in views {
         let c = Condition::plain(v, Brightness::Bright);
-        let theirs = blender::render_views(&r, &env, &[c.clone()], &atlas, &s, &device())
-            .unwrap()
-            .remove(0);
+        let theirs =
+            blender::render_views(&r, &env, std::slice::from_ref(&c), &atlas, &s, &device())
+                .unwrap()
+                .remove(0);
         let c_lit = Condition {
             hdri: Some(cac::environment::HdriDraw {
                 index: 0,

@@ -111,11 +111,11 @@ fn candidates_have_documented_shapes_and_batches() {
         assert_eq!(c.boxes.dims(), [2, n, 4], "{name}");
         assert_eq!(c.scores.dims(), [2, n, 80], "{name}");
         // Batch entries are independent: image 1 alone gives the same scores.
-        let single = det.candidates(x.slice([1..2])).unwrap();
+        let single = det.candidates(x.clone().narrow(0, 1, 1)).unwrap();
         let a: Vec<f32> = c
             .scores
             .clone()
-            .slice([1..2])
+            .narrow(0, 1, 1)
             .to_data()
             .iter::<f32>()
             .collect();

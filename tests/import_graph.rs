@@ -467,6 +467,7 @@ fn sibling_modules_form_no_circle() {
     let srcs = sources();
     let known: BTreeSet<(bool, Vec<String>)> =
         srcs.iter().map(|s| (s.lib, s.module.clone())).collect();
+    #[allow(clippy::type_complexity)]
     let mut edges: BTreeMap<(bool, Vec<String>), BTreeSet<(String, String)>> = BTreeMap::new();
     for s in &srcs {
         for p in paths(&s.code, &ROOTS) {

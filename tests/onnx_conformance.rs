@@ -870,7 +870,8 @@ fn input_gradient_through_the_tapped_logits_matches_central_differences() {
     // The small model: smooth (SiLU, no pooling), so central differences are a fair oracle. (On
     // the random-weight YOLOv8n, whose max-pools switch within any useful step, the central
     // difference itself moves by 2x between steps 3e-4 and 1e-2: not an oracle.)
-    for file in ["yolov5_anchor.onnx"] {
+    {
+        let file = "yolov5_anchor.onnx";
         let path = dir.join(file);
         let det = OnnxDetector::load(&path, None, &train).unwrap();
         let (h, w) = (96, 128);

@@ -36,6 +36,8 @@ pub struct Cli {
     pub command: Command,
 }
 
+// One command is parsed per run: the variants' sizes do not matter.
+#[allow(clippy::large_enum_variant)]
 #[derive(Subcommand, Debug)]
 pub enum Command {
     /// Run the main job on the embedded defaults.
@@ -88,6 +90,7 @@ pub enum Command {
 }
 
 /// The benchmarks.
+#[allow(clippy::large_enum_variant)]
 #[derive(Subcommand, Debug)]
 pub enum BenchCmd {
     /// BVH build, rays/s (1 and 2 threads, against Embree), anti-aliasing error against time.

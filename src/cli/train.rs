@@ -4,12 +4,12 @@
 
 use super::device;
 use anyhow::{Context, Result};
-use cac::attack::curve::{Curve, CurveSpec};
 use cac::attack::run::{Along, Progress, RunDir};
 use cac::attack::{AttackConfig, Trainer};
 use cac::config::SceneConfig;
 use cac::detect::{self, Detector};
 use cac::environment::ViewpointSet;
+use cac::eval::curve::{Curve, CurveSpec};
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
@@ -143,7 +143,7 @@ pub fn run(a: Args) -> Result<()> {
         progress: progress(a.progress_every),
         budget_s: a.budget,
         curve: match a.eval_every {
-            Some(every_s) => Some(Curve::new(
+            Some(every_s) => Some(Box::new(Curve::new(
                 CurveSpec {
                     every_s,
                     views_per_level: a.eval_views,
@@ -155,7 +155,7 @@ pub fn run(a: Args) -> Result<()> {
                 (!run.attack.hide && run.attack.method.is_targeted())
                     .then_some(run.attack.target.as_str()),
                 device::inference(),
-            )?),
+            )?)),
             None => None,
         },
     };

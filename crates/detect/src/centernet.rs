@@ -170,6 +170,7 @@ pub fn postprocess(rows: &[[f32; 6]], width: usize, height: usize) -> Vec<Detect
 }
 
 impl CenterNet {
+    #[allow(clippy::type_complexity)]
     fn dense_host(&self, images: Tensor<4>) -> Result<(Tensor<4>, Vec<f32>, Vec<f32>, [usize; 4])> {
         let [b, ..] = check_images(&images)?;
         let x = self.network_input(images)?;

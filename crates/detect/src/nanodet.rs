@@ -215,6 +215,7 @@ impl NanoDet {
     }
 
     /// Per level, host copies of (cls probabilities `[B, N, 80]`, box logits `[B, N, 4*bins]`).
+    #[allow(clippy::type_complexity)]
     fn dense_host(&self, images: Tensor<4>) -> Result<(Tensor<4>, Vec<(Vec<f32>, Vec<f32>)>)> {
         let names: Vec<&str> = self
             .levels
@@ -332,6 +333,8 @@ impl NanoDet {
                     let y = cy - (2.5 / ss * off[1]);
                     let bw = cx + (2.5 / ss * off[2]) - x;
                     let bh = cy + (2.5 / ss * off[3]) - y;
+                    // min then max, not clamp: a NaN becomes 0 as in TFJS's postprocessing (clamp would keep it).
+                    #[allow(clippy::manual_clamp)]
                     let raw = [x, y, bw, bh].map(|a| a.min(1.0).max(0.0));
                     let rounded = (100.0 * score as f64 + 0.5).floor() / 100.0;
                     res.push((j, score, rounded, raw));

@@ -114,7 +114,7 @@ fn phase_shifts(
     hi: &[i64],
     frac: &[f32],
 ) -> Option<Vec<Phase>> {
-    if input < 2 || out <= input || !out.is_multiple_of(input) {
+    if input < 2 || out <= input || out % input != 0 {
         return None;
     }
     let k = out / input;

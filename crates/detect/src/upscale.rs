@@ -71,7 +71,7 @@ pub fn native_factors(x: &Tensor<4>, out_h: usize, out_w: usize) -> Option<[usiz
 /// one axis allowed, not on both).
 fn factors(input: [usize; 2], out: [usize; 2]) -> Option<[usize; 2]> {
     let factor = |n: usize, out: usize| {
-        (n >= 2 && out.is_multiple_of(n) && (out / n).is_power_of_two()).then_some(out / n)
+        (n >= 2 && out % n == 0 && (out / n).is_power_of_two()).then_some(out / n)
     };
     let k = [factor(input[0], out[0])?, factor(input[1], out[1])?];
     (k != [1, 1]).then_some(k)

@@ -782,6 +782,7 @@ pub fn fidelity(
         None => (&solid.positions, solid.tris.iter().map(|t| t.v).collect()),
     };
     let pts = sample_points(pos, &tv, n, &mut rng);
+    #[allow(clippy::type_complexity)]
     let res: Vec<(f32, Option<([f32; 3], [f32; 3])>)> = pts
         .par_iter()
         .map(|&(i, b)| {

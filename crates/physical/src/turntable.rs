@@ -333,7 +333,7 @@ impl<T: Transport> Turntable<T> {
                 self.home_until(axis, deadline)?;
             }
             self.restore_settings(axis, deadline)?;
-            match self.run_motion(axis, cmd.clone(), deadline)? {
+            match self.run_motion(axis, cmd, deadline)? {
                 MotionOutcome::Ended { seq, pos, end } => return Ok((seq, pos, end, recoveries)),
                 other => {
                     last = self.recover(axis, other, deadline)?;

@@ -86,7 +86,7 @@ pub fn atlas_texture(t: &Tensor<4>) -> cac_scene::Texture {
     let [_, h, w, _] = t.dims();
     let v: Vec<f32> = t
         .clone()
-        .slice([0..1])
+        .narrow(0, 0, 1)
         .into_data()
         .convert::<f32>()
         .try_to_vec::<f32>()

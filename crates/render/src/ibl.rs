@@ -523,6 +523,8 @@ impl ImageLight {
         let m = &self.map;
         let below = self.ground_radiance();
         let mut sh = [[0.0f32; 3]; 9];
+        // k indexes three tables of the nine coefficients alike.
+        #[allow(clippy::needless_range_loop)]
         for k in 0..9 {
             for c in 0..3 {
                 let lower = match below {
@@ -584,6 +586,8 @@ pub(crate) fn cosine_directions(normal: Vec3, n: usize, phase: f32) -> impl Iter
 }
 
 #[cfg(test)]
+// The tests index the nine coefficients' three channels side by side.
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};

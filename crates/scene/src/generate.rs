@@ -220,6 +220,7 @@ impl Builder {
     }
 
     /// A cylinder of radius `r` around the Z axis of frame `m`, from z0 to z1.
+    #[allow(clippy::too_many_arguments)]
     fn cylinder(
         &mut self,
         r: f32,

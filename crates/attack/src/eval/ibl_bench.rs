@@ -63,6 +63,7 @@ fn mae(a: &[[f32; 3]], b: &image::RgbImage, keep: impl Fn(usize) -> bool) -> (f6
     let (mut sum, mut n) = (0.0f64, 0usize);
     for (i, p) in b.pixels().enumerate() {
         if keep(i) {
+            #[allow(clippy::needless_range_loop)]
             for c in 0..3 {
                 let x = (a[i][c].clamp(0.0, 1.0) * 255.0).round();
                 sum += (x - p.0[c] as f32).abs() as f64;

@@ -319,7 +319,7 @@ impl Bench<'_> {
                             format!("{set:?}").to_lowercase(),
                             light.clone(),
                         ];
-                        self.record(key, &conds, &scores, &images, t0.secs())?;
+                        self.record(key, conds, &scores, &images, t0.secs())?;
                     }
                 }
             }

@@ -153,7 +153,7 @@ pub fn eval(node: &NodeDef, opset: i64, dev: &Device, args: &[Option<&Val>]) -> 
         "Softplus" => unary(&a, |t| activation::softplus(t, 1.0)),
         "Mish" => unary(&a, |t| t.clone() * activation::softplus(t, 1.0).tanh()),
         "LeakyRelu" => {
-            let alpha = a.f("alpha").unwrap_or(0.01) as f32;
+            let alpha = a.f("alpha").unwrap_or(0.01);
             unary(&a, move |t| fast::leaky_relu(t, alpha))
         }
         "Elu" => {

@@ -254,7 +254,7 @@ mod tests {
         bin.extend([0u8, 4u8]);
         bin.extend((-7i32).to_le_bytes());
         let m = GraphModel::parse(&json, Path::new("m.json"), |_| Ok(bin.clone())).unwrap();
-        assert_eq!(m.weights["a"].as_f32(), vec![0.1666259765625, -2.5]);
+        assert_eq!(m.weights["a"].as_f32(), vec![0.166_625_98, -2.5]);
         assert_eq!(m.weights["b"].as_f32(), vec![-1.0, 1.0]);
         assert_eq!(m.weights["c"].as_i64(), vec![-7]);
     }

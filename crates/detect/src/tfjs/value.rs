@@ -110,6 +110,8 @@ pub(crate) fn pad4(shape: &[usize]) -> [usize; 4] {
 }
 
 /// A value flowing along a graph edge.
+// Float is the common case; boxing it would add an allocation per edge.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug)]
 pub enum Value {
     Float(FloatValue),

@@ -162,6 +162,7 @@ pub(super) fn lock_controls(
 
 /// Set the format and the frame rate, map the buffers and start streaming. Returns the stream,
 /// the size the driver chose and the frame rate it reports (when one was asked).
+#[allow(clippy::type_complexity)]
 pub(super) fn start(
     dev: Device,
     cfg: &V4l2Config,
