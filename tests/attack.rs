@@ -467,7 +467,7 @@ fn a_budget_fits_the_iterations_starts_over_and_stops_cleanly() {
 #[test]
 fn the_curve_scores_the_texture_along_the_run_off_the_runs_clock() {
     use cac::attack::run::{Along, Progress, RunDir};
-    use cac::eval::curve::{Curve, CurveSpec};
+    use cac::study::curve::{Curve, CurveSpec};
     let (r, env, d) = setup();
     let dev = burn::tensor::Device::autodiff(inference());
     let init = r.scene.initial_atlas(64);

@@ -9,7 +9,7 @@ use cac::attack::{AttackConfig, Trainer};
 use cac::config::SceneConfig;
 use cac::detect::{self, Detector};
 use cac::environment::ViewpointSet;
-use cac::eval::curve::{Curve, CurveSpec};
+use cac::study::curve::{Curve, CurveSpec};
 use std::io::IsTerminal;
 use std::path::PathBuf;
 

@@ -3,7 +3,7 @@
 //!
 //! Each [`CurvePoint`] is the figures per model and viewpoint set at one iteration, with the
 //! training seconds reached (scoring excluded: the run's clock stops while it scores) and the
-//! seconds the scoring took. A [`Judge`] makes them (the protocol's: `eval::curve::Curve`, on
+//! seconds the scoring took. A [`Judge`] makes them (the protocol's: `study::curve::Curve`, on
 //! views the training never draws); the run folder keeps the points in run.json and writes
 //! `curve.csv` and `curve.png` ([`write`]). Not here: when to score (the run's loop,
 //! [`super::run`]) and how (the evaluation protocol, `eval`).
@@ -74,7 +74,7 @@ impl CurvePoint {
 }
 
 /// What scores the texture along a run: every [`Judge::every_s`] seconds of training the run
-/// hands it the atlas as it stands (the protocol's scorer: `eval::curve::Curve`).
+/// hands it the atlas as it stands (the protocol's scorer: `study::curve::Curve`).
 pub trait Judge {
     /// Seconds of training between two points.
     fn every_s(&self) -> f64;

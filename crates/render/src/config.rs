@@ -144,6 +144,16 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_ten_minute_recipe_is_the_protocols_scene_on_a_256_atlas_half_under_an_open_sky() {
+        let text = include_str!("../../../meshes/pickup/train-10m.toml");
+        let cfg: SceneConfig = toml::from_str(text).unwrap();
+        let mut want = SceneConfig::default();
+        want.render.atlas_res = 256;
+        want.environment.sky_occlusion = 0.5;
+        assert_eq!(cfg, want);
+    }
+
+    #[test]
     fn defaults_round_trip_and_unknown_keys_are_rejected() {
         let text = SceneConfig::default_toml();
         let back: SceneConfig = toml::from_str(&text).unwrap();

@@ -17,7 +17,6 @@ pub mod bench;
 pub mod blender;
 pub mod cache;
 pub mod compare;
-pub mod curve;
 pub mod gradcam;
 pub mod ibl_bench;
 pub mod job;

@@ -7,10 +7,10 @@
 //! by the protocol's models. [`Curve`] binds it to a run and makes the points
 //! ([`crate::curve::Judge`]).
 
-use super::run::{all_views, evaluate_texture_in, view_groups, ViewGroup, ViewPlan};
-use super::summary::{figures, sel};
-use super::Protocol;
 use crate::curve::{CurveFigures, CurvePoint, Judge};
+use crate::eval::run::{all_views, evaluate_texture_in, view_groups, ViewGroup, ViewPlan};
+use crate::eval::summary::{figures, sel};
+use crate::eval::Protocol;
 use anyhow::Result;
 use burn::tensor::Device;
 use cac_detect::Detector;
