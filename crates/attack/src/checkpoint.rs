@@ -11,7 +11,7 @@
 
 use super::adam::Adam;
 use super::pyramid;
-use super::IterationLog;
+use crate::iteration::IterationLog;
 use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
 use std::path::Path;

@@ -4,7 +4,7 @@
 //! Plots are drawn by `cac::report::plot` (text only when a system font is found). Not here:
 //! writing files (the run folder does, atomically: [`super::run`]).
 
-use super::IterationLog;
+use crate::iteration::IterationLog;
 use anyhow::Result;
 use burn::tensor::Device;
 use cac_core::report::plot::{self, Plot, Series};

@@ -7,10 +7,14 @@
 //! opens one with its settings, or opens the one that matches given settings (all but
 //! `iterations`, which may grow); [`RunDir::train`] runs the remaining iterations, checkpointing
 //! every `checkpoint_every` and rewriting the folder. `cac train`, `cac demo` and `cac study`
-//! all go through here. Not here: the optimiser ([`super::Trainer`]).
+//! all go through here. Not here: the optimiser ([`crate::trainer::Trainer`]).
 
 use super::curve::{self, CurvePoint, Judge};
-use super::{checkpoint, report, AttackConfig, IterationLog, Method, Trainer};
+use super::{checkpoint, report};
+use crate::baselines::Method;
+use crate::config::AttackConfig;
+use crate::iteration::IterationLog;
+use crate::trainer::Trainer;
 use anyhow::{bail, Context, Result};
 use cac_core::report::timer::format_duration;
 use cac_render::config::SceneConfig;

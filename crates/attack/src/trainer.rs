@@ -12,7 +12,9 @@ use super::baselines::patch::{self, Patch};
 use super::baselines::{self, Method};
 use super::checkpoint::{self, Checkpoint};
 use super::filaments::{Filaments, Forward};
-use super::{check_health, draw_conditions, ensemble_loss, pyramid, AttackConfig, IterationLog};
+use super::pyramid;
+use crate::config::AttackConfig;
+use crate::iteration::{check_health, draw_conditions, ensemble_loss, IterationLog};
 use anyhow::{bail, Context, Result};
 use burn::tensor::{Device, Tensor, TensorData};
 use cac_core::printer::{Printer, Profile, Response};
@@ -313,7 +315,9 @@ impl<'a> Trainer<'a> {
                 Ok((images, plans.iter().map(|p| p.object_box).collect()))
             }
             Parameterisation::Patch(p) => {
-                p.images(self.renderer, self.env, &self.config, i, leaf, &self.device)
+                let conds = draw_conditions(self.env, &self.config, i);
+                let run = (self.config.seed, i);
+                p.images(self.renderer, self.env, &conds, run, leaf, &self.device)
             }
         }
     }
@@ -354,7 +358,7 @@ impl<'a> Trainer<'a> {
         let t0 = Instant::now();
         let r = self.state.atlas_res;
         let (values, fw) = self.leaf_at(i);
-        let atlas_range = super::value_range(&values);
+        let atlas_range = crate::iteration::value_range(&values);
         let leaf = Tensor::<4>::from_data(TensorData::new(values, [1, r, r, 3]), &self.device)
             .require_grad();
         let (images, objects) = self.images(i, leaf.clone())?;

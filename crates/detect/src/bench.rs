@@ -7,7 +7,8 @@
 //! ([`onnx_models`], `tools/onnx/ort_run.py --bench`).
 
 use super::frcnn::{synthetic, Arch, FasterRcnn};
-use super::{Detector, Weights, MODELS};
+use crate::catalogue::{Weights, MODELS};
+use crate::detector::Detector;
 use anyhow::{Context, Result};
 use burn::tensor::{Device, Distribution, Tensor};
 use cac_core::report::timer::time;
@@ -228,7 +229,7 @@ pub fn tfjs_models(
         };
         let dets = backends
             .iter()
-            .map(|b| super::load(name, &models, &b.inference))
+            .map(|b| crate::catalogue::load(name, &models, &b.inference))
             .collect::<Result<Vec<_>>>()?;
         for ((b, det), batch) in backends_by_batch(backends, &dets, &[1, 4]) {
             let (w, h) = det.input_size();
@@ -309,7 +310,7 @@ pub fn frcnn_models(
         for b in backends {
             let ((w, h), fwd, bwd) =
                 frcnn_forward_backward_ms(name, runs, &b.inference, &b.training)?;
-            let device = match crate::computes_on_host(&b.inference) {
+            let device = match crate::host::computes_on_host(&b.inference) {
                 true => "cpu",
                 false => "cuda",
             };

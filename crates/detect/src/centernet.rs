@@ -6,11 +6,13 @@
 //! box assembly) is re-done on the host with identical results, then class-agnostic tfjs NMS.
 //! Candidates are the dense per-cell heatmap logits and boxes, before peak picking.
 
+use super::labels::COCO80;
 use super::nms::non_max_suppression;
 use super::preprocess::resize_bilinear;
 use super::raw::{RawDump, RawImage, RawTensor};
 use super::tfjs::{load_graph, Graph, Value};
-use super::{check_images, labels::COCO80, to_vec, Candidates, Detection, Detector};
+use crate::detector::{check_images, Candidates, Detection, Detector};
+use crate::host::to_vec;
 use anyhow::{bail, ensure, Result};
 use burn::tensor::{Device, Tensor, TensorData};
 use std::path::Path;
@@ -195,8 +197,8 @@ impl Detector for CenterNet {
         "centernet"
     }
 
-    fn cam_io(&self, images: Tensor<4>) -> Result<Option<super::CamIo<'_>>> {
-        Ok(Some(super::CamIo {
+    fn cam_io(&self, images: Tensor<4>) -> Result<Option<crate::detector::CamIo<'_>>> {
+        Ok(Some(crate::detector::CamIo {
             graph: &self.graph,
             feeds: vec![(INPUT.to_string(), self.network_input(images)?)],
             logits: vec![(self.logits.clone(), 3, 0)],

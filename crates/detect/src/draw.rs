@@ -1,7 +1,7 @@
 //! Detections drawn for a person to look at (`cac detect --draw`): 2-pixel boxes, one colour
 //! per COCO class, straight into the image.
 
-use super::Detection;
+use crate::detector::Detection;
 
 /// Draws 2-px boxes, one colour per class.
 pub fn class_boxes(mut img: image::RgbImage, dets: &[Detection]) -> image::RgbImage {

@@ -1,7 +1,7 @@
 //! The 80 COCO class names in the standard detector order (0 = person … 79 = toothbrush).
 //!
 //! Identical to the `LABELS` of the TFJS reference runner and to `@vladmandic/human`'s labels.
-//! A user's own detector names its own classes ([`crate::Detector::classes`]): every
+//! A user's own detector names its own classes ([`crate::detector::Detector::classes`]): every
 //! class a user names (target, hidden classes, true classes, the class to explain) is resolved
 //! against the model's list by [`resolve`], by name, so the models of an ensemble may order or
 //! name their classes differently.

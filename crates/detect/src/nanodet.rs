@@ -6,11 +6,13 @@
 //! `@vladmandic/human`'s behaviour instead (RGB / 255 input, argmax-bin boxes, its quirks), for
 //! parity checks against the upstream library. See docs/detectors.md for why they differ.
 
+use super::labels::COCO80;
 use super::nms::non_max_suppression;
 use super::preprocess::resize_bilinear;
 use super::raw::{RawDump, RawImage, RawTensor};
 use super::tfjs::{load_graph, FloatValue, Graph, Value};
-use super::{check_images, labels::COCO80, to_vec, Candidates, Detection, Detector};
+use crate::detector::{check_images, Candidates, Detection, Detector};
+use crate::host::to_vec;
 use anyhow::{anyhow, bail, ensure, Result};
 use burn::tensor::{activation, Device, Tensor, TensorData};
 use std::collections::BTreeMap;
@@ -365,8 +367,8 @@ impl NanoDet {
 }
 
 impl Detector for NanoDet {
-    fn cam_io(&self, images: Tensor<4>) -> Result<Option<super::CamIo<'_>>> {
-        Ok(Some(super::CamIo {
+    fn cam_io(&self, images: Tensor<4>) -> Result<Option<crate::detector::CamIo<'_>>> {
+        Ok(Some(crate::detector::CamIo {
             graph: &self.graph,
             feeds: vec![(self.input.clone(), self.network_input(images)?)],
             logits: self

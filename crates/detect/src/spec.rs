@@ -1,18 +1,18 @@
-//! The detector catalogue ([`super::MODELS`]) as clap's value parser: a command line's
-//! `--models` and `--model` values are checked against it at parse time ([`super::check_spec`]),
+//! The detector catalogue ([`crate::catalogue::MODELS`]) as clap's value parser: a command line's
+//! `--models` and `--model` values are checked against it at parse time ([`crate::catalogue::check_spec`]),
 //! and its help lists the catalogue with one line per detector.
 
 use clap::builder::{PossibleValue, TypedValueParser};
 use clap::error::ErrorKind;
 
-/// The detector catalogue ([`super::MODELS`]) as clap's value list.
+/// The detector catalogue ([`crate::catalogue::MODELS`]) as clap's value list.
 fn catalogue() -> impl Iterator<Item = PossibleValue> {
-    super::MODELS
+    crate::catalogue::MODELS
         .iter()
         .map(|m| PossibleValue::new(m.name).help(m.about))
 }
 
-/// A detector spec, checked by [`super::check_spec`] with the catalogue listed in the help:
+/// A detector spec, checked by [`crate::catalogue::check_spec`] with the catalogue listed in the help:
 /// `NAME`, `MODEL=FILE` for a checkpoint model, or `onnx:MODEL.onnx[:CONFIG.toml]`
 /// (`--models`: [`MODEL_SPECS`]). [`MODEL_NAME`] also takes a checkpoint model's bare name (`cac detect --model`,
 /// whose weights come from `--weights`).
@@ -41,9 +41,10 @@ impl TypedValueParser for ModelSpec {
         value: &std::ffi::OsStr,
     ) -> std::result::Result<String, clap::Error> {
         let s = value.to_string_lossy();
-        let bare = super::model_info(&s).is_some_and(|m| m.weights == super::Weights::Checkpoint);
+        let bare = crate::catalogue::model_info(&s)
+            .is_some_and(|m| m.weights == super::Weights::Checkpoint);
         if !(self.bare_checkpoints && bare) {
-            super::check_spec(&s)
+            crate::catalogue::check_spec(&s)
                 .map_err(|e| clap::Error::raw(ErrorKind::InvalidValue, format!("{e}\n")))?;
         }
         Ok(s.into_owned())

@@ -7,7 +7,7 @@
 //! two, three or four triangles; this repeats until no edge is marked. [`colour_error`] measures
 //! how far the per-corner colours (interpolated across each triangle) are from the texture.
 
-use super::{Paint, PrintMesh};
+use crate::mesh::{Paint, PrintMesh};
 use anyhow::{bail, Result};
 use cac_core::colour::delta_e76_srgb as delta_e;
 use cac_core::memory::MemoryBudget;
@@ -360,7 +360,8 @@ pub(crate) fn colour_error(mesh: &PrintMesh, baked: &Baked, n: usize, seed: u64)
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{printcheck, PrintReport, PrintTri};
+    use crate::mesh::{PrintReport, PrintTri};
+    use crate::printcheck;
     use cac_scene::Texture;
 
     /// A 40 x 40 mm square of two triangles textured with a 16 x 16 checker.

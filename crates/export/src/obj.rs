@@ -2,8 +2,8 @@
 //! bundle), and a vertex-colour OBJ (`v x y z r g b`) from the bake, where a vertex is
 //! duplicated wherever its corners carry different colours (texture seams). Millimetres, +Z up.
 
-use super::bake::Baked;
-use super::{Paint, PrintMesh};
+use crate::bake::Baked;
+use crate::mesh::{Paint, PrintMesh};
 use anyhow::{Context, Result};
 use cac_core::colour::to_rgb8;
 use cac_scene::{Material, Scene, Triangle};
@@ -28,9 +28,9 @@ fn to_scene(mesh: &PrintMesh) -> Scene {
         let material = *mats.entry(key).or_insert_with(|| {
             let base = &mesh.parts[t.part as usize];
             let name = match (tex, mesh.painted.get(t.part as usize).copied()) {
-                (Some(0), _) => format!("{}_camouflage", super::sanitize(base)),
-                (Some(k), _) => format!("{}_tex{k}", super::sanitize(base)),
-                _ => super::sanitize(base),
+                (Some(0), _) => format!("{}_camouflage", crate::mesh::sanitize(base)),
+                (Some(k), _) => format!("{}_tex{k}", crate::mesh::sanitize(base)),
+                _ => crate::mesh::sanitize(base),
             };
             let mut m = Material::plain(&name, colour);
             m.texture = tex.map(|k| k as usize);

@@ -39,7 +39,7 @@
 //! wide or a texel across (capped depth), gives each leaf the filament nearest (ΔE2000,
 //! [`Printer::nearest`]) the texture at its centre, and joins children that agree into one leaf.
 
-use crate::{Paint, PrintMesh, PrintTri};
+use crate::mesh::{Paint, PrintMesh, PrintTri};
 use anyhow::{bail, ensure, Context, Result};
 use cac_core::printer::{Fdm, Printer};
 use cac_core::report::timer::{format_duration, parse_duration};

@@ -5,9 +5,9 @@
 //! minimum wall grouped and located in mm, parts smaller than the minimum feature, parts that
 //! float above the build plate, and the fit in the printer's build volume.
 
-use super::repair::components;
-use super::surface::SurfaceIndex;
-use super::PrintMesh;
+use crate::mesh::PrintMesh;
+use crate::repair::components;
+use crate::surface::SurfaceIndex;
 use anyhow::{bail, Result};
 use glam::Vec3;
 use rayon::prelude::*;

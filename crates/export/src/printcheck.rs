@@ -7,123 +7,14 @@
 //! non-manifold edges (more than two triangles), zero-area triangles with distinct corners,
 //! non-orientable shells.
 
-use super::{Paint, PrintTri};
+use crate::mesh::{Paint, PrintReport, PrintTri};
 use anyhow::{bail, Result};
 use glam::Vec3;
-use serde::Serialize;
 use std::collections::{HashMap, VecDeque};
 
-/// What the check found and what it repaired.
-#[derive(Clone, Debug, Default, Serialize, PartialEq)]
-pub struct PrintReport {
-    pub input_vertices: usize,
-    pub welded_vertices: usize,
-    pub weld_epsilon_mm: f32,
-    pub triangles: usize,
-    /// Triangles removed because two corners welded together (repair).
-    pub collapsed_removed: usize,
-    /// Zero-area triangles with three distinct corners (refused).
-    pub degenerate: usize,
-    /// Edges used by one triangle only.
-    pub open_edges: usize,
-    /// Edges used by more than two triangles.
-    pub nonmanifold_edges: usize,
-    /// Connected shells (through manifold edges).
-    pub shells: usize,
-    /// Triangles flipped to agree with their shell (repair).
-    pub reoriented_triangles: usize,
-    /// Closed shells turned outward (repair).
-    pub flipped_shells: usize,
-    pub non_orientable_shells: usize,
-    /// Enclosed volume (sum over shells of the signed volume), mm³.
-    pub volume_mm3: f64,
-    pub area_mm2: f64,
-    /// Bounding box size (x, y, z) in mm.
-    pub size_mm: [f32; 3],
-    /// Up to 5 open or non-manifold edges, as their end points in mm (for the error message).
-    pub example_edges: Vec<[[f32; 3]; 2]>,
-}
-
-impl PrintReport {
-    /// Closed, manifold, oriented, no degenerate triangles.
-    pub fn is_closed(&self) -> bool {
-        self.open_edges == 0
-            && self.nonmanifold_edges == 0
-            && self.degenerate == 0
-            && self.non_orientable_shells == 0
-    }
-
-    /// The refusal reasons, in words.
-    pub fn problems(&self) -> String {
-        let mut p = vec![];
-        if self.open_edges > 0 {
-            p.push(format!("{} open edges (holes)", self.open_edges));
-        }
-        if self.nonmanifold_edges > 0 {
-            p.push(format!(
-                "{} non-manifold edges (shared by more than two triangles)",
-                self.nonmanifold_edges
-            ));
-        }
-        if self.degenerate > 0 {
-            p.push(format!("{} zero-area triangles", self.degenerate));
-        }
-        if self.non_orientable_shells > 0 {
-            p.push(format!(
-                "{} non-orientable shells",
-                self.non_orientable_shells
-            ));
-        }
-        let mut s = p.join(", ");
-        if !self.example_edges.is_empty() {
-            let ex: Vec<String> = self
-                .example_edges
-                .iter()
-                .map(|[a, b]| {
-                    format!(
-                        "({:.2}, {:.2}, {:.2})-({:.2}, {:.2}, {:.2}) mm",
-                        a[0], a[1], a[2], b[0], b[1], b[2]
-                    )
-                })
-                .collect();
-            s += &format!("; e.g. edges {}", ex.join(", "));
-        }
-        s
-    }
-
-    /// What was repaired, in words.
-    pub(crate) fn repairs(&self) -> Vec<String> {
-        let mut r = vec![];
-        if self.input_vertices != self.welded_vertices {
-            r.push(format!(
-                "welded {} vertices into {} (tolerance {:.1e} mm)",
-                self.input_vertices, self.welded_vertices, self.weld_epsilon_mm
-            ));
-        }
-        if self.collapsed_removed > 0 {
-            r.push(format!(
-                "repaired: removed {} triangles that collapsed when welding",
-                self.collapsed_removed
-            ));
-        }
-        if self.reoriented_triangles > 0 {
-            r.push(format!(
-                "repaired: flipped {} triangles to agree with their neighbours",
-                self.reoriented_triangles
-            ));
-        }
-        if self.flipped_shells > 0 {
-            r.push(format!(
-                "repaired: turned {} inside-out shells outward",
-                self.flipped_shells
-            ));
-        }
-        r
-    }
-}
-
 /// Edge statistics of an indexed triangle list: `(open, non-manifold, misoriented)` edges.
-pub fn edge_stats(tris: impl Iterator<Item = [u32; 3]>) -> (usize, usize, usize) {
+#[cfg(test)]
+pub(crate) fn edge_stats(tris: impl Iterator<Item = [u32; 3]>) -> (usize, usize, usize) {
     let mut edges: HashMap<(u32, u32), (u32, i32)> = HashMap::new();
     for t in tris {
         for k in 0..3 {

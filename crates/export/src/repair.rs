@@ -10,8 +10,8 @@
 //! Orientation within shells and of closed shells is then done by the print check, which is run
 //! again on the result.
 
-use super::printcheck::{weld, weld_and_check};
-use super::{Paint, PrintMesh, PrintTri};
+use crate::mesh::{Paint, PrintMesh, PrintTri};
+use crate::printcheck::{weld, weld_and_check};
 use anyhow::Result;
 use cac_scene::polygon::{ear_clip, OnEdge};
 use glam::{Vec2, Vec3};
@@ -445,7 +445,7 @@ pub(crate) fn orient_open_shells(pos: &[Vec3], tris: &mut [PrintTri]) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::PrintReport;
+    use crate::mesh::PrintReport;
 
     /// A 10 mm cube of split faces, with face `drop` missing (or none).
     fn cube_mesh(drop: Option<usize>) -> PrintMesh {

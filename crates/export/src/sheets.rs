@@ -7,7 +7,7 @@
 //! Outputs: `page_NN.png`, `sheets.pdf` (the same page images, one per PDF page at exact paper
 //! size) and `sheets.json` (physical sizes and placements).
 
-use super::{PrintMesh, Scale};
+use crate::mesh::{PrintMesh, Scale};
 use anyhow::{bail, ensure, Context, Result};
 use cac_core::memory::MemoryBudget;
 use cac_core::report::font::{draw_text, fill_rect, text_width};
@@ -289,7 +289,7 @@ fn write_pages(plan: &Plan, placed: &[(usize, Placement)], dir: &Path) -> Result
     let pdf_path = dir.join("sheets.pdf");
     let title = format!("cac paste-on sheets: {}", plan.mesh.name);
     cac_core::io::write_atomic_with(&pdf_path, |w| {
-        let mut pdf = super::pdf::PdfStream::start(w, &title, plan.n_pages)?;
+        let mut pdf = crate::pdf::PdfStream::start(w, &title, plan.n_pages)?;
         let mut rest = placed;
         for k in 0..plan.n_pages {
             let n = rest.iter().take_while(|(_, pl)| pl.page == k).count();

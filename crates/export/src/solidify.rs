@@ -16,10 +16,10 @@
 //! original triangle closest to its centroid, with per-corner UVs at the closest points of that
 //! triangle, so the textured and baked writers work on it unchanged.
 
-use super::printability::{corners, Analysis, ThinPolicy, TriKind};
-use super::printcheck::weld_and_check;
-use super::surface::{closest_on_triangle, SurfaceIndex};
-use super::{Paint, PrintMesh, PrintTri};
+use crate::mesh::{Paint, PrintMesh, PrintTri};
+use crate::printability::{corners, Analysis, ThinPolicy, TriKind};
+use crate::printcheck::weld_and_check;
+use crate::surface::{closest_on_triangle, SurfaceIndex};
 use anyhow::{bail, Result};
 use cac_core::memory::MemoryBudget;
 use glam::{IVec3, Vec3};
@@ -691,7 +691,7 @@ fn march_block(f: &Field, bi: IVec3, cells: IVec3) -> BlockMesh {
 /// Recolours a bake of a rebuilt solid from the original surface: every baked vertex takes the
 /// colour of the closest original point (texture or solid colour), so colours follow the
 /// original across part borders instead of the per-triangle source of the textured transfer.
-pub(crate) fn recolour_from(original: &PrintMesh, baked: &mut super::Baked) {
+pub(crate) fn recolour_from(original: &PrintMesh, baked: &mut crate::bake::Baked) {
     let (ot, _) = corners(original, |_| true);
     let orig = SurfaceIndex::new(ot);
     let cols: Vec<[f32; 3]> = baked
@@ -699,7 +699,7 @@ pub(crate) fn recolour_from(original: &PrintMesh, baked: &mut super::Baked) {
         .par_iter()
         .map(|&p| {
             let c = orig.closest(p).expect("non-empty");
-            super::bake::reference_colour(original, c.tri as usize, c.bary)
+            crate::bake::reference_colour(original, c.tri as usize, c.bary)
         })
         .collect();
     for t in &mut baked.tris {
@@ -764,7 +764,7 @@ pub fn fidelity(
     original: &PrintMesh,
     kinds: &[TriKind],
     solid: &PrintMesh,
-    baked: Option<&super::Baked>,
+    baked: Option<&crate::bake::Baked>,
     n: usize,
     seed: u64,
 ) -> Fidelity {
@@ -791,7 +791,7 @@ pub fn fidelity(
             let c = orig.closest(p).expect("non-empty");
             let textured = matches!(original.tris[c.tri as usize].paint, Paint::Texture { .. });
             let col = textured.then(|| {
-                let want = super::bake::reference_colour(original, c.tri as usize, c.bary);
+                let want = crate::bake::reference_colour(original, c.tri as usize, c.bary);
                 let got = match baked {
                     Some(bk) => {
                         let q = bk.tris[i]
@@ -799,7 +799,7 @@ pub fn fidelity(
                             .map(|c| to_rgb8(c).map(|x| x as f32 / 255.0));
                         std::array::from_fn(|k| q[0][k] * b.x + q[1][k] * b.y + q[2][k] * b.z)
                     }
-                    None => super::bake::reference_colour(solid, i, b),
+                    None => crate::bake::reference_colour(solid, i, b),
                 };
                 (got, want)
             });
@@ -866,9 +866,9 @@ impl Fidelity {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::mesh::PrintReport;
     use crate::printability::analyse;
     use crate::printcheck::edge_stats;
-    use crate::PrintReport;
 
     fn mesh_of(tris: Vec<[Vec3; 3]>) -> PrintMesh {
         let mut positions = vec![];

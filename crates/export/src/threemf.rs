@@ -11,9 +11,9 @@
 //! and `paint_color`, see [`super::painted`]) and the package holds the slicers' settings files
 //! (`Metadata/Slic3r_PE.config`, `Metadata/project_settings.config`).
 
-use super::bake::Baked;
-use super::painted;
-use super::{Paint, PrintMesh};
+use crate::bake::Baked;
+use crate::mesh::{Paint, PrintMesh};
+use crate::painted;
 use anyhow::{Context, Result};
 use cac_core::colour::to_rgb8;
 use glam::{Vec2, Vec3};

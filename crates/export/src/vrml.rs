@@ -4,7 +4,7 @@
 //! `diffuseColor`); every `IndexedFaceSet` is `solid TRUE` and counter-clockwise. Coordinates are in
 //! millimetres (said in the file's header comment: services ask for the unit on upload), +Z up.
 
-use super::{Paint, PrintMesh};
+use crate::mesh::{Paint, PrintMesh};
 use anyhow::Result;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;

@@ -5,7 +5,9 @@
 //! [`Table`] for the CSV file. (The anti-aliasing half of the benchmark forms images under an
 //! environment condition: `environment::bench`.)
 
-use super::{accel::Accel, gbuffer::GBuffer, RenderSettings, Viewpoint};
+use super::{accel::Accel, gbuffer::GBuffer};
+use crate::camera::Viewpoint;
+use crate::renderer::RenderSettings;
 use anyhow::Result;
 use cac_core::report::timer::fastest_ms;
 use cac_core::report::Table;
@@ -231,7 +233,7 @@ fn cast_times(
     threads: usize,
     scene: &Scene,
     accel: &Accel,
-    cam: &super::Camera,
+    cam: &crate::camera::Camera,
     g0: &GBuffer,
 ) -> Result<(f64, f64)> {
     let dirs: Vec<glam::Vec3> = g0.data.iter().map(|s| s.dir).collect();

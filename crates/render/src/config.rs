@@ -4,7 +4,7 @@
 //! [`SceneConfig::stage`], the config made ready to render.
 
 use crate::environment::{EnvConfig, Environment};
-use crate::{RenderSettings, Renderer};
+use crate::renderer::{RenderSettings, Renderer};
 use anyhow::{Context, Result};
 use cac_scene::{generate, LoadOptions, PaintRule, Scene, Texture};
 use serde::{Deserialize, Serialize};

@@ -3,7 +3,7 @@
 //! the same code. Texel centres at half-integers, UV origin lower-left (`v = 1` is row 0), and
 //! repeat addressing (glTF's and 3MF's `wrap`) or clamp-to-edge (resampling).
 
-use crate::Texture;
+use crate::texture::Texture;
 use glam::Vec2;
 
 /// How a texture is read outside its edges.
@@ -46,6 +46,23 @@ pub fn taps(uv: Vec2, w: usize, h: usize, wrap: Wrap) -> [(u32, f32); 4] {
 }
 
 impl Texture {
+    /// Bilinear resampling to a new size (texel centres aligned, clamp at the border).
+    pub fn resized(&self, width: usize, height: usize) -> Self {
+        let mut texels = Vec::with_capacity(width * height);
+        for y in 0..height {
+            for x in 0..width {
+                let u = (x as f32 + 0.5) / width as f32;
+                let v = 1.0 - (y as f32 + 0.5) / height as f32;
+                texels.push(self.sample_wrapped(Vec2::new(u, v), Wrap::Clamp));
+            }
+        }
+        Texture {
+            width,
+            height,
+            texels,
+        }
+    }
+
     /// Bilinear sample at `uv` with repeat addressing.
     pub fn sample(&self, uv: Vec2) -> [f32; 3] {
         self.sample_wrapped(uv, Wrap::Repeat)

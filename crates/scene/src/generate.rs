@@ -6,7 +6,9 @@
 //! proportional to metres), so a texel covers about the same surface everywhere.
 
 use super::polygon::{ear_clip, OnEdge};
-use super::{Material, Scene, Texture, Triangle};
+use crate::material::Material;
+use crate::mesh::{Scene, Triangle};
+use crate::texture::Texture;
 use glam::{Mat4, Vec2, Vec3};
 
 /// Builds a scene part by part and packs the paintable faces into one atlas at the end.

@@ -5,7 +5,9 @@
 //! coordinate set its base-colour texture names, and the materials' base colour factor (linear in
 //! glTF, converted to display values here) and texture. Primitives without UVs keep a fixed colour.
 
-use super::{Material, Scene, Texture, Triangle};
+use crate::material::Material;
+use crate::mesh::{Scene, Triangle};
+use crate::texture::Texture;
 use anyhow::{anyhow, bail, Result};
 use glam::{Mat4, Vec2, Vec3};
 use std::path::Path;

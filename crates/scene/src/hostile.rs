@@ -250,7 +250,7 @@ impl Obj {
             }));
         }
         let corners = [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]];
-        for (k, f) in super::BOX_QUADS.iter().enumerate() {
+        for (k, f) in crate::mesh::BOX_QUADS.iter().enumerate() {
             if skip == Some(k) {
                 continue;
             }

@@ -4,7 +4,9 @@
 //! kept separately, so UV seams do not split the geometry. A group without a material takes its
 //! object name as its material name, so paint rules can select OBJ parts by name.
 
-use super::{Material, Scene, Texture, Triangle};
+use crate::material::Material;
+use crate::mesh::{Scene, Triangle};
+use crate::texture::Texture;
 use anyhow::{anyhow, bail, Context, Result};
 use glam::{Vec2, Vec3};
 use std::collections::HashMap;

@@ -1,7 +1,7 @@
 //! Writes a [`Scene`] as OBJ + MTL + one PNG per texture, atomically, so it can be read back by
 //! [`Scene::load`] (and by any other OBJ reader). Used by the mesh generator and by `export`.
 
-use super::Scene;
+use crate::mesh::Scene;
 use anyhow::Result;
 use std::fmt::Write as _;
 use std::path::Path;

@@ -4,7 +4,8 @@
 //! benchmarks that paint simple textures (`eval::realism`); and the size of a texel on the object
 //! ([`texel_size`]), which sets the smallest region a printer can draw.
 
-use super::{Scene, Texture};
+use crate::mesh::Scene;
+use crate::texture::Texture;
 
 /// The mean side of one texel of a `res × res` atlas on the paintable surfaces, in scene units:
 /// `√(Σ surface area / (Σ UV area · res²))` over the paintable triangles (`None` when none has

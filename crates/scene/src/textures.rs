@@ -8,7 +8,7 @@
 //! object use it as the initial atlas, `cac train --init`, or the evaluation's texture list).
 
 use super::generate::value_noise;
-use super::Texture;
+use crate::texture::Texture;
 use anyhow::{bail, Result};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -3,7 +3,7 @@
 //! frame and hit/miss), written as a PNG folder or encoded by ffmpeg (H.264, yuv420p) into a video.
 
 use super::score::FrameRecord;
-use super::{missing, Tools};
+use crate::tools::{missing, Tools};
 use anyhow::{bail, Context, Result};
 use cac_core::report::draw::{class_colour, labelled_box};
 use cac_core::report::font::{draw_text, fill_rect};

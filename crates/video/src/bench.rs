@@ -6,7 +6,10 @@
 
 use super::encode::{encode_sequence, H264, HEVC, MJPEG};
 use super::twin::{render_turntable, TwinCalibration};
-use super::{Annotations, OpenOptions, ScoreOptions, Tools};
+use crate::annotations::Annotations;
+use crate::decode::OpenOptions;
+use crate::score::ScoreOptions;
+use crate::tools::Tools;
 use anyhow::Result;
 use burn::tensor::Device;
 use cac_core::report::timer::Stopwatch;
@@ -62,7 +65,7 @@ impl VideoBench {
             encode_sequence(tools, &dir.path().join("f%04d.png"), 24.0, args, &[], &path)?;
             // Decoding alone.
             let t0 = Stopwatch::start();
-            let mut s = super::open(tools, &path, &OpenOptions::default())?;
+            let mut s = crate::decode::open(tools, &path, &OpenOptions::default())?;
             let mut n = 0;
             while s.next_frame()?.is_some() {
                 n += 1;
@@ -78,9 +81,9 @@ impl VideoBench {
                 "".into(),
             ]);
             for (m, d) in dets {
-                let mut s = super::open(tools, &path, &OpenOptions::default())?;
+                let mut s = crate::decode::open(tools, &path, &OpenOptions::default())?;
                 let t0 = Stopwatch::start();
-                let r = super::score_stream(
+                let r = crate::score::score_stream(
                     s.as_mut(),
                     &gt,
                     &[*d],

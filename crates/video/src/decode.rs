@@ -7,7 +7,7 @@
 //! known before the first frame arrives.
 
 use super::probe::{probe, StreamInfo, SUPPORTED_CODECS};
-use super::{is_pattern, missing, Tools};
+use crate::tools::{is_pattern, missing, Tools};
 use anyhow::{bail, Context, Result};
 use cac_physical::{FolderSource, FrameSource};
 use image::RgbImage;

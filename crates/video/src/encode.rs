@@ -1,7 +1,7 @@
 //! Encoding an image sequence into a video with ffmpeg: the presets the tolerances in
 //! docs/video.md were measured with (test fixtures, `cac bench video`).
 
-use super::{run_tool, Tools};
+use crate::tools::{run_tool, Tools};
 use anyhow::{Context, Result};
 use std::ffi::OsStr;
 use std::path::Path;

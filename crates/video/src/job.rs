@@ -7,10 +7,10 @@
 use super::annotate::{self, AnnotatedWriter};
 use super::log::{LogGroundTruth, LogSegments, TurntableLog};
 use super::report;
-use super::{
-    Annotations, FrameStream, GroundTruth, OpenOptions, Sampling, ScoreOptions, Segmenting, Tools,
-    VideoScores,
-};
+use crate::annotations::{Annotations, GroundTruth};
+use crate::decode::{FrameStream, OpenOptions};
+use crate::score::{Sampling, ScoreOptions, Segmenting, VideoScores};
+use crate::tools::Tools;
 use anyhow::{bail, Context, Result};
 use burn::tensor::Device;
 use cac_attack::eval::Protocol;
@@ -144,7 +144,7 @@ impl VideoJob {
         if self.open.rotate_ccw.is_some_and(|r| r % 90 != 0) {
             bail!("--rotate must be 0, 90, 180 or 270");
         }
-        let stream = super::open(&self.tools, &self.input, &self.open)?;
+        let stream = crate::decode::open(&self.tools, &self.input, &self.open)?;
         let (truth, log_times) = self.ground_truth(stream.creation_time(), stream.size())?;
         let sampling = match log_times.or_else(|| self.at.clone()) {
             Some(t) => Sampling::At(t),
@@ -281,7 +281,7 @@ impl Opened<'_> {
         };
         let conf = self.options.protocol.confidence;
         let mut examples = report::Examples::new(8);
-        let scores = super::score_stream(
+        let scores = crate::score::score_stream(
             self.stream.as_mut(),
             self.truth.as_ref(),
             detectors,

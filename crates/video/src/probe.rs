@@ -2,7 +2,7 @@
 //! or the older `rotate` tag), frame rates and frame count; and the per-frame presentation
 //! timestamps (`-show_entries frame=best_effort_timestamp_time`), for variable frame rate.
 
-use super::{ctx_input, run_tool, Tools};
+use crate::tools::{ctx_input, run_tool, Tools};
 use anyhow::{bail, Context, Result};
 use serde_json::Value;
 use std::ffi::OsStr;
@@ -89,7 +89,7 @@ pub(crate) fn rotation_of(stream: &Value) -> Result<u32> {
 
 /// Probes the first video stream of `path` (a file or an image-sequence pattern).
 pub fn probe(tools: &Tools, path: &Path) -> Result<StreamInfo> {
-    if !super::is_pattern(path) && !path.is_file() {
+    if !crate::tools::is_pattern(path) && !path.is_file() {
         bail!("cannot read video {}: no such file", path.display());
     }
     let out = run_tool(

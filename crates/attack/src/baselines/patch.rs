@@ -10,10 +10,9 @@
 //! transforms themselves ([`super::patch2d`]).
 
 use super::{atlas, patch2d};
-use crate::{draw_conditions, AttackConfig};
 use anyhow::Result;
 use burn::tensor::{Device, Tensor};
-use cac_render::environment::{self, Environment};
+use cac_render::environment::{self, Condition, Environment};
 use cac_render::{self as render, Renderer};
 use cac_scene::Texture;
 use rand::SeedableRng;
@@ -43,21 +42,21 @@ impl Patch {
         }
     }
 
-    /// The images of iteration `i`: the backgrounds (rendered on the inner device of `device`)
-    /// with `patch` (`[1, P, P, 3]`, on `device`) pasted under the iteration's transforms, and
-    /// the object boxes the patch was placed in.
+    /// The images of iteration `i` of a run seeded `seed`: the backgrounds of `conds` (the
+    /// iteration's conditions, rendered on the inner device of `device`) with `patch`
+    /// (`[1, P, P, 3]`, on `device`) pasted under the iteration's transforms, and the object
+    /// boxes the patch was placed in.
     pub fn images(
         &self,
         r: &Renderer,
         env: &Environment,
-        config: &AttackConfig,
-        i: usize,
+        conds: &[Condition],
+        (seed, i): (u64, usize),
         patch: Tensor<4>,
         device: &Device,
     ) -> Result<(Tensor<4>, Vec<Option<[f32; 4]>>)> {
-        let conds = draw_conditions(env, config, i);
         let base = render::atlas_tensor(&self.base, &device.clone().inner());
-        let (img, plans) = environment::form(r, env, &conds, base)?;
+        let (img, plans) = environment::form(r, env, conds, base)?;
         let (w, h) = (r.settings.width as f32, r.settings.height as f32);
         let boxes: Vec<[f32; 4]> = plans
             .iter()
@@ -69,7 +68,7 @@ impl Patch {
         let dims = img.dims();
         let bg = cac_detect::to_vec(&img)?;
         let mut rng = ChaCha8Rng::seed_from_u64(
-            config.seed.wrapping_mul(0xD1B5_4A32_D192_ED03) ^ (i as u64).wrapping_add(0x5EED),
+            seed.wrapping_mul(0xD1B5_4A32_D192_ED03) ^ (i as u64).wrapping_add(0x5EED),
         );
         let ts: Vec<_> = boxes
             .iter()

@@ -5,8 +5,11 @@
 //! street-level views, scored with `eval`). Each part prints its rows as they are measured and
 //! returns them as a [`Table`] for CSV. Timed with the one timer (`report::timer`).
 
+use crate::config::AttackConfig;
 use crate::eval::{self, Protocol};
-use crate::{loss::Goal, AttackConfig, IterationLog, Trainer};
+use crate::iteration::IterationLog;
+use crate::loss::Goal;
+use crate::trainer::Trainer;
 use anyhow::Result;
 use burn::tensor::Device;
 use cac_core::report::timer::{median, Stopwatch};

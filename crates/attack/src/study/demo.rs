@@ -6,10 +6,12 @@
 //! CenterNet as an unseen (transfer) model. Writes the atlases, view sheets with each detector's
 //! boxes and summary.json; returns the before/after table as text.
 
+use crate::config::AttackConfig;
 use crate::eval::compare::{before_after, write_sheets, BeforeAfter};
 use crate::eval::run::{all_views, evaluate_texture_in, view_groups, ViewPlan};
 use crate::eval::Protocol;
-use crate::{run::RunDir, AttackConfig, Trainer};
+use crate::run::RunDir;
+use crate::trainer::Trainer;
 use anyhow::Result;
 use burn::tensor::Device;
 use cac_detect::{self as detect, Detector};
@@ -30,9 +32,13 @@ pub struct DemoJob {
     /// Seed of the training run.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Attack iterations (batch 2).
-    #[arg(long, default_value_t = 400)]
+    /// Attack iterations (640 at batch 1: the demo in under 3 minutes on 2 cores).
+    #[arg(long, default_value_t = 640)]
     pub iterations: usize,
+    /// Views rendered per iteration. One view per step buys the most quality per second in a
+    /// short run (docs/attack.md, the knob table: half the time per iteration).
+    #[arg(long, default_value_t = 1)]
+    pub batch: usize,
     /// Protocol views per brightness level and viewpoint set (4 groups: FV/RV × bright/dark).
     #[arg(long, default_value_t = 16)]
     pub views: usize,
@@ -148,13 +154,13 @@ impl DemoJob {
         cfg
     }
 
-    /// The demo's attack: NanoDet, target "person", batch 2, checkpoints every 50 iterations.
+    /// The demo's attack: NanoDet, target "person", checkpoints every 50 iterations.
     fn attack_config(&self) -> AttackConfig {
         AttackConfig {
             models: vec!["nanodet".into()],
             iterations: self.iterations,
             seed: self.seed,
-            batch: 2,
+            batch: self.batch,
             checkpoint_every: 50,
             viewpoints: ViewpointSet::Free,
             ..Default::default()
@@ -191,8 +197,8 @@ impl DemoJob {
         }
         println!(
             "training {} iterations against nanodet (target \"person\", proposals on the object, \
-             batch 2, protocol distances) ...",
-            self.iterations
+             batch {}, protocol distances) ...",
+            self.iterations, self.batch
         );
         run.train(&mut tr, true)?;
         Ok((tr.atlas(), tr.state.iteration))

@@ -7,9 +7,10 @@
 //! entry of `hide` adds a CAC row in hide mode.
 
 use super::{protocol_job, train_run};
+use crate::baselines::Method;
+use crate::config::AttackConfig;
 use crate::eval::job;
 use crate::eval::{report, study};
-use crate::{AttackConfig, Method};
 use anyhow::{bail, Context, Result};
 use burn::tensor::Device;
 use cac_detect as detect;

@@ -12,10 +12,12 @@ pub mod demo;
 pub mod methods;
 pub mod topn;
 
+use crate::config::AttackConfig;
 use crate::eval::job::EvalJob;
 use crate::eval::run::ViewPlan;
 use crate::eval::Protocol;
-use crate::{loss::ProposalRule, run::RunDir, AttackConfig, Trainer};
+use crate::trainer::Trainer;
+use crate::{loss::ProposalRule, run::RunDir};
 use anyhow::{bail, Context, Result};
 use burn::tensor::Device;
 use cac_detect::Detector;
@@ -149,10 +151,10 @@ mod tests {
         }
         use clap::Parser;
         let s = Line::try_parse_from(["cac study"]).unwrap().source;
-        let d = crate::AttackConfig::default();
+        let d = crate::config::AttackConfig::default();
         assert_eq!(
             s.attack(d.iterations, d.seed),
-            crate::AttackConfig {
+            crate::config::AttackConfig {
                 checkpoint_every: 10,
                 ..d
             }

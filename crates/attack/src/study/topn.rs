@@ -6,10 +6,10 @@
 //! task per setting, evaluation shards, then the merge.
 
 use super::{protocol_job, train_run};
+use crate::config::AttackConfig;
 use crate::eval::job::{self, ShardOutcome};
 use crate::eval::shard::Shard;
 use crate::eval::{report, study};
-use crate::AttackConfig;
 use anyhow::{bail, Result};
 use burn::tensor::Device;
 use cac_core::report::Html;

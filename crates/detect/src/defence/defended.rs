@@ -2,7 +2,8 @@
 
 use super::chain::{host, mix, seed_of, Affine, Chain};
 use super::image_hash;
-use crate::{raw, CamIo, Candidates, Detection, Detector};
+use crate::detector::{CamIo, Candidates, Detection, Detector};
+use crate::raw;
 use anyhow::Result;
 use burn::tensor::Tensor;
 use std::cell::RefCell;

@@ -1,7 +1,8 @@
 //! The defences behind a stand-in detector: names, refusals, geometry, gradients, seeding.
 
 use super::*;
-use crate::{raw, Candidates, Detection, Detector};
+use crate::detector::{Candidates, Detection, Detector};
+use crate::raw;
 use anyhow::Result;
 use burn::backend::FlexDevice;
 use burn::tensor::{Device, Tensor, TensorData};

@@ -24,7 +24,8 @@ pub mod weights;
 
 use super::labels::{coco80_to_91, coco91_to_80, COCO80, COCO91};
 use super::raw::{RawDump, RawImage, RawTensor};
-use super::{check_images, to_vec, Candidates, Detection, Detector};
+use crate::detector::{check_images, Candidates, Detection, Detector};
+use crate::host::to_vec;
 use anyhow::{bail, ensure, Result};
 use backbone_mobilenet::MobileNetV3;
 use backbone_resnet::ResNet50;

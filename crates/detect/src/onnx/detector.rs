@@ -19,11 +19,12 @@ use super::graph::OnnxGraph;
 use super::model::{Dim, Model};
 use super::runtime;
 use super::value::{Dev, Val};
+use crate::detector::{check_images, Candidates, Detection, Detector};
+use crate::host::to_vec;
 use crate::labels::COCO80;
 use crate::nms::class_aware_nms;
 use crate::preprocess::resize_bilinear;
 use crate::raw::{RawDump, RawImage, RawTensor};
-use crate::{check_images, to_vec, Candidates, Detection, Detector};
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use burn::tensor::{activation, Device, Tensor, TensorData};
 use std::collections::BTreeMap;
@@ -427,7 +428,7 @@ impl OnnxDetector {
     fn dense_runtime(&self, rt: &runtime::Session, c: Tensor<4>) -> Result<Tensor<3>> {
         let dev = c.device();
         let shape = c.dims();
-        let outs = rt.run(crate::to_vec(&c)?, &shape)?;
+        let outs = rt.run(crate::host::to_vec(&c)?, &shape)?;
         let names = std::iter::once(&self.output).chain(&self.config.boxes);
         let mut t = Vec::with_capacity(outs.len());
         for (name, (s, v)) in names.zip(outs) {
@@ -852,8 +853,8 @@ impl Detector for OnnxDetector {
     /// count). The default layer: after the neck's last upsampling (where there is one), the
     /// last concatenation on the finest grid (in YOLO necks it feeds every level's head), else
     /// the last feature map of at least 8 × 8.
-    fn cam_io(&self, images: Tensor<4>) -> Result<Option<crate::CamIo<'_>>> {
-        use crate::CamGraph;
+    fn cam_io(&self, images: Tensor<4>) -> Result<Option<crate::detector::CamIo<'_>>> {
+        use crate::detector::CamGraph;
         let (x, _) = self.network_input(images)?;
         let n = self.classes.len();
         let mut logits = Vec::new();
@@ -915,7 +916,7 @@ impl Detector for OnnxDetector {
             .or(maps.last())
             .map(|m| m.0.to_string())
             .ok_or_else(|| anyhow!("{}: no feature map for attention maps", self.name))?;
-        Ok(Some(crate::CamIo {
+        Ok(Some(crate::detector::CamIo {
             graph: &self.graph,
             feeds: vec![(self.input.clone(), x)],
             logits,

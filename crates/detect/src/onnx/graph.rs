@@ -370,7 +370,7 @@ fn silu_pairs(
 }
 
 /// Grad-CAM's view of an ONNX graph: layers are node output values, feature maps are NCHW.
-impl crate::CamGraph for OnnxGraph {
+impl crate::detector::CamGraph for OnnxGraph {
     fn device(&self) -> Device {
         self.device.clone()
     }

@@ -3,7 +3,7 @@
 //! schema for `prost`, [`model`] reads a file into plain values, [`value`] holds the edge values,
 //! [`args`] is what an op reads, [`ops`] dispatches to [`elementwise`], [`shape`], [`nn`] and
 //! [`transformer`] (the op semantics as burn ops), [`graph`] plans and runs, [`config`] is the
-//! TOML config and the `onnx:` spec, and [`detector`] the [`crate::Detector`] with its heads.
+//! TOML config and the `onnx:` spec, and [`detector`] the [`crate::detector::Detector`] with its heads.
 //! Where the edge enabled it, [`runtime`] runs the forward passes that need no gradient in
 //! onnxruntime instead.
 //!

@@ -1,5 +1,5 @@
 //! onnxruntime as the forward engine of a user's ONNX detector where no gradient is asked for
-//! ([`crate::Detector::detect`]: evaluation, scoring of captures and videos, `cac detect`).
+//! ([`crate::detector::Detector::detect`]: evaluation, scoring of captures and videos, `cac detect`).
 //!
 //! onnxruntime is what users compare a detector's forward with, and it fuses what an eager
 //! executor cannot (convolution with its bias and activation, NCHWc layouts). It comes in through

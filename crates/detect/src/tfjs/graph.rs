@@ -379,7 +379,7 @@ fn broadcast_fill<T: Clone>(v: Vec<T>, n: usize) -> Result<Vec<T>> {
 }
 
 /// Grad-CAM's view of a TFJS graph (values logical: NHWC, or NCHW where the converter kept it).
-impl crate::CamGraph for Graph {
+impl crate::detector::CamGraph for Graph {
     fn device(&self) -> Device {
         self.device.clone()
     }

@@ -4,7 +4,8 @@
 
 use super::{Brightness, Condition, EnvConfig, Environment};
 use crate::bench::best_of;
-use crate::{RenderSettings, Renderer, Viewpoint};
+use crate::camera::Viewpoint;
+use crate::renderer::{RenderSettings, Renderer};
 use anyhow::Result;
 use cac_core::report::Table;
 

@@ -7,7 +7,9 @@
 //! transforms themselves ([`super::print_error`], [`super::photometric`]) or the renderer.
 
 use super::{photometric, print_error, Condition, Environment};
-use crate::{self as render, RenderPlan, Renderer};
+use crate::composite as render;
+use crate::renderer::Renderer;
+use crate::shade::RenderPlan;
 use anyhow::Result;
 use burn::tensor::Tensor;
 

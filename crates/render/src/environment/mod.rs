@@ -15,8 +15,9 @@ mod transforms;
 pub use formation::{form, form_images, form_planned, plan, plans};
 pub use transforms::{photometric, print_error};
 
+use crate::camera::Viewpoint;
+use crate::light::{Backdrop, Background, Ground, Lighting};
 use crate::skyline::Skyline;
-use crate::{Backdrop, Background, Ground, Lighting, Viewpoint};
 use anyhow::{bail, Context, Result};
 use cac_scene::Texture;
 use glam::Vec2;
