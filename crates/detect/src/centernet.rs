@@ -70,31 +70,34 @@ impl CenterNet {
     }
 }
 
+/// Whether keypoint `idx` of `kp` (`[G, G, C]`, `G = grid`) equals the 3×3 max-pool of its
+/// class's map at its cell (SAME, −inf padding): the graph's peak test.
+fn is_peak(kp: &[f32], grid: usize, classes: usize, idx: usize) -> bool {
+    let g = grid as isize;
+    let (cell, c) = (idx / classes, idx % classes);
+    let (y, x) = ((cell / grid) as isize, (cell % grid) as isize);
+    let mut m = f32::NEG_INFINITY;
+    for dy in -1..=1 {
+        for dx in -1..=1 {
+            let (yy, xx) = (y + dy, x + dx);
+            if yy >= 0 && yy < g && xx >= 0 && xx < g {
+                m = m.max(kp[((yy * g + xx) as usize) * classes + c]);
+            }
+        }
+    }
+    kp[idx] == m
+}
+
 /// The graph's decode tail, on the host: `[100, 6]` rows `x1, y1, x2, y2, score, class` in
 /// 512-input pixels. `kp` is `[G, G, C]` keypoints, `wh` is `[G, G, 4]`.
 pub(crate) fn decode_tail(kp: &[f32], wh: &[f32], grid: usize, classes: usize) -> Vec<[f32; 6]> {
-    let g = grid as isize;
-    let at = |y: isize, x: isize, c: usize| kp[((y * g + x) as usize) * classes + c];
     // Peak mask: kp == maxpool3x3(kp) (SAME, -inf padding), kept values else 0.
+    let peak = |idx: usize| is_peak(kp, grid, classes, idx);
     let mut peaks: Vec<(f32, usize)> = Vec::new();
-    for y in 0..g {
-        for x in 0..g {
-            for c in 0..classes {
-                let v = at(y, x, c);
-                let mut m = f32::NEG_INFINITY;
-                for dy in -1..=1 {
-                    for dx in -1..=1 {
-                        let (yy, xx) = (y + dy, x + dx);
-                        if yy >= 0 && yy < g && xx >= 0 && xx < g {
-                            m = m.max(at(yy, xx, c));
-                        }
-                    }
-                }
-                let p = if v == m { v } else { 0.0 };
-                if p > 0.0 {
-                    peaks.push((p, ((y * g + x) as usize) * classes + c));
-                }
-            }
+    for (idx, &v) in kp.iter().enumerate().take(grid * grid * classes) {
+        let p = if peak(idx) { v } else { 0.0 };
+        if p > 0.0 {
+            peaks.push((p, idx));
         }
     }
     // TopKV2, sorted, ties to the lower index: stable sort by value; zeros fill up by index.
@@ -105,21 +108,7 @@ pub(crate) fn decode_tail(kp: &[f32], wh: &[f32], grid: usize, classes: usize) -
         let idx = next_zero;
         next_zero += 1;
         let v = kp[idx];
-        let is_peak = {
-            let (cell, c) = (idx / classes, idx % classes);
-            let (y, x) = ((cell / grid) as isize, (cell % grid) as isize);
-            let mut m = f32::NEG_INFINITY;
-            for dy in -1..=1 {
-                for dx in -1..=1 {
-                    let (yy, xx) = (y + dy, x + dx);
-                    if yy >= 0 && yy < g && xx >= 0 && xx < g {
-                        m = m.max(at(yy, xx, c));
-                    }
-                }
-            }
-            v == m
-        };
-        let p = if is_peak { v } else { 0.0 };
+        let p = if peak(idx) { v } else { 0.0 };
         if p <= 0.0 {
             peaks.push((0.0, idx));
         }

@@ -17,26 +17,14 @@ pub fn non_max_suppression(
     iou_threshold: f64,
     score_threshold: f64,
 ) -> Vec<usize> {
-    assert_eq!(boxes.len(), scores.len(), "one score per box");
-    let mut order: Vec<usize> = (0..scores.len())
-        .filter(|&i| scores[i] as f64 > score_threshold)
-        .collect();
-    // Stable sort: equal scores keep ascending index order.
-    order.sort_by(|&a, &b| scores[b].total_cmp(&scores[a]));
-    let mut selected: Vec<usize> = Vec::new();
-    for i in order {
-        if selected.len() >= max_output {
-            break;
-        }
-        let suppressed = selected
-            .iter()
-            .rev()
-            .any(|&j| iou(&boxes[i], &boxes[j]) >= iou_threshold);
-        if !suppressed {
-            selected.push(i);
-        }
-    }
-    selected
+    greedy(
+        boxes,
+        scores,
+        max_output,
+        iou_threshold,
+        score_threshold,
+        |_, _| true,
+    )
 }
 
 /// [`non_max_suppression`] within each class: a box suppresses only boxes of its own class
@@ -51,11 +39,34 @@ pub fn class_aware_nms(
     iou_threshold: f64,
     score_threshold: f64,
 ) -> Vec<usize> {
-    assert_eq!(boxes.len(), scores.len(), "one score per box");
     assert_eq!(boxes.len(), classes.len(), "one class per box");
+    let same_class = |i: usize, j: usize| classes[i] == classes[j];
+    greedy(
+        boxes,
+        scores,
+        max_output,
+        iou_threshold,
+        score_threshold,
+        same_class,
+    )
+}
+
+/// The greedy selection both share: candidates above `score_threshold` by descending score (ties
+/// to the lower index), each kept unless a selected box it `competes` with overlaps it by
+/// `iou_threshold` or more, until `max_output` are kept.
+fn greedy(
+    boxes: &[[f32; 4]],
+    scores: &[f32],
+    max_output: usize,
+    iou_threshold: f64,
+    score_threshold: f64,
+    competes: impl Fn(usize, usize) -> bool,
+) -> Vec<usize> {
+    assert_eq!(boxes.len(), scores.len(), "one score per box");
     let mut order: Vec<usize> = (0..scores.len())
         .filter(|&i| scores[i] as f64 > score_threshold)
         .collect();
+    // Stable sort: equal scores keep ascending index order.
     order.sort_by(|&a, &b| scores[b].total_cmp(&scores[a]));
     let mut selected: Vec<usize> = Vec::new();
     for i in order {
@@ -63,7 +74,7 @@ pub fn class_aware_nms(
             break;
         }
         let suppressed = (selected.iter().rev())
-            .any(|&j| classes[j] == classes[i] && iou(&boxes[i], &boxes[j]) >= iou_threshold);
+            .any(|&j| competes(i, j) && iou(&boxes[i], &boxes[j]) >= iou_threshold);
         if !suppressed {
             selected.push(i);
         }

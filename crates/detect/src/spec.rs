@@ -42,7 +42,7 @@ impl TypedValueParser for ModelSpec {
     ) -> std::result::Result<String, clap::Error> {
         let s = value.to_string_lossy();
         let bare = crate::catalogue::model_info(&s)
-            .is_some_and(|m| m.weights == super::Weights::Checkpoint);
+            .is_some_and(|m| m.weights == crate::catalogue::Weights::Checkpoint);
         if !(self.bare_checkpoints && bare) {
             crate::catalogue::check_spec(&s)
                 .map_err(|e| clap::Error::raw(ErrorKind::InvalidValue, format!("{e}\n")))?;

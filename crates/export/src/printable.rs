@@ -259,7 +259,7 @@ fn a_out_for(m: &PrintMesh) -> printability::Analysis {
 fn drop_parts(m: &PrintMesh, min_mm: f32) -> Result<PrintMesh> {
     let comp = repair::components(&m.tris.iter().map(|t| t.v).collect::<Vec<_>>());
     let parts = printability::parts(m);
-    let mut tris: Vec<PrintTri> = m
+    let tris: Vec<PrintTri> = m
         .tris
         .iter()
         .zip(&comp)
@@ -270,11 +270,5 @@ fn drop_parts(m: &PrintMesh, min_mm: f32) -> Result<PrintMesh> {
         !tris.is_empty(),
         "every part is smaller than the minimum feature"
     );
-    let (positions, report) = printcheck::weld_and_check(&m.positions, &mut tris)?;
-    Ok(PrintMesh {
-        positions,
-        tris,
-        report,
-        ..m.clone()
-    })
+    printcheck::rewelded(m, &m.positions, tris)
 }

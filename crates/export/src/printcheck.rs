@@ -7,7 +7,7 @@
 //! non-manifold edges (more than two triangles), zero-area triangles with distinct corners,
 //! non-orientable shells.
 
-use crate::mesh::{Paint, PrintReport, PrintTri};
+use crate::mesh::{Paint, PrintMesh, PrintReport, PrintTri};
 use anyhow::{bail, Result};
 use glam::Vec3;
 use std::collections::{HashMap, VecDeque};
@@ -220,6 +220,22 @@ pub(crate) fn weld_and_check(
     );
     rep.size_mm = (hi - lo).to_array();
     Ok((positions, rep))
+}
+
+/// `mesh` with new geometry: `tris` over `positions` welded and checked ([`weld_and_check`]),
+/// the name, textures and parts kept. The ending of every repair that rebuilds the triangles.
+pub(crate) fn rewelded(
+    mesh: &PrintMesh,
+    positions: &[Vec3],
+    mut tris: Vec<PrintTri>,
+) -> Result<PrintMesh> {
+    let (positions, report) = weld_and_check(positions, &mut tris)?;
+    Ok(PrintMesh {
+        positions,
+        tris,
+        report,
+        ..mesh.clone()
+    })
 }
 
 #[cfg(test)]

@@ -11,7 +11,7 @@
 //! again on the result.
 
 use crate::mesh::{Paint, PrintMesh, PrintTri};
-use crate::printcheck::{weld, weld_and_check};
+use crate::printcheck::{rewelded, weld};
 use anyhow::Result;
 use cac_scene::polygon::{ear_clip, OnEdge};
 use glam::{Vec2, Vec3};
@@ -134,16 +134,7 @@ pub(crate) fn light_repair(mesh: &PrintMesh, max_hole_mm: f32) -> Result<(PrintM
     // 5. Open shells facing inward.
     log.open_shells_flipped = orient_open_shells(&pos, &mut tris);
     anyhow::ensure!(!tris.is_empty(), "no triangle is left after repair");
-    let (positions, report) = weld_and_check(&pos, &mut tris)?;
-    Ok((
-        PrintMesh {
-            positions,
-            tris,
-            report,
-            ..mesh.clone()
-        },
-        log,
-    ))
+    Ok((rewelded(mesh, &pos, tris)?, log))
 }
 
 /// Splits open edges at the open vertices that lie on them (within 0.01 mm), repeatedly.

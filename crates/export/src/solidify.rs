@@ -18,7 +18,7 @@
 
 use crate::mesh::{Paint, PrintMesh, PrintTri};
 use crate::printability::{corners, Analysis, ThinPolicy, TriKind};
-use crate::printcheck::weld_and_check;
+use crate::printcheck::rewelded;
 use crate::surface::{closest_on_triangle, SurfaceIndex};
 use anyhow::{bail, Result};
 use cac_core::memory::MemoryBudget;
@@ -281,19 +281,11 @@ pub fn solidify(
     if tris_k.is_empty() {
         bail!("the solid is empty at a voxel size of {h} mm (the object is smaller than the grid)");
     }
-    let mut tris = paint_from(mesh, &positions, &tris_k);
-    let (positions, report) = weld_and_check(&positions, &mut tris)?;
-    rep.triangles = tris.len();
+    let tris = paint_from(mesh, &positions, &tris_k);
+    let solid = rewelded(mesh, &positions, tris)?;
+    rep.triangles = solid.tris.len();
     rep.seconds = start.elapsed().as_secs_f64();
-    Ok((
-        PrintMesh {
-            positions,
-            tris,
-            report,
-            ..mesh.clone()
-        },
-        rep,
-    ))
+    Ok((solid, rep))
 }
 
 /// The solid's grid: cells of `h` mm around the triangles (padded by the thickening radius and

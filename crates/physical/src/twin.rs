@@ -7,7 +7,7 @@
 
 use super::camera::{CameraError, Frame, FrameSource};
 use super::rig::Rig;
-use cac_render::ibl::{self, ImageLight};
+use cac_render::ibl::ImageLight;
 use cac_render::{Backdrop, Background, Ground, Lighting};
 use cac_scene::Texture;
 use glam::Vec2;
@@ -82,7 +82,7 @@ impl DigitalTwin {
                     map.clone(),
                     t.hdri_rotation_deg + pose.angle_deg as f32,
                     t.hdri_exposure_stops,
-                    t.ground.map(|c| c.map(ibl::srgb_decode)),
+                    t.ground.map(|c| c.map(cac_core::colour::decode)),
                     t.ibl,
                 )),
             },

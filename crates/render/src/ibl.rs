@@ -17,6 +17,7 @@
 //! `a × srgb(E / π)`, the conversion the Blender job uses for cac's own ambient.
 
 use anyhow::{bail, Context, Result};
+use cac_core::colour;
 use glam::Vec3;
 use std::f32::consts::PI;
 use std::path::{Path, PathBuf};
@@ -116,8 +117,6 @@ pub const REFLECTION_LEVELS: usize = 6;
 fn luminance(c: [f32; 3]) -> f32 {
     0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
 }
-
-pub use cac_core::colour::{decode as srgb_decode, encode as srgb_encode};
 
 /// The unit direction (map frame) through the centre of texel `(x, y)` of a `w x h` map.
 fn texel_dir(x: usize, y: usize, w: usize, h: usize) -> Vec3 {
@@ -551,7 +550,7 @@ impl ImageLight {
     /// What the camera sees along world direction `d` (display value per channel).
     pub fn backdrop(&self, d: Vec3) -> [f32; 3] {
         let l = self.map.radiance_at(self.to_map(d));
-        l.map(|v| srgb_encode(v * self.strength))
+        l.map(|v| colour::encode(v * self.strength))
     }
 
     /// What a glossy part of GGX roughness `roughness` reflects along world direction `r`
@@ -568,7 +567,7 @@ impl ImageLight {
                 .reflection_at(self.to_map(r), level)
                 .map(|v| v * self.strength),
         };
-        l.map(srgb_encode)
+        l.map(colour::encode)
     }
 }
 

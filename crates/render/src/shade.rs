@@ -14,6 +14,7 @@ use super::gbuffer::{GBuffer, Sample, Surface};
 use super::ibl::{self, ImageLight, Sh9};
 use super::light::{background_colour, environment_colour, mean_colour};
 use super::light::{Backdrop, Background, Lighting};
+use cac_core::colour;
 use cac_scene::bilinear::{self, Wrap};
 use cac_scene::{Material, Scene, Texture};
 use glam::{Vec2, Vec3};
@@ -212,10 +213,10 @@ impl Shader<'_> {
                     e[c] += s[c] * ndl;
                 }
             }
-            sun_disp = s.map(|v| ibl::srgb_encode(v / std::f32::consts::PI));
+            sun_disp = s.map(|v| colour::encode(v / std::f32::consts::PI));
         }
         (
-            e.map(|v| ibl::srgb_encode(v / std::f32::consts::PI)),
+            e.map(|v| colour::encode(v / std::f32::consts::PI)),
             sun_disp,
             vis,
         )

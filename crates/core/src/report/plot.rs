@@ -6,6 +6,7 @@
 //! when none is found, plots are drawn with their lines and grid but without text (never an error).
 
 use anyhow::{anyhow, Result};
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::sync::OnceLock;
@@ -147,6 +148,59 @@ fn finish(buf: Vec<u8>, w: u32, h: u32) -> Result<image::RgbImage> {
     image::RgbImage::from_raw(w, h, buf).ok_or_else(|| anyhow!("plot buffer size"))
 }
 
+/// The chart both plots draw on: f64 cartesian coordinates on an RGB buffer.
+type Chart<'a, 'b> =
+    ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// One series' line through `pts` (already in chart coordinates) in colour `c`, its legend
+/// entry where there is text and a label, and its markers where asked.
+fn draw_line(
+    chart: &mut Chart,
+    s: &Series,
+    c: RGBColor,
+    pts: &[(f64, f64)],
+    text: bool,
+) -> Result<()> {
+    let drawn = chart
+        .draw_series(LineSeries::new(
+            pts.iter().copied(),
+            c.stroke_width(s.stroke),
+        ))
+        .map_err(err)?;
+    if text && !s.label.is_empty() {
+        let st = c.stroke_width(2);
+        drawn
+            .label(&s.label)
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], st));
+    }
+    if s.markers {
+        chart
+            .draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled())))
+            .map_err(err)?;
+    }
+    Ok(())
+}
+
+/// The legend box, where any series has a label (at plotters' default place, or `at`).
+fn draw_legend<'a, 'b: 'a>(
+    chart: &mut Chart<'a, 'b>,
+    series: &[Series],
+    at: Option<SeriesLabelPosition>,
+) -> Result<()> {
+    if !series.iter().any(|s| !s.label.is_empty()) {
+        return Ok(());
+    }
+    let mut labels = chart.configure_series_labels();
+    if let Some(at) = at {
+        labels.position(at);
+    }
+    labels
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()
+        .map_err(err)
+}
+
 /// Lines (with markers and error bars where given) on cartesian axes; a legend when a font is
 /// available and any series has a label.
 pub fn xy(p: &Plot, series: &[Series]) -> Result<image::RgbImage> {
@@ -190,23 +244,7 @@ pub fn xy(p: &Plot, series: &[Series]) -> Result<image::RgbImage> {
                 .copied()
                 .filter(|p| p.1.is_finite())
                 .collect();
-            let drawn = chart
-                .draw_series(LineSeries::new(
-                    pts.iter().copied(),
-                    c.stroke_width(s.stroke),
-                ))
-                .map_err(err)?;
-            if text && !s.label.is_empty() {
-                let st = c.stroke_width(2);
-                drawn
-                    .label(&s.label)
-                    .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], st));
-            }
-            if s.markers {
-                chart
-                    .draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled())))
-                    .map_err(err)?;
-            }
+            draw_line(&mut chart, s, c, &pts, text)?;
             let cap = (xr.1 - xr.0) * 0.008;
             for (i, &(x, y)) in s.points.iter().enumerate() {
                 let Some(&e) = s.err.get(i) else { break };
@@ -223,13 +261,8 @@ pub fn xy(p: &Plot, series: &[Series]) -> Result<image::RgbImage> {
                     .map_err(err)?;
             }
         }
-        if text && series.iter().any(|s| !s.label.is_empty()) {
-            chart
-                .configure_series_labels()
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK)
-                .draw()
-                .map_err(err)?;
+        if text {
+            draw_legend(&mut chart, series, None)?;
         }
         root.present().map_err(err)?;
     }
@@ -312,32 +345,10 @@ pub fn polar(p: &Plot, series: &[Series]) -> Result<image::RgbImage> {
                 .filter(|p| p.1.is_finite())
                 .map(|&(az, v)| polar_xy(az, rad(v)))
                 .collect();
-            let drawn = chart
-                .draw_series(LineSeries::new(
-                    pts.iter().copied(),
-                    c.stroke_width(s.stroke),
-                ))
-                .map_err(err)?;
-            if text && !s.label.is_empty() {
-                let st = c.stroke_width(2);
-                drawn
-                    .label(&s.label)
-                    .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], st));
-            }
-            if s.markers {
-                chart
-                    .draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled())))
-                    .map_err(err)?;
-            }
+            draw_line(&mut chart, s, c, &pts, text)?;
         }
-        if text && series.iter().any(|s| !s.label.is_empty()) {
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperRight)
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK)
-                .draw()
-                .map_err(err)?;
+        if text {
+            draw_legend(&mut chart, series, Some(SeriesLabelPosition::UpperRight))?;
         }
         if text {
             root.draw(&Text::new(

@@ -73,7 +73,7 @@ impl RpnHead {
                 let [b, a, h, w] = obj.dims();
                 let obj = obj.permute([0, 2, 3, 1]);
                 let del = del.reshape([b, a, 4, h, w]).permute([0, 3, 4, 1, 2]);
-                let (o, d) = (super::super::to_vec(&obj)?, super::super::to_vec(&del)?);
+                let (o, d) = (crate::host::to_vec(&obj)?, crate::host::to_vec(&del)?);
                 let n = h * w * a;
                 Ok(LevelOutput {
                     grid: (h, w),

@@ -454,10 +454,9 @@ impl Environment {
                     )
                 })
                 .clone();
-            let ground_albedo = self
-                .config
-                .ground
-                .then(|| crate::light::mean_colour(self.ground(cond)).map(crate::ibl::srgb_decode));
+            let ground_albedo = self.config.ground.then(|| {
+                crate::light::mean_colour(self.ground(cond)).map(cac_core::colour::decode)
+            });
             return Lighting {
                 ambient: 0.0,
                 sun: 0.0,
