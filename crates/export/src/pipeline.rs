@@ -1,11 +1,11 @@
 //! [`export`]: the whole of `cac export` — load, check, repair for print, bake and write each
 //! requested format — and the [`ExportSummary`] it returns.
 
-use crate::bake;
+use crate::bake::{self, Baked};
 use crate::load::{load_mesh, load_texture, prepare};
 use crate::mesh::{sanitize, PrintMesh, PrintReport, Scale};
 use crate::options::{ExportOptions, Format, RepairMode};
-use crate::printability::Printability;
+use crate::printability::{self, Printability};
 use crate::printable::{format_scale, make_printable};
 use crate::solidify::{self, Fidelity, SolidifyReport};
 use crate::{obj, painted, sheets, threemf, vrml};
@@ -96,15 +96,7 @@ pub fn export(
     ensure!(!opts.formats.is_empty(), "no export format requested");
     let mut pre_notes = vec![];
     let (formats, printer) = formats_for_printer(opts, &mut pre_notes)?;
-    cac_core::memory::stage_with("mesh and texture loading", "use a smaller texture");
-    let scene = load_mesh(mesh_path, &opts.load)?;
-    let camo = load_texture(texture_path, &opts.memory)?;
-    check_output_dir(out)?;
-    let mesh = prepare(&scene, &camo, opts.scale)
-        .with_context(|| format!("mesh {}", mesh_path.display()))?;
-    if let Some((printer, name)) = &printer {
-        check_printer_scale(printer, name, &mesh, opts.scale)?;
-    }
+    let mesh = load_and_prepare(mesh_path, texture_path, out, opts, printer.as_ref())?;
     let input_report = mesh.report.clone();
     let mut notes = vec![format!(
         "check: {}",
@@ -124,9 +116,102 @@ pub fn export(
         bake::check_lower_bound(&mesh, &opts.bake, &opts.memory)
             .with_context(|| format!("mesh {}", mesh_path.display()))?;
     }
-    let mut mesh = mesh;
-    let (mut solid, mut fidelity, mut printability, mut original) = (None, None, None, None);
-    if needs_closed && (opts.allow_open || opts.repair == RepairMode::Off) {
+    let made = for_print(mesh, needs_closed, opts, mesh_path, &mut notes)?;
+    let mesh = &made.mesh;
+    let baked = if needs_bake {
+        Some(bake_colours(&made, opts, mesh_path)?)
+    } else {
+        None
+    };
+    let err = baked
+        .as_ref()
+        .map(|b| bake::colour_error(mesh, b, 100_000, 1));
+    let mut fidelity = None;
+    if let Some((orig, kinds)) = &made.original {
+        let f = solidify::fidelity(orig, kinds, mesh, baked.as_ref(), 20_000, 3);
+        notes.push(f.note());
+        fidelity = Some(f);
+    }
+    let job = Writer {
+        made: &made,
+        baked: baked.as_ref(),
+        stem: sanitize(&mesh.name),
+        out,
+        opts,
+        printer: printer.as_ref(),
+        mesh_path,
+    };
+    let mut written = Written::default();
+    for f in &formats {
+        (opts.progress)(&format!("writing {}", f.name()));
+        cac_core::memory::stage(f.stage());
+        job.write(*f, &mut written)?;
+    }
+    Ok(ExportSummary {
+        files: written.files,
+        report: mesh.report.clone(),
+        baked_triangles: baked.as_ref().map(|b| b.tris.len()),
+        bake_rmse_8bit: err.as_ref().map(|e| e.rmse_8bit),
+        bake_mean_delta_e: err.as_ref().map(|e| e.mean_delta_e),
+        notes,
+        input_report,
+        solid: made.solid,
+        fidelity,
+        printability: made.printability,
+        painting: written.painting,
+        slice: written.slice,
+    })
+}
+
+/// Loads the mesh and the texture (the output folder proved writable in between) and prepares
+/// the print mesh at the export's scale, checked against an FDM printer's object size.
+fn load_and_prepare(
+    mesh_path: &Path,
+    texture_path: &Path,
+    out: &Path,
+    opts: &ExportOptions,
+    printer: Option<&NamedPrinter>,
+) -> Result<PrintMesh> {
+    cac_core::memory::stage_with("mesh and texture loading", "use a smaller texture");
+    let scene = load_mesh(mesh_path, &opts.load)?;
+    let camo = load_texture(texture_path, &opts.memory)?;
+    check_output_dir(out)?;
+    let mesh = prepare(&scene, &camo, opts.scale)
+        .with_context(|| format!("mesh {}", mesh_path.display()))?;
+    if let Some((printer, name)) = printer {
+        check_printer_scale(printer, name, &mesh, opts.scale)?;
+    }
+    Ok(mesh)
+}
+
+/// The mesh to write and what making it printable found.
+struct MadeForPrint {
+    mesh: PrintMesh,
+    solid: Option<SolidifyReport>,
+    printability: Option<Printability>,
+    /// The mesh before it was rebuilt as a solid, and its triangles' classification.
+    original: Option<(PrintMesh, Vec<printability::TriKind>)>,
+}
+
+/// The mesh as the formats need it: left as it is (no geometry format, `--allow-open` or
+/// `--repair off`: an open mesh refused or warned about), or repaired at scale.
+fn for_print(
+    mesh: PrintMesh,
+    needs_closed: bool,
+    opts: &ExportOptions,
+    mesh_path: &Path,
+    notes: &mut Vec<String>,
+) -> Result<MadeForPrint> {
+    let as_is = |mesh| MadeForPrint {
+        mesh,
+        solid: None,
+        printability: None,
+        original: None,
+    };
+    if !needs_closed {
+        return Ok(as_is(mesh));
+    }
+    if opts.allow_open || opts.repair == RepairMode::Off {
         if !mesh.report.is_closed() {
             let msg = format!(
                 "mesh {} is not printable: {}",
@@ -138,118 +223,118 @@ pub fn export(
             }
             notes.push(format!("warning: {msg}; written anyway (--allow-open)"));
         }
-    } else if needs_closed {
-        (opts.progress)("checking and repairing for print");
-        cac_core::memory::stage_with("print repair", "use a smaller texture or mesh");
-        let r = make_printable(&mesh, opts, mesh_path, &mut notes)?;
-        if r.1.is_some() {
-            original = Some((mesh, r.3));
-        }
-        mesh = r.0;
-        solid = r.1;
-        printability = Some(r.2);
+        return Ok(as_is(mesh));
     }
-    let stem = sanitize(&mesh.name);
-    let mut files = vec![];
-    let baked = if needs_bake {
-        cac_core::memory::stage_with("bake", "raise --max-edge-texels");
-        (opts.progress)(&format!(
-            "baking the colours of {} triangles",
-            mesh.tris.len()
-        ));
-        let mut b = bake::bake(&mesh, &opts.bake, &opts.memory)
-            .with_context(|| format!("mesh {}", mesh_path.display()))?;
-        if let Some((orig, _)) = &original {
-            solidify::recolour_from(orig, &mut b);
-        }
-        Some(b)
-    } else {
-        None
-    };
-    let err = baked
-        .as_ref()
-        .map(|b| bake::colour_error(&mesh, b, 100_000, 1));
-    if let Some((orig, kinds)) = &original {
-        let f = solidify::fidelity(orig, kinds, &mesh, baked.as_ref(), 20_000, 3);
-        notes.push(f.note());
-        fidelity = Some(f);
+    (opts.progress)("checking and repairing for print");
+    cac_core::memory::stage_with("print repair", "use a smaller texture or mesh");
+    let (made, solid, printability, kinds) = make_printable(&mesh, opts, mesh_path, notes)?;
+    let original = solid.is_some().then_some((mesh, kinds));
+    Ok(MadeForPrint {
+        mesh: made,
+        solid,
+        printability: Some(printability),
+        original,
+    })
+}
+
+/// The baked colours of the mesh to write (a rebuilt solid takes them from the original
+/// surface).
+fn bake_colours(made: &MadeForPrint, opts: &ExportOptions, mesh_path: &Path) -> Result<Baked> {
+    cac_core::memory::stage_with("bake", "raise --max-edge-texels");
+    (opts.progress)(&format!(
+        "baking the colours of {} triangles",
+        made.mesh.tris.len()
+    ));
+    let mut b = bake::bake(&made.mesh, &opts.bake, &opts.memory)
+        .with_context(|| format!("mesh {}", mesh_path.display()))?;
+    if let Some((orig, _)) = &made.original {
+        solidify::recolour_from(orig, &mut b);
     }
-    let (mut painting, mut slice) = (None, None);
-    for f in &formats {
-        (opts.progress)(&format!("writing {}", f.name()));
-        cac_core::memory::stage(f.stage());
+    Ok(b)
+}
+
+/// What the formats share while they are written.
+struct Writer<'a> {
+    made: &'a MadeForPrint,
+    baked: Option<&'a Baked>,
+    stem: String,
+    out: &'a Path,
+    opts: &'a ExportOptions,
+    printer: Option<&'a NamedPrinter>,
+    mesh_path: &'a Path,
+}
+
+/// What the formats wrote.
+#[derive(Default)]
+struct Written {
+    files: Vec<PathBuf>,
+    painting: Option<painted::PaintSummary>,
+    slice: Option<painted::SliceCost>,
+}
+
+impl Writer<'_> {
+    /// Writes format `f`, adding its files (and the painting's summary and cost) to `w`.
+    fn write(&self, f: Format, w: &mut Written) -> Result<()> {
+        let (mesh, out, stem) = (&self.made.mesh, self.out, &self.stem);
         match f {
             Format::ThreeMfTexture => {
                 let p = out.join(format!("{stem}_texture.3mf"));
-                threemf::write_textured(&mesh, &p)?;
-                files.push(p);
+                threemf::write_textured(mesh, &p)?;
+                w.files.push(p);
             }
             Format::ThreeMfColor => {
                 let p = out.join(format!("{stem}_color.3mf"));
-                threemf::write_colored(&mesh, baked.as_ref().unwrap(), &p)?;
-                files.push(p);
+                threemf::write_colored(mesh, self.baked.unwrap(), &p)?;
+                w.files.push(p);
             }
-            Format::Obj => files.extend(obj::write_textured(&mesh, out, &stem, opts.zip_obj)?),
-            Format::Vrml => files.extend(vrml::write(&mesh, out, &stem)?),
+            Format::Obj => w
+                .files
+                .extend(obj::write_textured(mesh, out, stem, self.opts.zip_obj)?),
+            Format::Vrml => w.files.extend(vrml::write(mesh, out, stem)?),
             Format::ObjVc => {
                 let p = out.join(format!("{stem}_vc.obj"));
-                obj::write_vertex_colour(baked.as_ref().unwrap(), &p)?;
-                files.push(p);
+                obj::write_vertex_colour(self.baked.unwrap(), &p)?;
+                w.files.push(p);
             }
-            Format::ThreeMfPainted => {
-                let (printer, name) = printer.as_ref().expect("checked by formats_for_printer");
-                let Printer::Fdm { palette, fdm, .. } = printer else {
-                    unreachable!("formats_for_printer keeps FDM printers only")
-                };
-                let p = out.join(format!("{stem}_painted.3mf"));
-                let painted =
-                    painted::paint(&mesh, printer, name, &painted::PaintLimits::for_fdm(fdm))
-                        .with_context(|| format!("mesh {}", mesh_path.display()))?;
-                let bed = opts.limits.build_volume_mm;
-                threemf::write_painted(&mesh, &painted.trees, fdm, palette, name, bed, &p)?;
-                files.push(p.clone());
-                if opts.slice {
-                    (opts.progress)("slicing the painted 3MF with PrusaSlicer");
-                    let g = out.join(format!("{stem}_painted.gcode"));
-                    slice = Some(painted::slice(&p, &g)?);
-                    files.push(g);
-                }
-                painting = Some(painted.summary);
-            }
+            Format::ThreeMfPainted => self.write_painted(w)?,
             Format::Sheets => {
                 // Sheets cover the surface as modelled (a person pastes them on the real
                 // object): the mesh before it was rebuilt as a solid, whose UV islands are the
                 // model's, not the grid's thousands of fragments.
-                let surface = original.as_ref().map_or(&mesh, |(m, _)| m);
+                let surface = self.made.original.as_ref().map_or(mesh, |(m, _)| m);
                 let dir = out.join("sheets");
-                files.extend(
-                    sheets::write_sheets(
-                        surface,
-                        opts.scale,
-                        &opts.sheets,
-                        &dir,
-                        &opts.memory,
-                        opts.progress,
-                    )
-                    .with_context(|| format!("mesh {}", mesh_path.display()))?,
+                let o = self.opts;
+                w.files.extend(
+                    sheets::write_sheets(surface, o.scale, &o.sheets, &dir, &o.memory, o.progress)
+                        .with_context(|| format!("mesh {}", self.mesh_path.display()))?,
                 );
             }
         }
+        Ok(())
     }
-    Ok(ExportSummary {
-        files,
-        report: mesh.report.clone(),
-        baked_triangles: baked.as_ref().map(|b| b.tris.len()),
-        bake_rmse_8bit: err.as_ref().map(|e| e.rmse_8bit),
-        bake_mean_delta_e: err.as_ref().map(|e| e.mean_delta_e),
-        notes,
-        input_report,
-        solid,
-        fidelity,
-        printability,
-        painting,
-        slice,
-    })
+
+    /// The painted 3MF for the FDM printer's filaments, sliced when `--slice` asks.
+    fn write_painted(&self, w: &mut Written) -> Result<()> {
+        let (mesh, out, stem, opts) = (&self.made.mesh, self.out, &self.stem, self.opts);
+        let (printer, name) = self.printer.expect("checked by formats_for_printer");
+        let Printer::Fdm { palette, fdm, .. } = printer else {
+            unreachable!("formats_for_printer keeps FDM printers only")
+        };
+        let p = out.join(format!("{stem}_painted.3mf"));
+        let painted = painted::paint(mesh, printer, name, &painted::PaintLimits::for_fdm(fdm))
+            .with_context(|| format!("mesh {}", self.mesh_path.display()))?;
+        let bed = opts.limits.build_volume_mm;
+        threemf::write_painted(mesh, &painted.trees, fdm, palette, name, bed, &p)?;
+        w.files.push(p.clone());
+        if opts.slice {
+            (opts.progress)("slicing the painted 3MF with PrusaSlicer");
+            let g = out.join(format!("{stem}_painted.gcode"));
+            w.slice = Some(painted::slice(&p, &g)?);
+            w.files.push(g);
+        }
+        w.painting = Some(painted.summary);
+        Ok(())
+    }
 }
 
 /// A loaded printer model and its profile's name.

@@ -79,6 +79,30 @@ pub(crate) fn weld_and_check(
     if tris.is_empty() {
         bail!("the mesh has no triangles");
     }
+    let mut rep = PrintReport::default();
+    let positions = welded_positions(raw, tris, &mut rep)?;
+    rep.welded_vertices = positions.len();
+    rep.triangles = tris.len();
+    measure_area(&positions, tris, &mut rep);
+    let edges = edge_triangles(tris);
+    count_bad_edges(&positions, &edges, &mut rep);
+    let shells = orient_shells(tris, &edges, &mut rep);
+    turn_outward(&positions, tris, &shells, &mut rep);
+    let (lo, hi) = positions.iter().fold(
+        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+        |(l, h), &p| (l.min(p), h.max(p)),
+    );
+    rep.size_mm = (hi - lo).to_array();
+    Ok((positions, rep))
+}
+
+/// Welds `raw` within a millionth of its diagonal, re-indexes `tris`, removes the triangles
+/// that collapse, and keeps only the positions still used (in first-use order).
+fn welded_positions(
+    raw: &[Vec3],
+    tris: &mut Vec<PrintTri>,
+    rep: &mut PrintReport,
+) -> Result<Vec<Vec3>> {
     let (lo, hi) = raw.iter().fold(
         (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
         |(l, h), &p| (l.min(p), h.max(p)),
@@ -89,11 +113,8 @@ pub(crate) fn weld_and_check(
     }
     let eps = (diag * 1e-6).max(1e-6);
     let (welded, map) = weld(raw, eps);
-    let mut rep = PrintReport {
-        input_vertices: raw.len(),
-        weld_epsilon_mm: eps,
-        ..Default::default()
-    };
+    rep.input_vertices = raw.len();
+    rep.weld_epsilon_mm = eps;
     for t in tris.iter_mut() {
         t.v = t.v.map(|i| map[i as usize]);
     }
@@ -103,7 +124,6 @@ pub(crate) fn weld_and_check(
     if tris.is_empty() {
         bail!("every triangle collapsed when welding vertices");
     }
-    // Keep only used positions.
     let mut remap = vec![u32::MAX; welded.len()];
     let mut positions = vec![];
     for t in tris.iter_mut() {
@@ -115,11 +135,13 @@ pub(crate) fn weld_and_check(
             *v = remap[*v as usize];
         }
     }
-    rep.welded_vertices = positions.len();
-    rep.triangles = tris.len();
-    let pos = |i: u32| positions[i as usize];
-    for t in tris.iter() {
-        let [a, b, c] = t.v.map(pos);
+    Ok(positions)
+}
+
+/// The surface's area, and the triangles of no area (relative to their longest edge).
+fn measure_area(positions: &[Vec3], tris: &[PrintTri], rep: &mut PrintReport) {
+    for t in tris {
+        let [a, b, c] = t.v.map(|i| positions[i as usize]);
         let cr = (b - a).cross(c - a).length();
         let e = (b - a)
             .length_squared()
@@ -130,8 +152,13 @@ pub(crate) fn weld_and_check(
             rep.degenerate += 1;
         }
     }
-    // Edge → triangles.
-    let mut edges: HashMap<(u32, u32), Vec<u32>> = HashMap::new();
+}
+
+/// Each undirected edge and the triangles that have it.
+type EdgeMap = HashMap<(u32, u32), Vec<u32>>;
+
+fn edge_triangles(tris: &[PrintTri]) -> EdgeMap {
+    let mut edges = EdgeMap::new();
     for (ti, t) in tris.iter().enumerate() {
         for k in 0..3 {
             let (a, b) = (t.v[k], t.v[(k + 1) % 3]);
@@ -141,7 +168,13 @@ pub(crate) fn weld_and_check(
                 .push(ti as u32);
         }
     }
-    for (&(a, b), ts) in &edges {
+    edges
+}
+
+/// Open and non-manifold edges, with up to five examples (sorted).
+fn count_bad_edges(positions: &[Vec3], edges: &EdgeMap, rep: &mut PrintReport) {
+    let pos = |i: u32| positions[i as usize];
+    for (&(a, b), ts) in edges {
         if ts.len() != 2 {
             if ts.len() == 1 {
                 rep.open_edges += 1;
@@ -156,7 +189,17 @@ pub(crate) fn weld_and_check(
     }
     rep.example_edges
         .sort_by(|p, q| p.partial_cmp(q).unwrap_or(std::cmp::Ordering::Equal));
-    // Orientation: breadth-first over manifold edges, flipping neighbours to agree.
+}
+
+/// The shells (edge-connected triangles): each triangle's shell, and whether each shell is
+/// closed and orientable.
+struct Shells {
+    of: Vec<u32>,
+    closed: Vec<bool>,
+}
+
+/// Orientation: breadth-first over manifold edges, flipping neighbours to agree.
+fn orient_shells(tris: &mut [PrintTri], edges: &EdgeMap, rep: &mut PrintReport) -> Shells {
     let dir = |t: &PrintTri, a: u32, b: u32| (0..3).any(|k| t.v[k] == a && t.v[(k + 1) % 3] == b);
     let mut shell = vec![u32::MAX; tris.len()];
     let mut shell_closed = vec![];
@@ -197,16 +240,24 @@ pub(crate) fn weld_and_check(
         shell_closed.push(closed && orientable);
     }
     rep.shells = shell_closed.len();
+    Shells {
+        of: shell,
+        closed: shell_closed,
+    }
+}
+
+/// Each shell's volume; closed shells of negative volume turned outward; the total volume.
+fn turn_outward(positions: &[Vec3], tris: &mut [PrintTri], shells: &Shells, rep: &mut PrintReport) {
     let mut vol = vec![0.0f64; rep.shells];
     for (ti, t) in tris.iter().enumerate() {
-        let [a, b, c] = t.v.map(|i| pos(i).as_dvec3());
-        vol[shell[ti] as usize] += a.dot(b.cross(c)) / 6.0;
+        let [a, b, c] = t.v.map(|i| positions[i as usize].as_dvec3());
+        vol[shells.of[ti] as usize] += a.dot(b.cross(c)) / 6.0;
     }
     for (s, v) in vol.iter_mut().enumerate() {
-        if shell_closed[s] && *v < 0.0 {
+        if shells.closed[s] && *v < 0.0 {
             rep.flipped_shells += 1;
             for (ti, t) in tris.iter_mut().enumerate() {
-                if shell[ti] as usize == s {
+                if shells.of[ti] as usize == s {
                     flip(t);
                 }
             }
@@ -214,12 +265,6 @@ pub(crate) fn weld_and_check(
         }
     }
     rep.volume_mm3 = vol.iter().sum();
-    let (lo, hi) = positions.iter().fold(
-        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
-        |(l, h), &p| (l.min(p), h.max(p)),
-    );
-    rep.size_mm = (hi - lo).to_array();
-    Ok((positions, rep))
 }
 
 /// `mesh` with new geometry: `tris` over `positions` welded and checked ([`weld_and_check`]),

@@ -510,88 +510,120 @@ struct BlockMesh {
 
 /// Evaluates one block's (B+1)³ points and runs marching cubes on its B³ cells.
 fn march_block(f: &Field, bi: IVec3, cells: IVec3) -> BlockMesh {
-    let n = (B + 1) as usize;
     let base = bi * B;
-    let at = |x: i32, y: i32, z: i32| ((x as usize * n) + y as usize) * n + z as usize;
+    let (s, evaluated) = if f.closed {
+        winding_samples(f, base)
+    } else {
+        field_samples(f, base)
+    };
+    let crossed_faces = crossed_faces(&s);
+    let (verts, tris) = march_cells(f, base, cells, &s);
+    BlockMesh {
+        verts,
+        tris,
+        evaluated,
+        crossed_faces,
+    }
+}
+
+/// Points per block side.
+const N: usize = (B + 1) as usize;
+
+/// Index of the block's point `(x, y, z)`.
+fn at(x: i32, y: i32, z: i32) -> usize {
+    ((x as usize * N) + y as usize) * N + z as usize
+}
+
+/// The block's points sampled on a closed volume, and how many winding numbers that took.
+fn winding_samples(f: &Field, base: IVec3) -> (Vec<Sample>, usize) {
+    let n = N;
     let mut s = vec![Sample { w: 0.0, g: 0.0 }; n * n * n];
     let mut evaluated = 0;
-    if f.closed {
-        // Winding numbers only within a voxel of a surface; elsewhere the side of a neighbour
-        // (no surface can pass between a point and a neighbour more than a voxel from it).
-        let mut known = vec![false; n * n * n];
-        let mut queue = std::collections::VecDeque::new();
-        for x in 0..=B {
-            for y in 0..=B {
-                for z in 0..=B {
-                    let p = f.pos(base + IVec3::new(x, y, z));
-                    let i = at(x, y, z);
-                    s[i].g = f.thin_g(p);
-                    if f.vol.closest_within(p, f.h).is_some() {
-                        s[i].w = f.vol.winding(p);
-                        known[i] = true;
-                        evaluated += 1;
-                        queue.push_back(IVec3::new(x, y, z));
-                    }
+    // Winding numbers only within a voxel of a surface; elsewhere the side of a neighbour
+    // (no surface can pass between a point and a neighbour more than a voxel from it).
+    let mut known = vec![false; n * n * n];
+    let mut queue = std::collections::VecDeque::new();
+    for x in 0..=B {
+        for y in 0..=B {
+            for z in 0..=B {
+                let p = f.pos(base + IVec3::new(x, y, z));
+                let i = at(x, y, z);
+                s[i].g = f.thin_g(p);
+                if f.vol.closest_within(p, f.h).is_some() {
+                    s[i].w = f.vol.winding(p);
+                    known[i] = true;
+                    evaluated += 1;
+                    queue.push_back(IVec3::new(x, y, z));
                 }
             }
         }
-        let mut next_seed = 0;
-        loop {
-            while let Some(q) = queue.pop_front() {
-                let wq = if s[at(q.x, q.y, q.z)].w > 0.5 {
-                    1.0
-                } else {
-                    0.0
-                };
-                for d in [
-                    IVec3::X,
-                    IVec3::Y,
-                    IVec3::Z,
-                    -IVec3::X,
-                    -IVec3::Y,
-                    -IVec3::Z,
-                ] {
-                    let r = q + d;
-                    if r.min_element() < 0 || r.max_element() > B {
-                        continue;
-                    }
-                    let i = at(r.x, r.y, r.z);
-                    if !known[i] {
-                        known[i] = true;
-                        s[i].w = wq;
-                        queue.push_back(r);
-                    }
-                }
-            }
-            // A region with no surface near: one winding number for all of it.
-            while next_seed < known.len() && known[next_seed] {
-                next_seed += 1;
-            }
-            if next_seed == known.len() {
-                break;
-            }
-            let (x, y, z) = (next_seed / (n * n), (next_seed / n) % n, next_seed % n);
-            let q = IVec3::new(x as i32, y as i32, z as i32);
-            let w = if f.vol.is_empty() {
-                0.0
-            } else {
-                f.vol.winding(f.pos(base + q))
-            };
-            s[next_seed].w = if w > 0.5 { 1.0 } else { 0.0 };
-            known[next_seed] = true;
-            evaluated += 1;
-            queue.push_back(q);
-        }
-    } else {
-        for x in 0..=B {
-            for y in 0..=B {
-                for z in 0..=B {
-                    s[at(x, y, z)] = f.sample(f.pos(base + IVec3::new(x, y, z)));
-                }
-            }
-        }
-        evaluated = n * n * n;
     }
+    let mut next_seed = 0;
+    loop {
+        while let Some(q) = queue.pop_front() {
+            let wq = if s[at(q.x, q.y, q.z)].w > 0.5 {
+                1.0
+            } else {
+                0.0
+            };
+            for d in [
+                IVec3::X,
+                IVec3::Y,
+                IVec3::Z,
+                -IVec3::X,
+                -IVec3::Y,
+                -IVec3::Z,
+            ] {
+                let r = q + d;
+                if r.min_element() < 0 || r.max_element() > B {
+                    continue;
+                }
+                let i = at(r.x, r.y, r.z);
+                if !known[i] {
+                    known[i] = true;
+                    s[i].w = wq;
+                    queue.push_back(r);
+                }
+            }
+        }
+        // A region with no surface near: one winding number for all of it.
+        while next_seed < known.len() && known[next_seed] {
+            next_seed += 1;
+        }
+        if next_seed == known.len() {
+            break;
+        }
+        let (x, y, z) = (next_seed / (n * n), (next_seed / n) % n, next_seed % n);
+        let q = IVec3::new(x as i32, y as i32, z as i32);
+        let w = if f.vol.is_empty() {
+            0.0
+        } else {
+            f.vol.winding(f.pos(base + q))
+        };
+        s[next_seed].w = if w > 0.5 { 1.0 } else { 0.0 };
+        known[next_seed] = true;
+        evaluated += 1;
+        queue.push_back(q);
+    }
+    (s, evaluated)
+}
+
+/// The block's points sampled on an open surface's field (every point evaluated).
+fn field_samples(f: &Field, base: IVec3) -> (Vec<Sample>, usize) {
+    let n = N;
+    let mut s = vec![Sample { w: 0.0, g: 0.0 }; n * n * n];
+    for x in 0..=B {
+        for y in 0..=B {
+            for z in 0..=B {
+                s[at(x, y, z)] = f.sample(f.pos(base + IVec3::new(x, y, z)));
+            }
+        }
+    }
+    (s, n * n * n)
+}
+
+/// The block's faces the surface crosses (see [`BlockMesh::crossed_faces`]).
+fn crossed_faces(s: &[Sample]) -> u8 {
     let mut crossed_faces = 0u8;
     for axis in 0..3 {
         for (side, c) in [(0, 0), (1, B)] {
@@ -610,6 +642,17 @@ fn march_block(f: &Field, bi: IVec3, cells: IVec3) -> BlockMesh {
             }
         }
     }
+    crossed_faces
+}
+
+/// Marching cubes over the block's cells: vertices keyed by their global grid edge, and the
+/// triangles as those keys.
+fn march_cells(
+    f: &Field,
+    base: IVec3,
+    cells: IVec3,
+    s: &[Sample],
+) -> (Vec<(u64, Vec3)>, Vec<[u64; 3]>) {
     let gp = cells + IVec3::ONE;
     let key = |p: IVec3, axis: u64| {
         (((p.x as u64 * gp.y as u64 + p.y as u64) * gp.z as u64 + p.z as u64) << 2) | axis
@@ -672,12 +715,7 @@ fn march_block(f: &Field, bi: IVec3, cells: IVec3) -> BlockMesh {
             }
         }
     }
-    BlockMesh {
-        verts,
-        tris,
-        evaluated,
-        crossed_faces,
-    }
+    (verts, tris)
 }
 
 /// Recolours a bake of a rebuilt solid from the original surface: every baked vertex takes the

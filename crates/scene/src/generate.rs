@@ -87,7 +87,6 @@ impl Builder {
         cap_mat: u32,
         smooth: bool,
     ) {
-        let n = profile.len();
         let base = self.scene.positions.len() as u32;
         for &q in profile {
             self.scene
@@ -97,11 +96,24 @@ impl Builder {
                 .positions
                 .push(m.transform_point3(Vec3::new(q.x, q.y, z1)));
         }
+        let nm = m.inverse().transpose();
+        self.prism_sides(profile, (z0, z1), nm, base, side_mat, smooth);
+        self.prism_caps(profile, (z0, z1), nm, base, cap_mat);
+    }
+
+    /// The side faces of [`Self::prism`] (its positions from `base`; `nm` the normal matrix).
+    fn prism_sides(
+        &mut self,
+        profile: &[Vec2],
+        (z0, z1): (f32, f32),
+        nm: Mat4,
+        base: u32,
+        side_mat: u32,
+        smooth: bool,
+    ) {
+        let n = profile.len();
         let centre2 = profile.iter().copied().sum::<Vec2>() / n as f32;
         let side_paint = self.scene.paintable[side_mat as usize];
-        let cap_paint = self.scene.paintable[cap_mat as usize];
-        let nm = m.inverse().transpose();
-        // Side faces.
         let mut along = 0.0f32;
         for i in 0..n {
             let j = (i + 1) % n;
@@ -168,7 +180,19 @@ impl Builder {
                 outward,
             );
         }
-        // Caps, by ear clipping.
+    }
+
+    /// The two caps of [`Self::prism`], by ear clipping (the back one's UVs mirrored).
+    fn prism_caps(
+        &mut self,
+        profile: &[Vec2],
+        (z0, z1): (f32, f32),
+        nm: Mat4,
+        base: u32,
+        cap_mat: u32,
+    ) {
+        let n = profile.len();
+        let cap_paint = self.scene.paintable[cap_mat as usize];
         let ears = ear_clip(profile, OnEdge::Allowed);
         let (lo, hi) = profile.iter().fold(
             (Vec2::splat(f32::MAX), Vec2::splat(f32::MIN)),
