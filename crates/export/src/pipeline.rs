@@ -11,6 +11,7 @@ use crate::solidify::{self, Fidelity, SolidifyReport};
 use crate::{obj, painted, sheets, threemf, vrml};
 use anyhow::{bail, ensure, Context, Result};
 use cac_core::printer::Printer;
+use cac_scene::{Scene, Texture};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
@@ -96,7 +97,9 @@ pub fn export(
     ensure!(!opts.formats.is_empty(), "no export format requested");
     let mut pre_notes = vec![];
     let (formats, printer) = formats_for_printer(opts, &mut pre_notes)?;
-    let mesh = load_and_prepare(mesh_path, texture_path, out, opts, printer.as_ref())?;
+    // The loaded scene and texture are held until the export returns, as they always were:
+    // `tests/memory_guard.rs`'s stop in the middle of the sheets is tuned to that profile.
+    let (mesh, _loaded) = load_and_prepare(mesh_path, texture_path, out, opts, printer.as_ref())?;
     let input_report = mesh.report.clone();
     let mut notes = vec![format!(
         "check: {}",
@@ -164,14 +167,15 @@ pub fn export(
 }
 
 /// Loads the mesh and the texture (the output folder proved writable in between) and prepares
-/// the print mesh at the export's scale, checked against an FDM printer's object size.
+/// the print mesh at the export's scale, checked against an FDM printer's object size; returns
+/// it with what was loaded.
 fn load_and_prepare(
     mesh_path: &Path,
     texture_path: &Path,
     out: &Path,
     opts: &ExportOptions,
     printer: Option<&NamedPrinter>,
-) -> Result<PrintMesh> {
+) -> Result<(PrintMesh, (Scene, Texture))> {
     cac_core::memory::stage_with("mesh and texture loading", "use a smaller texture");
     let scene = load_mesh(mesh_path, &opts.load)?;
     let camo = load_texture(texture_path, &opts.memory)?;
@@ -181,7 +185,7 @@ fn load_and_prepare(
     if let Some((printer, name)) = printer {
         check_printer_scale(printer, name, &mesh, opts.scale)?;
     }
-    Ok(mesh)
+    Ok((mesh, (scene, camo)))
 }
 
 /// The mesh to write and what making it printable found.
