@@ -66,6 +66,9 @@ impl DemoJob {
     /// sheets and summary.json, saying what it does on stdout.
     pub fn run(&self, device: &Device) -> Result<DemoOutcome> {
         let start = Instant::now();
+        // The attack's settings are checked before anything is scored or written.
+        let attack = self.attack_config();
+        attack.validate()?;
         let cfg = self.scene_config();
         let Stage {
             renderer,
@@ -83,7 +86,6 @@ impl DemoJob {
         println!("loading detectors (fetched once into the cache on first use) ...");
         let dets = detect::load_all(&["nanodet", "centernet"], None, device)?;
         let all = detect::refs(&dets);
-        let attack = self.attack_config();
         let proto = Protocol::from_labels("car,truck", Some(&attack.target))?;
         let plan = ViewPlan {
             views_per_level: self.views,
