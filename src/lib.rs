@@ -5,7 +5,7 @@
 //! forward only. A module names only modules of an earlier rank (modules joined by `/` share one
 //! and do not name each other; `tests/import_graph.rs` checks it against this line):
 //!
-//! `memory` / `colour` → `io` / `report` / `printer` → `scene` → `render` → `environment` → `config` → `detect` → `attack` / `eval` → `export` / `physical` / `study` → `sim` / `video`
+//! `memory` / `colour` → `io` / `report` / `printer` → `scene` → `render` → `environment` → `config` → `detect` → `attack` → `eval` → `export` / `physical` / `study` → `sim` / `video`
 //!
 //! `memory`, `colour`, `io`, `report` and `printer` are the shared floor (the memory budget; sRGB,
 //! CIELAB and ΔE2000; files, which register their temporaries with the budget's guard; tables,
@@ -17,7 +17,7 @@
 //!
 //! The stages live in the workspace's crates (`crates/`, see `docs/pipeline.md`): `cac-core`
 //! (`memory`, `colour`, `io`, `report`, `printer`), `cac-scene`, `cac-render` (`render`, `environment`, `config`),
-//! `cac-detect`, `cac-export`, `cac-attack` (`attack`, `eval`, `study`), `cac-physical`
+//! `cac-detect`, `cac-export`, `cac-attack` (`attack`), `cac-eval` (`eval`, `study`), `cac-physical`
 //! (`physical`, `sim`) and `cac-video`; this crate re-exports each module under the name above
 //! and holds the `cac` binary.
 //!
@@ -25,9 +25,10 @@
 //! chosen once at the edge (the `cac` binary, the tests, the benchmarks).
 
 pub use cac_attack as attack;
-pub use cac_attack::{eval, study};
 pub use cac_core::{colour, io, memory, printer, report};
 pub use cac_detect as detect;
+pub use cac_eval as eval;
+pub use cac_eval::study;
 pub use cac_export as export;
 pub use cac_physical as physical;
 pub use cac_physical::sim;

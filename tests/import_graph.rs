@@ -6,7 +6,7 @@
 //! 1. **Stages.** `src/lib.rs` states the order of the top-level modules in one doc line
 //!    (`a` / `b` → `c` → …; modules joined by `/` share a rank). A module may name (`crate::x…`,
 //!    `cac_y::x…`) only modules of an earlier rank. A crate is one module (`cac-scene` is
-//!    `scene`) or several (`cac-attack` is `attack`, with `eval` and `study` beside it; see
+//!    `scene`) or several (`cac-eval` is `eval`, with `study` beside it; see
 //!    [`CRATES`]). The exceptions are listed below, each with its reason.
 //! 2. **No circle among siblings.** In every folder of `src/` (the library and the `cac` binary's
 //!    `cli/` alike) the files that name each other directly (`super::x`, `crate::…::x`) form no
@@ -28,7 +28,7 @@ fn root() -> &'static Path {
 }
 
 /// The path roots that name the project's own modules.
-const ROOTS: [&str; 11] = [
+const ROOTS: [&str; 12] = [
     "crate",
     "super",
     "self",
@@ -38,6 +38,7 @@ const ROOTS: [&str; 11] = [
     "cac_detect",
     "cac_export",
     "cac_attack",
+    "cac_eval",
     "cac_physical",
     "cac_video",
 ];
@@ -54,7 +55,8 @@ const CRATES: &[(&str, Option<&str>, &[&str])] = &[
     ("render", Some("render"), &["config", "environment"]),
     ("detect", Some("detect"), &[]),
     ("export", Some("export"), &[]),
-    ("attack", Some("attack"), &["eval", "study"]),
+    ("attack", Some("attack"), &[]),
+    ("eval", Some("eval"), &["study"]),
     ("physical", Some("physical"), &["sim"]),
     ("video", Some("video"), &[]),
 ];

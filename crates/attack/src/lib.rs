@@ -13,12 +13,9 @@
 //! holds a run; long runs checkpoint every K iterations ([`checkpoint`]), and a resumed run
 //! continues exactly where the last checkpoint left off.
 //!
-//! Crate `cac-attack`: this module (`cac::attack`), with [`eval`] (the evaluation protocol and its
-//! scoring core) and [`study`] (experiments that train with the attack and judge with `eval`) beside
-//! it.
-
-pub mod eval;
-pub mod study;
+//! Crate `cac-attack` (`cac::attack`). The evaluation protocol that judges a run, and the studies
+//! that train with the attack and judge with it, are the next crate, `cac-eval`; a run's training
+//! curve is scored through the [`curve::Judge`] trait, which `cac-eval` implements.
 
 pub mod adam;
 pub mod baselines;

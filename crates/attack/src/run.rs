@@ -117,11 +117,7 @@ impl RunDir {
     /// The run in `path` for `scene` and `attack`: a new one where the folder holds none, the one
     /// there where its settings are these (but for `iterations`), and an error naming the
     /// settings that differ otherwise.
-    pub(crate) fn open_or_create(
-        path: &Path,
-        scene: SceneConfig,
-        attack: AttackConfig,
-    ) -> Result<RunDir> {
+    pub fn open_or_create(path: &Path, scene: SceneConfig, attack: AttackConfig) -> Result<RunDir> {
         if !path.join("run.json").exists() {
             return RunDir::create(path, scene, attack);
         }

@@ -11,10 +11,10 @@ use super::session::SessionInfo;
 use super::truth::ground_truth_box;
 use anyhow::{Context, Result};
 use burn::tensor::Device;
-use cac_attack::eval::score::{figures_by, mean_std, ImageScore, Scorer};
-use cac_attack::eval::Protocol;
 use cac_core::report::{plot, Html, Plot, Series, Table};
 use cac_detect::{preprocess::image_to_tensor, Detector};
+use cac_eval::score::{figures_by, mean_std, ImageScore, Scorer};
+use cac_eval::Protocol;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 

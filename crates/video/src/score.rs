@@ -8,9 +8,9 @@ use super::annotations::GroundTruth;
 use super::decode::{FrameStream, VideoFrame};
 use anyhow::{bail, Result};
 use burn::tensor::Device;
-use cac_attack::eval::score::{group_by, mean_std, Figures, ImageScore, Scorer};
-use cac_attack::eval::Protocol;
 use cac_detect::{nms::iou, preprocess::image_to_tensor, Detection, Detector};
+use cac_eval::score::{group_by, mean_std, Figures, ImageScore, Scorer};
+use cac_eval::Protocol;
 use serde::Serialize;
 use std::time::Instant;
 

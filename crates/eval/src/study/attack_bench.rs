@@ -5,13 +5,13 @@
 //! street-level views, scored with `eval`). Each part prints its rows as they are measured and
 //! returns them as a [`Table`] for CSV. Timed with the one timer (`report::timer`).
 
-use crate::config::AttackConfig;
-use crate::eval::{self, Protocol};
-use crate::iteration::IterationLog;
-use crate::loss::Goal;
-use crate::trainer::Trainer;
+use crate::Protocol;
 use anyhow::Result;
 use burn::tensor::Device;
+use cac_attack::loss::Goal;
+use cac_attack::AttackConfig;
+use cac_attack::IterationLog;
+use cac_attack::Trainer;
 use cac_core::report::timer::{median, Stopwatch};
 use cac_core::report::Table;
 use cac_detect::Detector;
@@ -129,11 +129,11 @@ pub fn error_against_time(
         c.render.atlas_res = res;
         let r = Renderer::new(scene.clone(), c.render.clone())?;
         let eval_r = Renderer::new(scene.clone(), config::eval_render(&c.render))?;
-        let score = |atlas: &Texture| -> Result<eval::Summary> {
-            let r = eval::evaluate(&eval_r, &denv, &views, atlas, det, &proto, device)?;
-            Ok(eval::summarise(&r.scores[0]))
+        let score = |atlas: &Texture| -> Result<crate::Summary> {
+            let r = crate::evaluate(&eval_r, &denv, &views, atlas, det, &proto, device)?;
+            Ok(crate::summarise(&r.scores[0]))
         };
-        let mut report = |it: usize, secs: f64, s: &eval::Summary| {
+        let mut report = |it: usize, secs: f64, s: &crate::Summary| {
             let (p, t) = (s.p_at_05, s.targeted_success);
             println!("{batch:>5} {n:>5} {res:>7} {it:>10} {secs:>10.1} {p:>7.3} {t:>14.3}");
             rows.row([

@@ -2,10 +2,10 @@
 //! trained with different numbers of fixed proposals n, per evaluation model, against the
 //! original texture) and the methods table (every attack of one harness, per model and
 //! viewpoint set). The training and the evaluation themselves are `attack::Trainer` and
-//! [`super::job`].
+//! [`crate::job`].
 
-use super::run::ImageRecord;
-use super::summary::{figures, sel, Figures};
+use crate::run::ImageRecord;
+use crate::summary::{figures, sel, Figures};
 use anyhow::Result;
 use cac_core::report::{plot, Plot, Series, Table};
 use cac_render::environment::ViewpointSet;

@@ -1,41 +1,7 @@
-//! Evaluation metrics: per image and model, a *hit* is a true-class detection with IoU >= 0.5
-//! against the ground-truth box at confidence >= 0.3; P@0.5 = hits / images. Targeted success is
-//! the same test for the target class. Drop = P@0.5(original) − P@0.5(texture).
-//!
-//! [`score`] is the one scoring core (detect, score against the box, tally by key) that the
-//! rendered, Blender, capture and video evaluations share. [`run`] draws the protocol's views and
-//! scores textures in them, [`summary`] aggregates the
-//! per-image records, [`report`] writes the tables, plots and HTML, [`textures`] resolves the
-//! texture list, [`cache`] keeps finished textures so an interrupted evaluation resumes, [`shard`]
-//! splits an evaluation into shards and merges them back. [`realism`] measures whether the
-//! original object is recognised at all (`cac bench realism`), [`bench`] the images scored per
-//! second (`cac bench eval`), [`compare`] one texture against another (the demo's before and
-//! after).
-
-pub mod agreement;
-pub mod bench;
-pub mod blender;
-pub mod cache;
-pub mod compare;
-pub mod gradcam;
-pub mod ibl_bench;
-pub mod job;
-pub mod realism;
-pub mod report;
-pub mod run;
-pub mod score;
-pub mod shard;
-pub mod slurm;
-pub mod study;
-pub mod summary;
-pub mod textures;
-mod views;
-/// Lives in [`cac_render::environment`]; re-exported for the callers that still name it here.
-pub use cac_render::environment::street_views;
-pub use views::{evaluate, ViewResults};
+//! [`Protocol`]: the evaluation's thresholds and classes, resolved by name against each
+//! model's own class list.
 
 use cac_detect::labels;
-pub use score::{score_image, Figures, ImageScore, ModelOutcome, Scorer};
 use serde::{Deserialize, Serialize};
 
 /// The protocol's thresholds and classes (stated in every report).
@@ -162,28 +128,10 @@ impl Protocol {
     }
 }
 
-/// P@0.5, targeted success and mean best true-class confidence over images.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct Summary {
-    pub images: usize,
-    pub p_at_05: f64,
-    pub targeted_success: f64,
-    pub mean_best_true_conf: f64,
-}
-
-pub fn summarise(scores: &[ImageScore]) -> Summary {
-    let f = Figures::of_scores(scores);
-    Summary {
-        images: f.images,
-        p_at_05: f.p_at_05,
-        targeted_success: f.targeted_success,
-        mean_best_true_conf: f.mean_best_true_conf,
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::score::{score_image, summarise};
     use cac_detect::Detection;
 
     fn det(c: usize, s: f32, b: [f32; 4]) -> Detection {

@@ -305,7 +305,7 @@ pub(crate) fn breakdown_rows(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::eval::ImageScore;
+    use crate::ImageScore;
 
     fn rec(tex: &str, set: ViewpointSet, b: Brightness, az: f32, hit: bool) -> ImageRecord {
         ImageRecord {

@@ -7,7 +7,7 @@
 //! angle, a video segment). The callers keep only what differs: where the frames and their boxes
 //! come from, what a record keeps, and which keys they report.
 
-use super::Protocol;
+use crate::Protocol;
 use anyhow::{Context, Result};
 use burn::tensor::Tensor;
 use cac_detect::{nms::iou, Detection, Detector};
@@ -195,6 +195,25 @@ pub fn mean_std(v: &[f64]) -> (f64, f64) {
         0.0
     };
     (m, var.sqrt())
+}
+
+/// P@0.5, targeted success and mean best true-class confidence over images.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Summary {
+    pub images: usize,
+    pub p_at_05: f64,
+    pub targeted_success: f64,
+    pub mean_best_true_conf: f64,
+}
+
+pub fn summarise(scores: &[ImageScore]) -> Summary {
+    let f = Figures::of_scores(scores);
+    Summary {
+        images: f.images,
+        p_at_05: f.p_at_05,
+        targeted_success: f.targeted_success,
+        mean_best_true_conf: f.mean_best_true_conf,
+    }
 }
 
 #[cfg(test)]

@@ -5,14 +5,14 @@
 //! `views_per_level` each, drawn with a seed the training never uses, rendered as `cac eval`
 //! renders (512², 4 samples per pixel, the protocol's environment, the run's object) and scored
 //! by the protocol's models. [`Curve`] binds it to a run and makes the points
-//! ([`crate::curve::Judge`]).
+//! ([`cac_attack::curve::Judge`]).
 
-use crate::curve::{CurveFigures, CurvePoint, Judge};
-use crate::eval::run::{all_views, evaluate_texture_in, view_groups, ViewGroup, ViewPlan};
-use crate::eval::summary::{figures, sel};
-use crate::eval::Protocol;
+use crate::run::{all_views, evaluate_texture_in, view_groups, ViewGroup, ViewPlan};
+use crate::summary::{figures, sel};
+use crate::Protocol;
 use anyhow::Result;
 use burn::tensor::Device;
+use cac_attack::curve::{CurveFigures, CurvePoint, Judge};
 use cac_detect::Detector;
 use cac_render::config::SceneConfig;
 use cac_render::environment::{Environment, ViewpointSet};

@@ -9,17 +9,18 @@
 pub mod attack_bench;
 pub mod curve;
 pub mod demo;
+mod figures;
 pub mod methods;
 pub mod topn;
 
-use crate::config::AttackConfig;
-use crate::eval::job::EvalJob;
-use crate::eval::run::ViewPlan;
-use crate::eval::Protocol;
-use crate::trainer::Trainer;
-use crate::{loss::ProposalRule, run::RunDir};
+use crate::job::EvalJob;
+use crate::run::ViewPlan;
+use crate::Protocol;
 use anyhow::{bail, Context, Result};
 use burn::tensor::Device;
+use cac_attack::AttackConfig;
+use cac_attack::Trainer;
+use cac_attack::{loss::ProposalRule, run::RunDir};
 use cac_detect::Detector;
 use cac_render::config::{SceneConfig, Stage};
 use cac_render::environment::ViewpointSet;
@@ -151,10 +152,10 @@ mod tests {
         }
         use clap::Parser;
         let s = Line::try_parse_from(["cac study"]).unwrap().source;
-        let d = crate::config::AttackConfig::default();
+        let d = cac_attack::AttackConfig::default();
         assert_eq!(
             s.attack(d.iterations, d.seed),
-            crate::config::AttackConfig {
+            cac_attack::AttackConfig {
                 checkpoint_every: 10,
                 ..d
             }

@@ -6,13 +6,14 @@
 //! job's proposal rule; each baseline keeps its own paper's choice of what it attacks. Each
 //! entry of `hide` adds a CAC row in hide mode.
 
+use super::figures;
 use super::{protocol_job, train_run};
-use crate::baselines::Method;
-use crate::config::AttackConfig;
-use crate::eval::job;
-use crate::eval::{report, study};
+use crate::job;
+use crate::report;
 use anyhow::{bail, Context, Result};
 use burn::tensor::Device;
+use cac_attack::baselines::Method;
+use cac_attack::AttackConfig;
 use cac_detect as detect;
 use cac_render::config::SceneConfig;
 use cac_render::environment::ViewpointSet;
@@ -177,7 +178,7 @@ impl MethodsJob {
             .collect();
         table_rows.extend(trained.iter().map(|(n, s, _)| (n.clone(), Some(*s))));
         let (models, sets) = (&o.info.models, &job.plan.sets);
-        let t = study::methods_table(&o.records, &table_rows, models, &self.source.models, sets);
+        let t = figures::methods_table(&o.records, &table_rows, models, &self.source.models, sets);
         let md = format!(
             "# Methods under the protocol\n\n```\n{}\ntraining: {} iterations, batch {}, sources {}, target {:?}, CAC proposals {}, seed {}; train (s) = the logged iteration times\n```\n\n{}",
             report::protocol_text(&o.info),

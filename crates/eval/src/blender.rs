@@ -45,7 +45,7 @@ use std::process::Command;
 use std::sync::Arc;
 
 /// The Python side, run by Blender.
-pub(crate) const SCRIPT: &str = include_str!("../../../../tools/blender/render_views.py");
+pub(crate) const SCRIPT: &str = include_str!("../../../tools/blender/render_views.py");
 
 /// How Blender is run.
 #[derive(Clone, Debug)]

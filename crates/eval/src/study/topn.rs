@@ -5,13 +5,14 @@
 //! topn.html (the full evaluation report in OUT/eval/). A sweep runs it in parts: one training
 //! task per setting, evaluation shards, then the merge.
 
+use super::figures;
 use super::{protocol_job, train_run};
-use crate::config::AttackConfig;
-use crate::eval::job::{self, ShardOutcome};
-use crate::eval::shard::Shard;
-use crate::eval::{report, study};
+use crate::job::{self, ShardOutcome};
+use crate::report;
+use crate::shard::Shard;
 use anyhow::{bail, Result};
 use burn::tensor::Device;
+use cac_attack::AttackConfig;
 use cac_core::report::Html;
 use cac_detect as detect;
 use cac_render::config::SceneConfig;
@@ -133,7 +134,7 @@ impl TopnJob {
             let label = format!("n = {n}");
             let ro = read_only.as_deref();
             train_run(&dir, &self.scene, ac, &stage, &src, device, &label, ro)?;
-            specs.push(format!("{}={}", study::run_name(n), dir.display()));
+            specs.push(format!("{}={}", figures::run_name(n), dir.display()));
         }
         Ok(specs)
     }
@@ -161,8 +162,8 @@ impl TopnJob {
             Part::Merge => job::merge(&job, &refs, device)?,
             _ => job::run(&job, &refs, device, &mut |_, _| {})?,
         };
-        let t = study::topn_table(&o.records, &self.n, &o.info.models, &self.source.models);
-        let img = study::topn_plot(&o.records, &self.n, &o.info.models, &self.source.models)?;
+        let t = figures::topn_table(&o.records, &self.n, &o.info.models, &self.source.models);
+        let img = figures::topn_plot(&o.records, &self.n, &o.info.models, &self.source.models)?;
         cac_core::io::save_png_atomic(&self.out.join("topn.png"), &img)?;
         cac_core::io::write_atomic(&self.out.join("topn.csv"), t.csv().as_bytes())?;
         let md = format!(

@@ -6,14 +6,14 @@
 //! CenterNet as an unseen (transfer) model. Writes the atlases, view sheets with each detector's
 //! boxes and summary.json; returns the before/after table as text.
 
-use crate::config::AttackConfig;
-use crate::eval::compare::{before_after, write_sheets, BeforeAfter};
-use crate::eval::run::{all_views, evaluate_texture_in, view_groups, ViewPlan};
-use crate::eval::Protocol;
-use crate::run::RunDir;
-use crate::trainer::Trainer;
+use crate::compare::{before_after, write_sheets, BeforeAfter};
+use crate::run::{all_views, evaluate_texture_in, view_groups, ViewPlan};
+use crate::Protocol;
 use anyhow::Result;
 use burn::tensor::Device;
+use cac_attack::run::RunDir;
+use cac_attack::AttackConfig;
+use cac_attack::Trainer;
 use cac_detect::{self as detect, Detector};
 use cac_render::config::{SceneConfig, Stage};
 use cac_render::environment::{Environment, ViewpointSet};
