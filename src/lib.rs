@@ -5,10 +5,10 @@
 //! forward only. A module names only modules of an earlier rank (modules joined by `/` share one
 //! and do not name each other; `tests/import_graph.rs` checks it against this line):
 //!
-//! `memory` / `colour` → `io` / `report` / `printer` → `scene` → `render` → `environment` → `config` → `detect` → `attack` → `eval` → `export` / `physical` / `study` → `sim` / `video`
+//! `memory` / `colour` / `choice` → `io` / `report` / `printer` → `scene` → `render` → `environment` → `config` → `detect` → `attack` → `eval` → `export` / `physical` / `study` → `sim` / `video`
 //!
-//! `memory`, `colour`, `io`, `report` and `printer` are the shared floor (the memory budget; sRGB,
-//! CIELAB and ΔE2000; files, which register their temporaries with the budget's guard; tables,
+//! `memory`, `colour`, `choice`, `io`, `report` and `printer` are the shared floor (the memory budget; sRGB,
+//! CIELAB and ΔE2000; settings with named values; files, which register their temporaries with the budget's guard; tables,
 //! plots, HTML, drawn labels; printer models); `config`
 //! holds the scene config and the named presets; `study` holds the experiments that train with
 //! `attack` and judge with `eval` (the studies, the demo, the attack benchmark); `sim` is the
@@ -16,7 +16,7 @@
 //! with the detectors and the protocol.
 //!
 //! The stages live in the workspace's crates (`crates/`, see `docs/pipeline.md`): `cac-core`
-//! (`memory`, `colour`, `io`, `report`, `printer`), `cac-scene`, `cac-render` (`render`, `environment`, `config`),
+//! (`memory`, `colour`, `choice`, `io`, `report`, `printer`), `cac-scene`, `cac-render` (`render`, `environment`, `config`),
 //! `cac-detect`, `cac-export`, `cac-attack` (`attack`), `cac-eval` (`eval`, `study`), `cac-physical`
 //! (`physical`, `sim`) and `cac-video`; this crate re-exports each module under the name above
 //! and holds the `cac` binary.
@@ -25,7 +25,7 @@
 //! chosen once at the edge (the `cac` binary, the tests, the benchmarks).
 
 pub use cac_attack as attack;
-pub use cac_core::{colour, io, memory, printer, report};
+pub use cac_core::{choice, colour, io, memory, printer, report};
 pub use cac_detect as detect;
 pub use cac_eval as eval;
 pub use cac_eval::study;

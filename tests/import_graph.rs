@@ -49,7 +49,7 @@ const CRATES: &[(&str, Option<&str>, &[&str])] = &[
     (
         "core",
         None,
-        &["colour", "io", "memory", "printer", "report"],
+        &["choice", "colour", "io", "memory", "printer", "report"],
     ),
     ("scene", Some("scene"), &[]),
     ("render", Some("render"), &["config", "environment"]),

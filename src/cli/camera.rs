@@ -1,10 +1,12 @@
 //! `cac camera`: check a V4L2 camera as a capture session will use it. Parse →
 //! `cac::physical::camera_check::CameraCheck` → print.
 
+use super::flags::physical::CameraCheckFlags;
 use anyhow::Result;
 use cac::physical::camera_check::CameraCheck;
 
-pub fn run(job: CameraCheck) -> Result<()> {
+pub fn run(job: CameraCheckFlags) -> Result<()> {
+    let job = CameraCheck::from(job);
     let r = job.run()?;
     println!("{}", r.camera);
     if let Some(s) = &r.settings {

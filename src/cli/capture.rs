@@ -12,7 +12,7 @@ use std::path::PathBuf;
 #[derive(clap::Args, Debug)]
 pub struct Args {
     #[command(flatten)]
-    pub job: CaptureJob,
+    pub job: super::flags::physical::CaptureFlags,
     /// Simulated firmware (pseudo-terminal) and digital-twin camera.
     #[arg(long)]
     pub simulate: bool,
@@ -35,7 +35,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let job = &a.job;
+    let job = &CaptureJob::from(a.job.clone());
     let o = if a.simulate {
         simulated(job, &a.faults, a.speedup)?
     } else {

@@ -3,10 +3,12 @@
 //! transfer model); parses, runs it, prints its table.
 
 use super::device;
+use super::flags::eval::DemoFlags;
 use anyhow::Result;
 use cac::study::demo::DemoJob;
 
-pub fn run(a: DemoJob) -> Result<()> {
+pub fn run(a: DemoFlags) -> Result<()> {
+    let a = DemoJob::from(a);
     let o = a.run(&device::inference())?;
     print!("{}", o.table);
     println!(

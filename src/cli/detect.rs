@@ -15,7 +15,7 @@ pub struct DetectArgs {
     #[arg(required = true)]
     pub images: Vec<PathBuf>,
     /// A catalogue name, or your ONNX detector as onnx:MODEL.onnx[:CONFIG.toml].
-    #[arg(long, default_value = "centernet", value_parser = detect::spec::MODEL_NAME)]
+    #[arg(long, default_value = "centernet", value_parser = crate::cli::values::MODEL_NAME)]
     pub model: String,
     /// NanoDet only: @vladmandic/human's pre-/post-processing (RGB/255 input, argmax boxes),
     /// for parity checks; the default is the model's real BGR mean/std input and DFL decoding.

@@ -30,13 +30,13 @@ pub struct Args {
     )]
     pub textures: Vec<String>,
     /// Detectors, comma-separated (column groups).
-    #[arg(long, value_delimiter = ',', value_parser = cac::detect::spec::MODEL_SPECS, default_value = "centernet,nanodet")]
+    #[arg(long, value_delimiter = ',', value_parser = crate::cli::values::MODEL_SPECS, default_value = "centernet,nanodet")]
     pub models: Vec<String>,
     /// Views per brightness level in each viewpoint set (the paper: 200).
     #[arg(long, default_value_t = 200)]
     pub views: usize,
     /// Viewpoint sets: fv (free), rv (restricted side views), comma-separated.
-    #[arg(long, value_enum, value_delimiter = ',', default_value = "fv,rv")]
+    #[arg(long, value_parser = crate::cli::values::choice::<ViewpointSet>(), value_delimiter = ',', default_value = "fv,rv")]
     pub sets: Vec<ViewpointSet>,
     /// Seed of the views (and of the generated natural/naive/random textures).
     #[arg(long, default_value_t = 0)]

@@ -122,7 +122,7 @@ pub fn run(a: Args) -> Result<()> {
 #[derive(ClapArgs, Debug)]
 pub struct BenchArgs {
     #[command(flatten)]
-    pub bench: benchmark::ExportBench,
+    pub bench: super::flags::export::ExportBenchFlags,
     /// CSV output.
     #[arg(long, default_value = "bench_export.csv")]
     pub csv: PathBuf,
@@ -132,13 +132,14 @@ pub struct BenchArgs {
 }
 
 pub fn bench(a: BenchArgs) -> Result<()> {
-    let o = a.bench.run()?;
+    let bench = benchmark::ExportBench::from(a.bench);
+    let o = bench.run()?;
     let mesh = &o.mesh;
     if let Some(s) = &o.solid {
         println!(
             "solidify {} at 1:{} ({} triangles, {:.1} x {:.1} x {:.1} mm)",
             mesh.name,
-            a.bench.scale.denominator,
+            bench.scale.denominator,
             s.input.tris.len(),
             s.input.report.size_mm[0],
             s.input.report.size_mm[1],
@@ -152,11 +153,11 @@ pub fn bench(a: BenchArgs) -> Result<()> {
     println!(
         "object {} at {} ({} triangles), texture {}x{}, {} samples",
         mesh.name,
-        a.bench.scale.denominator,
+        bench.scale.denominator,
         mesh.tris.len(),
         o.texture.0,
         o.texture.1,
-        a.bench.samples
+        bench.samples
     );
     print!("{}", benchmark::markdown(rows));
     cac::io::write_atomic(&a.csv, benchmark::csv(rows).as_bytes())?;

@@ -13,6 +13,7 @@ pub mod device;
 pub mod eval;
 pub mod explain;
 pub mod export;
+pub mod flags;
 pub mod meshes;
 pub mod models;
 pub mod print;
@@ -23,6 +24,7 @@ pub mod slurm;
 pub mod study;
 pub mod texture;
 pub mod train;
+pub mod values;
 
 /// Learn, fabricate and physically test coated adversarial camouflages.
 #[derive(Parser, Debug)]
@@ -41,7 +43,7 @@ pub struct Cli {
 #[derive(Subcommand, Debug)]
 pub enum Command {
     /// Run the main job on the embedded defaults.
-    Demo(cac::study::demo::DemoJob),
+    Demo(flags::eval::DemoFlags),
     /// Learn a coated adversarial camouflage (the dense-proposals attack).
     Train(train::Args),
     /// Write a simple baseline texture (natural, naive, random) as a PNG.
@@ -68,7 +70,7 @@ pub enum Command {
     Capture(capture::Args),
     /// Check a V4L2 camera as a session will use it: lock it, capture a few frames, record
     /// what it runs at (camera.json).
-    Camera(cac::physical::camera_check::CameraCheck),
+    Camera(flags::physical::CameraCheckFlags),
     /// Score a capture session: P@0.5 per distance ratio and angle, JSON/CSV/HTML report.
     Score(score::Args),
     /// Evaluate textures: P@0.5, drop and targeted success in FV/RV, bright/dark views; reports.

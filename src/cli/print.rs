@@ -2,6 +2,7 @@
 //! from a photograph of it (docs/physical.md, "Calibrating a printer"; the work is
 //! `cac::physical::print_calib`).
 
+use super::flags::physical::{CalibrateFlags, ChartFlags};
 use anyhow::Result;
 use cac::physical::print_calib::{calibrate_files, CalibrateOptions, Chart, ChartSpec};
 use std::path::PathBuf;
@@ -19,7 +20,7 @@ pub enum Cmd {
 #[derive(clap::Args, Debug)]
 pub struct ChartArgs {
     #[command(flatten)]
-    pub spec: ChartSpec,
+    pub spec: ChartFlags,
     /// Folder for chart.png and chart.json.
     #[arg(long)]
     pub out: PathBuf,
@@ -37,13 +38,13 @@ pub struct CalibrateArgs {
     #[arg(long)]
     pub out: PathBuf,
     #[command(flatten)]
-    pub opts: CalibrateOptions,
+    pub opts: CalibrateFlags,
 }
 
 pub fn run(cmd: Cmd) -> Result<()> {
     match cmd {
         Cmd::Chart(a) => {
-            let chart = Chart::new(&a.spec)?;
+            let chart = Chart::new(&ChartSpec::from(a.spec))?;
             chart.write(&a.out)?;
             println!(
                 "wrote {} and {} ({} chart, {} squares)",
@@ -54,7 +55,7 @@ pub fn run(cmd: Cmd) -> Result<()> {
             );
         }
         Cmd::Calibrate(a) => {
-            let cal = calibrate_files(&a.chart, &a.photo, &a.opts)?;
+            let cal = calibrate_files(&a.chart, &a.photo, &CalibrateOptions::from(a.opts))?;
             print!("{}", cal.summary());
             cal.write(&a.out)?;
             println!("wrote {}", a.out.display());

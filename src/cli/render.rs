@@ -33,12 +33,12 @@ pub struct Args {
     /// Samples per pixel.
     #[arg(long)]
     pub samples: Option<usize>,
-    #[arg(long, value_enum, default_value = "bright")]
+    #[arg(long, value_parser = crate::cli::values::choice::<Brightness>(), default_value = "bright")]
     pub brightness: Brightness,
     /// Render N sampled views (the environment distribution) in a grid instead of one view.
     #[arg(long)]
     pub contact_sheet: Option<usize>,
-    #[arg(long, value_enum, default_value = "fv")]
+    #[arg(long, value_parser = crate::cli::values::choice::<ViewpointSet>(), default_value = "fv")]
     pub viewpoints: ViewpointSet,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,

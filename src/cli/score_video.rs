@@ -18,7 +18,7 @@ pub struct Args {
     #[arg(long)]
     pub out: PathBuf,
     /// Detectors, comma-separated.
-    #[arg(long, value_delimiter = ',', value_parser = cac::detect::spec::MODEL_SPECS, default_value = "nanodet,centernet")]
+    #[arg(long, value_delimiter = ',', value_parser = crate::cli::values::MODEL_SPECS, default_value = "nanodet,centernet")]
     pub models: Vec<String>,
     /// Ground truth: annotation CSV or COCO JSON (docs/video.md).
     #[arg(long, conflicts_with = "log")]
@@ -43,7 +43,7 @@ pub struct Args {
     #[arg(long, requires = "log", conflicts_with = "at")]
     pub at_log: bool,
     /// Segments of a logged session.
-    #[arg(long, value_enum, default_value = "revolution")]
+    #[arg(long, value_parser = crate::cli::values::choice::<LogSegments>(), default_value = "revolution")]
     pub segments: LogSegments,
     /// The twin's object (built-in name or mesh file) and vertical field of view, for --log.
     #[arg(long, default_value = "pickup")]
@@ -66,7 +66,7 @@ pub struct Args {
     #[arg(long)]
     pub max_frames: Option<usize>,
     #[command(flatten)]
-    pub open: OpenOptions,
+    pub open: OpenFlags,
     /// Annotated output: a video (.mp4/.mkv/.avi) or a folder of PNGs.
     #[arg(long)]
     pub annotated: Option<PathBuf>,
@@ -84,6 +84,30 @@ pub struct Args {
     /// docs/eval.md "Defences"), comma-separated.
     #[arg(long = "defence", value_delimiter = ',')]
     pub defences: Vec<String>,
+}
+
+/// How to open the input ([`OpenOptions`]).
+#[derive(ClapArgs, Debug, Clone)]
+pub struct OpenFlags {
+    /// Counter-clockwise rotation (0, 90, 180, 270) overriding the video's metadata.
+    #[arg(long = "rotate", value_name = "DEGREES")]
+    pub rotate_ccw: Option<u32>,
+    /// Frame rate of image folders and patterns (their frames carry no times).
+    #[arg(long, default_value_t = OpenOptions::default().fps)]
+    pub fps: f64,
+    /// Decode codecs other than H.264, HEVC, MJPEG and PNG (tolerances not measured).
+    #[arg(long = "any-codec")]
+    pub allow_any_codec: bool,
+}
+
+impl From<OpenFlags> for OpenOptions {
+    fn from(f: OpenFlags) -> Self {
+        OpenOptions {
+            rotate_ccw: f.rotate_ccw,
+            fps: f.fps,
+            allow_any_codec: f.allow_any_codec,
+        }
+    }
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -130,7 +154,7 @@ fn job(a: &Args) -> Result<VideoJob> {
         input: a.input.clone(),
         out: a.out.clone(),
         truth,
-        open: a.open.clone(),
+        open: a.open.clone().into(),
         every: a.every,
         at: a.at.clone(),
         window: a.window,
@@ -145,4 +169,27 @@ fn job(a: &Args) -> Result<VideoJob> {
 pub fn tools() -> Tools {
     let var = |k| std::env::var_os(k).map(std::path::PathBuf::from);
     Tools::locate(var("CAC_FFMPEG"), var("CAC_FFPROBE"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[test]
+    fn the_open_flags_defaults_are_open_options_default() {
+        #[derive(Parser)]
+        struct Line {
+            #[command(flatten)]
+            open: OpenFlags,
+        }
+        let o = OpenOptions::from(Line::try_parse_from(["score-video"]).unwrap().open);
+        assert_eq!(o, OpenOptions::default());
+        let o = OpenOptions::from(
+            Line::try_parse_from(["s", "--rotate", "90", "--any-codec"])
+                .unwrap()
+                .open,
+        );
+        assert_eq!((o.rotate_ccw, o.allow_any_codec), (Some(90), true));
+    }
 }

@@ -34,7 +34,7 @@ pub struct Args {
     #[arg(long, default_value_t = 4)]
     pub shards: usize,
     #[command(flatten)]
-    pub batch: Batch,
+    pub batch: super::flags::eval::BatchFlags,
     /// Print the scripts and the sbatch commands; write and submit nothing.
     #[arg(long)]
     pub dry_run: bool,
@@ -99,7 +99,7 @@ pub fn run(c: Cmd) -> Result<()> {
 }
 
 fn submit(a: &Args, out: &Path, stages: Vec<Stage>) -> Result<()> {
-    let sweep = Sweep::new(out, stages, &a.batch)?;
+    let sweep = Sweep::new(out, stages, &Batch::from(a.batch.clone()))?;
     if a.dry_run {
         print!("{}", sweep.dry_run());
         return Ok(());

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Which texture.
-    #[arg(value_enum)]
+    #[arg(value_parser = crate::cli::values::choice::<Kind>())]
     pub kind: Kind,
     /// Side in texels (2..=8192).
     #[arg(long, default_value_t = 512)]

@@ -6,6 +6,7 @@ use super::device;
 use anyhow::{Context, Result};
 use cac::attack::run::{Along, Progress, RunDir};
 use cac::attack::{AttackConfig, Trainer};
+use cac::choice::Choice;
 use cac::config::SceneConfig;
 use cac::detect::{self, Detector};
 use cac::environment::ViewpointSet;
@@ -26,7 +27,7 @@ pub struct Args {
     #[arg(long)]
     pub resume: Option<PathBuf>,
     #[command(flatten)]
-    pub attack: AttackConfig,
+    pub attack: super::flags::attack::AttackFlags,
     /// Atlas side in texels (overrides the config).
     #[arg(long)]
     pub texture_res: Option<usize>,
@@ -55,7 +56,7 @@ pub struct Args {
     #[arg(long, default_value_t = CurveSpec::default().seed)]
     pub eval_seed: u64,
     /// The curve's models (the protocol's: the source and an unseen one).
-    #[arg(long, value_delimiter = ',', default_value = "nanodet,centernet", value_parser = detect::spec::MODEL_SPECS)]
+    #[arg(long, value_delimiter = ',', default_value = "nanodet,centernet", value_parser = crate::cli::values::MODEL_SPECS)]
     pub eval_models: Vec<String>,
     /// Where stderr is not a terminal (a file, a pipe, a Slurm job), a progress line every this
     /// many seconds (iteration, loss, ms per iteration, the latest curve point, time left); on a
@@ -184,7 +185,7 @@ fn scene_config(a: &Args) -> Result<SceneConfig> {
 
 /// The attack settings of a new run from the flags.
 fn attack_config(a: &Args) -> AttackConfig {
-    let mut c = a.attack.clone();
+    let mut c = AttackConfig::from(a.attack.clone());
     if a.restricted {
         c.viewpoints = ViewpointSet::Restricted;
     }

@@ -4,128 +4,126 @@
 use crate::baselines::Method;
 use crate::loss::{ClassSet, Goal, ProposalRule, TargetLoss};
 use anyhow::{bail, Context, Result};
+use cac_core::choice::Choice;
 use cac_detect::Detector;
 use cac_render::environment::ViewpointSet;
 use serde::{Deserialize, Serialize};
 
-/// Attack settings: a run's `attack` in run.json, and `cac train`'s flags (each field's doc is its
-/// help text).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, clap::Args)]
+/// Attack settings: a run's `attack` in run.json (`cac train`'s flags map onto them).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct AttackConfig {
     /// The attack: cac (this paper) or a baseline (advpat, shapeshifter: 2D patch tiled on the
     /// object; upc, camou: full atlas in 3D). See docs/attack.md.
-    #[arg(long, value_enum, default_value_t = Method::Cac)]
     pub method: Method,
     /// Source detectors, comma-separated (an ensemble when several).
-    #[arg(long, default_value = "nanodet", value_delimiter = ',', value_parser = cac_detect::spec::MODEL_SPECS)]
     pub models: Vec<String>,
     /// Target class every proposal is pushed towards, by name: one of each source model's
     /// classes (COCO-80 labels for the built-in detectors); ignored with --hide.
-    #[arg(long, default_value = "person")]
     pub target: String,
     /// Non-targeted mode: hide the object (suppress --hide-classes in the proposals).
-    #[arg(long)]
     pub hide: bool,
     /// The classes --hide suppresses: comma-separated class names (default the vehicle classes
     /// P@0.5 counts), or `all` (every class; it does not hide the pickup: docs/attack.md).
     // Runs written before the setting existed suppressed every class: a run.json without it
     // reads as `all`.
     #[serde(default = "all_classes")]
-    #[arg(long, default_value = "car,bus,truck")]
     pub hide_classes: String,
     /// Which candidates the loss fixes: `overlap` (those on the object's box, IoU >=
     /// --overlap-iou) or `topn` (the top n after NMS over the whole image); see docs/attack.md.
     // Runs written before the rule existed used top-n: a run.json without it reads as `topn`.
     #[serde(default = "legacy_rule")]
-    #[arg(long, value_enum, default_value_t = ProposalRule::Overlap)]
     pub proposals: ProposalRule,
     /// Fixed proposals per image at most (the paper's n).
-    #[arg(long, default_value_t = 300)]
     pub top_n: usize,
     /// IoU of the class-agnostic NMS that picks the `topn` proposals.
-    #[arg(skip = 0.7)]
     pub nms_iou: f64,
     /// Least IoU with the object's box of an `overlap` proposal.
-    #[arg(long, default_value_t = 0.5)]
     pub overlap_iou: f64,
-    #[arg(long, default_value_t = 2)]
     pub batch: usize,
-    #[arg(long, default_value_t = 200)]
     pub iterations: usize,
-    #[arg(long, default_value_t = 0.02)]
     pub lr: f32,
     /// Learning-rate schedule: constant, or cosine (annealed from --lr to 0 over --iterations).
     // Runs written before the setting existed used a constant one (the default).
-    #[arg(long, value_enum, default_value_t = LrDecay::Constant)]
     pub lr_decay: LrDecay,
-    #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Write a checkpoint every this many iterations (0: only at the end).
-    #[arg(long, default_value_t = 10)]
     pub checkpoint_every: usize,
     /// Where the training views are drawn (`cac train --restricted`: side views only).
-    #[arg(skip = ViewpointSet::Free)]
     pub viewpoints: ViewpointSet,
     /// Power of the mean over images of their losses (overlap rule): 1 is the mean, p > 1
     /// weighs the views the texture fails on more ([`loss::proposals_loss_per_image`],
     /// docs/attack.md).
-    #[arg(long, default_value_t = 1.0)]
     pub image_power: f32,
     /// The target class's term in every proposal: `bce` (−log σ(z), which stops pulling once
     /// the source model is sure) or `logit` (−z, which does not: the targeted-transfer loss of
     /// Zhao et al. 2021). The other classes are suppressed by their BCE either way (--method cac
     /// only; docs/attack.md).
     // Runs written before the setting existed used the BCE (the default).
-    #[arg(long, value_enum, default_value_t = TargetLoss::Bce)]
     pub target_loss: TargetLoss,
     /// Share of the training views drawn within 30° of the front or the back (free viewpoints;
     /// default: azimuth uniform, a share of 1/3; the evaluation's views stay uniform;
     /// [`cac_render::environment::azimuth_with_front_back_share`]).
     #[serde(default)]
-    #[arg(long)]
     pub front_back_share: Option<f32>,
     /// Levels of the atlas's multi-scale parameterisation: 1 optimises texel by texel; K adds
     /// K-1 coarser levels (each half the side of the last) whose sum is the atlas ([`pyramid`]).
-    #[arg(long, default_value_t = 1)]
     pub scales: usize,
     /// Train through this printer (a profile, docs/formats.md "Printer profile"): every view
     /// renders what the printer makes. An FDM profile makes the atlas a choice among its
     /// filaments per region ([`filaments`]); the texture written is the one printed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    #[arg(long)]
     pub printer: Option<std::path::PathBuf>,
     /// Train through these input defences (an adaptive attack; docs/eval.md "Defences"): each
     /// training view goes through one of them, drawn per view, in front of every source model;
     /// gradients pass exactly (blur, resize-pad), through the mask held fixed (lgs) or straight
     /// through (the others).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    #[arg(long = "defence", value_delimiter = ',')]
     pub defences: Vec<String>,
     /// 2D methods: side of the trained patch in texels.
-    #[arg(long, default_value_t = 128)]
     pub patch_res: usize,
     /// 2D methods: copies of the patch across the atlas side when it is put on the object.
-    #[arg(long, default_value_t = 4)]
     pub patch_tiles: usize,
 }
 
 impl Default for AttackConfig {
-    /// `cac train`'s defaults: each is declared once, on its field's `#[arg]`.
+    /// `cac train`'s defaults: CAC against NanoDet towards "person", the candidates on the
+    /// object's box (IoU >= 0.5, at most 300 per image), batch 2, 200 iterations of Adam at a
+    /// constant learning rate 0.02, seed 0, a checkpoint every 10 iterations, free viewpoints,
+    /// the plain mean over images, the BCE target term, one scale; 2D methods: a 128² patch tiled
+    /// 4 times across the atlas.
     fn default() -> Self {
-        #[derive(clap::Parser)]
-        struct Flags {
-            #[command(flatten)]
-            attack: AttackConfig,
+        AttackConfig {
+            method: Method::Cac,
+            models: vec!["nanodet".into()],
+            target: "person".into(),
+            hide: false,
+            hide_classes: "car,bus,truck".into(),
+            proposals: ProposalRule::Overlap,
+            top_n: 300,
+            nms_iou: 0.7,
+            overlap_iou: 0.5,
+            batch: 2,
+            iterations: 200,
+            lr: 0.02,
+            lr_decay: LrDecay::Constant,
+            seed: 0,
+            checkpoint_every: 10,
+            viewpoints: ViewpointSet::Free,
+            image_power: 1.0,
+            target_loss: TargetLoss::Bce,
+            front_back_share: None,
+            scales: 1,
+            printer: None,
+            defences: vec![],
+            patch_res: 128,
+            patch_tiles: 4,
         }
-        <Flags as clap::Parser>::try_parse_from(["cac"])
-            .expect("the attack flags' defaults parse")
-            .attack
     }
 }
 
 /// The learning-rate schedule over a run's iterations.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum LrDecay {
     /// `lr` at every iteration.
@@ -137,14 +135,12 @@ pub enum LrDecay {
     Cosine,
 }
 
-impl LrDecay {
-    pub fn name(self) -> &'static str {
-        match self {
-            LrDecay::Constant => "constant",
-            LrDecay::Cosine => "cosine",
-        }
-    }
-}
+cac_core::choices!(LrDecay {
+    Constant => "constant": "`lr` at every iteration",
+    Cosine => "cosine": "Cosine annealing to zero (Loshchilov & Hutter 2017, without restarts): \
+        `lr_i = lr · (1 + cos(π i / iterations)) / 2`. A run grown on resume stretches the rest \
+        of its schedule to the new `iterations`",
+});
 
 fn all_classes() -> String {
     "all".into()
@@ -366,17 +362,7 @@ mod tests {
     }
 
     #[test]
-    fn the_defaults_are_the_flags_and_a_run_json_without_a_setting_reads_as_before_it() {
-        #[derive(clap::Parser)]
-        struct Line {
-            #[command(flatten)]
-            attack: AttackConfig,
-        }
-        use clap::Parser;
-        let c = Line::try_parse_from(["t", "--lr", "0.04", "--front-back-share", "0.5"])
-            .unwrap()
-            .attack;
-        assert_eq!((c.lr, c.front_back_share), (0.04, Some(0.5)));
+    fn the_defaults_and_a_run_json_without_a_setting_reads_as_before_it() {
         let d = AttackConfig::default();
         assert_eq!(
             (

@@ -129,17 +129,7 @@ fn per_proposal(z: Tensor<2>, goal: Goal) -> Result<Tensor<2>> {
 }
 
 /// The target class's term in a targeted proposal's loss (module docs).
-#[derive(
-    Clone,
-    Copy,
-    Debug,
-    Default,
-    PartialEq,
-    Eq,
-    serde::Serialize,
-    serde::Deserialize,
-    clap::ValueEnum,
-)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum TargetLoss {
     /// `softplus(−z_it)`: the binary cross-entropy, the paper's targeted loss.
@@ -150,36 +140,26 @@ pub enum TargetLoss {
 }
 
 /// Which candidates the loss fixes as proposals (module docs).
-#[derive(
-    Clone,
-    Copy,
-    Debug,
-    Default,
-    PartialEq,
-    Eq,
-    serde::Serialize,
-    serde::Deserialize,
-    clap::ValueEnum,
-)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ProposalRule {
     /// Candidates whose box overlaps the object's box (IoU ≥ the threshold), top n of them.
     #[default]
     Overlap,
     /// Top n after class-agnostic NMS over the whole image (the paper's literal rule).
-    #[value(name = "topn")]
     #[serde(rename = "topn")]
     TopN,
 }
 
-impl ProposalRule {
-    pub fn name(self) -> &'static str {
-        match self {
-            ProposalRule::Overlap => "overlap",
-            ProposalRule::TopN => "topn",
-        }
-    }
-}
+cac_core::choices!(TargetLoss {
+    Bce => "bce": "`softplus(−z_it)`: the binary cross-entropy, the paper's targeted loss",
+    Logit => "logit": "`−z_it`: the plain target logit, which does not saturate ([`Goal::TargetedLogit`])",
+});
+
+cac_core::choices!(ProposalRule {
+    Overlap => "overlap": "Candidates whose box overlaps the object's box (IoU ≥ the threshold), top n of them",
+    TopN => "topn": "Top n after class-agnostic NMS over the whole image (the paper's literal rule)",
+});
 
 /// IoU of two `x1, y1, x2, y2` boxes (0 for empty ones).
 pub fn iou(a: &[f32; 4], b: &[f32; 4]) -> f32 {

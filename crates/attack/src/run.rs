@@ -16,6 +16,7 @@ use crate::config::AttackConfig;
 use crate::iteration::IterationLog;
 use crate::trainer::Trainer;
 use anyhow::{bail, Context, Result};
+use cac_core::choice::Choice;
 use cac_core::report::timer::format_duration;
 use cac_render::config::SceneConfig;
 use indicatif::{ProgressBar, ProgressStyle};

@@ -36,7 +36,7 @@ pub struct ModelInfo {
 }
 
 /// The detector catalogue: every detector [`load`] knows, in the order help texts list them.
-pub(crate) const MODELS: [ModelInfo; 7] = [
+pub const MODELS: [ModelInfo; 7] = [
     ModelInfo {
         name: "centernet",
         weights: Weights::Folder,

@@ -5,7 +5,7 @@
 //!
 //! What is here: the [`Detector`] interface the attack and the evaluation use, the detector
 //! catalogue ([`MODELS`], [`load`], [`load_all`]: the one place a detector is named and loaded;
-//! [`spec`] makes it clap's value parser), the detectors, a general TFJS graph-model importer
+//! [`check_spec`] checks a spec against it), the detectors, a general TFJS graph-model importer
 //! ([`tfjs`]), the pre-processing, tfjs NMS, COCO labels and the model fetcher, users' own ONNX
 //! detectors ([`onnx`]), and the input defences a detector's owner may put in front of it
 //! ([`defence`]: a defended detector is itself a [`Detector`]). Not here: rendering, losses,
@@ -44,7 +44,6 @@ pub mod nms;
 pub mod onnx;
 pub mod preprocess;
 pub mod raw;
-pub mod spec;
 #[cfg(test)]
 mod testing;
 pub mod tfjs;
@@ -54,7 +53,7 @@ pub mod upscale;
 
 pub use catalogue::{
     check_spec, expected, load, load_all, model_info, names, refs, spec_with_weights, ModelInfo,
-    Weights,
+    Weights, MODELS,
 };
 pub use centernet::CenterNet;
 pub use detector::{CamGraph, CamIo, Candidates, Detection, Detector};

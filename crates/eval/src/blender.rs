@@ -138,12 +138,7 @@ impl BlenderSettings {
     pub fn label(&self) -> String {
         let mut parts = vec![];
         if self.shading != Shading::Linear {
-            use clap::ValueEnum;
-            let v = self
-                .shading
-                .to_possible_value()
-                .expect("no skipped variants");
-            parts.push(v.get_name().to_string());
+            parts.push(self.shading.to_string());
         }
         if self.bounces != 4 {
             parts.push(format!("b{}", self.bounces));
@@ -177,7 +172,7 @@ impl Default for BlenderSettings {
 
 /// How Cycles forms the image: see [`BlenderSettings::shading`]. Each step towards cac's own
 /// image formation keeps the one before it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Shading {
     /// Physical: colours and textures decoded from sRGB, lights converted so that a white
     /// surface facing the sun or the open sky shows cac's display value, Principled BSDF, the
@@ -196,6 +191,22 @@ pub enum Shading {
     /// shape (GGX), bounce light and its sampling.
     Cac,
 }
+
+cac_core::choices!(Shading {
+    Linear => "linear": "Physical: colours and textures decoded from sRGB, lights converted so that a \
+        white surface facing the sun or the open sky shows cac's display value, Principled BSDF, \
+        the ambient a uniform world (occluded by the ground and the body), the image encoded to sRGB",
+    Display => "display": "As `Linear`, but colours, textures and light levels taken as display \
+        values and the image written as computed (view transform \"Raw\"): albedo × light on \
+        display values, as in cac",
+    CacSurfaces => "cac-surfaces": "As `Display`, with cac's surfaces: a Lambert diffuse, a GGX \
+        glossy lobe weighted by cac's gloss × dielectric Fresnel, and glossy rays that leave for \
+        the sky seeing cac's reflected sky (horizon to zenith by the square root of the ray's \
+        height); the ambient is still the uniform world, occluded by the ground and the body",
+    Cac => "cac": "As `CacSurfaces`, with cac's ambient term: albedo × ambient whatever occludes \
+        the sky (an emission; the world lights glossy rays only). Left to Cycles: shadows, the \
+        highlight's shape (GGX), bounce light and its sampling",
+});
 
 /// The horizon and zenith colours cac's mirror term reflects (`shade`'s environment colour above
 /// the horizon): the sky's, a flat background's colour, an image background's mean.

@@ -19,85 +19,104 @@ use cac_render::environment::{street_views, Brightness, Condition, Environment, 
 use cac_render::Renderer;
 use cac_scene::textures::{self, Kind};
 use cac_scene::Texture;
-use clap::ValueEnum;
 use std::path::PathBuf;
 
 /// A viewpoint set of the benchmark.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ViewSet {
     Street,
     /// The protocol's free viewpoint distribution (`fv` in `cac eval`).
     Free,
     /// The protocol's restricted one: side views only (`rv` in `cac eval`).
-    #[value(name = "rv", alias = "restricted")]
     Restricted,
     Hemisphere,
 }
 
+cac_core::choices!(ViewSet {
+    Street => "street": "",
+    Free => "free": "The protocol's free viewpoint distribution (`fv` in `cac eval`)",
+    Restricted => "rv" | "restricted": "The protocol's restricted one: side views only (`rv` in `cac eval`)",
+    Hemisphere => "hemisphere": "",
+});
+
 /// A renderer.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Which {
     Cac,
     Blender,
 }
 
-/// Everything the benchmark needs besides the detectors (NanoDet, then CenterNet); the flags
-/// of `cac bench realism` but the scene config, Blender's settings and the protocol, which the
-/// command builds from its others.
-#[derive(Clone, Debug, clap::Args)]
+cac_core::choices!(Which {
+    Cac => "cac": "",
+    Blender => "blender": "",
+});
+
+/// Everything the benchmark needs besides the detectors (NanoDet, then CenterNet). `cac bench
+/// realism`'s flags map onto it but for the scene config, Blender's settings and the protocol,
+/// which the command builds from its others.
+#[derive(Clone, Debug)]
 pub struct RealismJob {
     /// Built-in object names or mesh files (OBJ/glTF/GLB).
-    #[arg(
-        long,
-        value_delimiter = ',',
-        default_value = "pickup,jeep,../shared/meshes/CesiumMilkTruck/CesiumMilkTruck.glb"
-    )]
     pub meshes: Vec<String>,
     /// Viewpoint sets.
-    #[arg(long, value_delimiter = ',', default_value = "street,free,hemisphere")]
     pub sets: Vec<ViewSet>,
     /// Views per set and brightness level.
-    #[arg(long, default_value_t = 12)]
     pub views: usize,
     /// The scene config with the render size and samples already set.
-    #[arg(skip)]
     pub cfg: SceneConfig,
     /// Textures: original, natural, naive, random (simple textures on the paintable texels), or
     /// image files (PNG/JPEG atlases).
-    #[arg(long, value_delimiter = ',', default_value = "original")]
     pub textures: Vec<String>,
     /// Renderers.
-    #[arg(long, value_delimiter = ',', default_value = "cac")]
     pub renderers: Vec<Which>,
-    #[arg(skip)]
     pub blender: blender::BlenderSettings,
     /// Apply the sampled photometric transforms (lighten/darken, print error, noise) too.
-    #[arg(long)]
     pub photometric: bool,
     /// Light the scene with these HDR environments instead of the bright and dark levels (one
     /// row per environment), in both renderers (cac's image-based lighting, Cycles' world):
     /// Blender's own (city, courtyard, forest, interior, night, studio, sunrise, sunset) or
     /// equirectangular image files.
-    #[arg(long, value_delimiter = ',')]
     pub hdri: Vec<String>,
     /// Strength of the HDR environments (1: as photographed).
-    #[arg(long, default_value_t = 1.0)]
     pub hdri_strength: f32,
     /// Turn of the HDR environments about the vertical axis, degrees.
-    #[arg(long, default_value_t = 0.0)]
     pub hdri_rotation: f32,
     /// Seed of the sampled viewpoint sets.
-    #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Save every rendered view under this folder.
-    #[arg(long)]
     pub save: Option<PathBuf>,
     /// Render every texture as this printer makes it (a printer profile; both renderers take the
     /// same as-printed atlas).
-    #[arg(long)]
     pub printer: Option<PathBuf>,
-    #[arg(skip)]
     pub protocol: Protocol,
+}
+
+impl Default for RealismJob {
+    fn default() -> Self {
+        RealismJob {
+            meshes: [
+                "pickup",
+                "jeep",
+                "../shared/meshes/CesiumMilkTruck/CesiumMilkTruck.glb",
+            ]
+            .map(String::from)
+            .to_vec(),
+            sets: vec![ViewSet::Street, ViewSet::Free, ViewSet::Hemisphere],
+            views: 12,
+            cfg: Default::default(),
+            textures: ["original"].map(String::from).to_vec(),
+            renderers: vec![Which::Cac],
+            blender: Default::default(),
+            photometric: false,
+            hdri: vec![],
+            hdri_strength: 1.0,
+            hdri_rotation: 0.0,
+            seed: 0,
+            save: None,
+            printer: None,
+            protocol: Default::default(),
+        }
+    }
 }
 
 /// The columns of the per-view table (`--per-view`), which `cac bench agreement` reads back.
@@ -254,7 +273,7 @@ fn texture(name: &str, original: &Texture, mask: &[bool]) -> Result<Texture> {
         Texture::from_rgb8(&cac_core::io::load_rgb(std::path::Path::new(name))?)
             .resized(original.width, original.height)
     } else {
-        let kind = Kind::from_str(name, true).map_err(|e| {
+        let kind = cac_core::choice::parse_ignoring_case::<Kind>(name).map_err(|e| {
             anyhow::anyhow!("unknown texture '{name}': {e} (or 'original', or a PNG/JPEG file)")
         })?;
         textures::generate(kind, original.width, 0)?

@@ -10,23 +10,30 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 /// `#SBATCH` settings shared by every stage; `cac slurm`'s flags.
-#[derive(Clone, Debug, clap::Args)]
+#[derive(Clone, Debug)]
 pub struct Batch {
     /// Slurm partition (default: the cluster's default).
-    #[arg(long)]
     pub partition: Option<String>,
     /// Wall-time limit per task (sbatch --time, e.g. 2:00:00).
-    #[arg(long)]
     pub time: Option<String>,
     /// CPUs per task (sbatch --cpus-per-task; also the task's thread count).
-    #[arg(long, default_value_t = 1)]
     pub cpus_per_task: usize,
     /// Memory per task (sbatch --mem, e.g. 4G).
-    #[arg(long)]
     pub mem: Option<String>,
     /// Further #SBATCH option, verbatim (repeatable), e.g. --sbatch-arg=--account=lab.
-    #[arg(long = "sbatch-arg", allow_hyphen_values = true)]
     pub extra: Vec<String>,
+}
+
+impl Default for Batch {
+    fn default() -> Self {
+        Batch {
+            partition: None,
+            time: None,
+            cpus_per_task: 1,
+            mem: None,
+            extra: vec![],
+        }
+    }
 }
 
 /// One stage: a job array over `tasks` (or a single job when `None`) running `argv`, with

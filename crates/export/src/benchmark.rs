@@ -278,34 +278,41 @@ pub fn solid_csv(rows: &[SolidRow]) -> String {
 
 /// What `cac bench export` measures (also its flags): the bake's colour error against triangle
 /// count and seconds for several limits, and optionally solidify's.
-#[derive(Clone, Debug, clap::Args)]
+#[derive(Clone, Debug)]
 pub struct ExportBench {
     /// The object (file or default name).
-    #[arg(long, default_value = "jeep")]
     pub mesh: PathBuf,
     /// The texture; default: a synthetic camouflage at --res ([`synthetic_camouflage`]).
-    #[arg(long)]
     pub texture: Option<PathBuf>,
     /// Resolution of the synthetic camouflage.
-    #[arg(long, default_value_t = 512)]
     pub res: usize,
-    #[arg(long, default_value = "1:24")]
     pub scale: Scale,
     /// Edge limits in texels to try.
-    #[arg(long, value_delimiter = ',', default_value = "16,8,4,2,1,0.5")]
     pub texels: Vec<f32>,
     /// Edge limits in mm to try (texel limit off), e.g. 2,1,0.5.
-    #[arg(long, value_delimiter = ',')]
     pub mm: Vec<f32>,
     /// Random surface samples for the error.
-    #[arg(long, default_value_t = 200_000)]
     pub samples: usize,
     /// Also solidify at these grid spacings (mm), e.g. 1.6,0.8,0.4,0.2: error against time.
-    #[arg(long, value_delimiter = ',')]
     pub solid_voxels: Vec<f32>,
     /// Subdivide the mesh to at least this many triangles before solidifying (0: as loaded).
-    #[arg(long, default_value_t = 0)]
     pub solid_input_triangles: usize,
+}
+
+impl Default for ExportBench {
+    fn default() -> Self {
+        ExportBench {
+            mesh: PathBuf::from("jeep"),
+            texture: None,
+            res: 512,
+            scale: Scale { denominator: 24.0 },
+            texels: vec![16.0, 8.0, 4.0, 2.0, 1.0, 0.5],
+            mm: vec![],
+            samples: 200_000,
+            solid_voxels: vec![],
+            solid_input_triangles: 0,
+        }
+    }
 }
 
 /// The solidify table and the mesh it was measured on.

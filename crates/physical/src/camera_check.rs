@@ -10,19 +10,15 @@ use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
 /// What `cac camera` does (its flags).
-#[derive(Clone, Debug, clap::Args)]
+#[derive(Clone, Debug)]
 pub struct CameraCheck {
     /// The rig file: the lens size to capture at and the camera settings to lock.
-    #[arg(long)]
     pub rig: PathBuf,
     /// V4L2 device node.
-    #[arg(long, default_value = "/dev/video0")]
     pub device: PathBuf,
     /// Frames to capture.
-    #[arg(long, default_value_t = 3)]
     pub frames: usize,
     /// Folder for the frames and camera.json.
-    #[arg(long)]
     pub out: PathBuf,
 }
 

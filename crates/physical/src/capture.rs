@@ -18,32 +18,24 @@ use std::sync::Arc;
 use std::time::Duration;
 
 /// Everything a capture needs but the device (its flags are `cac capture`'s).
-#[derive(Clone, Debug, clap::Args)]
+#[derive(Clone, Debug)]
 pub struct CaptureJob {
     /// The rig file (calib/rig.toml is an example).
-    #[arg(long)]
     pub rig: PathBuf,
     /// Camouflage atlas painted on the object (the twin renders it; recorded in the session;
     /// default: the mesh's own look).
-    #[arg(long)]
     pub texture: Option<PathBuf>,
     /// Distance ratios, comma separated (default: the rig file's).
-    #[arg(long)]
     pub ratios: Option<String>,
     /// Table angles: START:END:STEP (END exclusive) or a comma list, degrees.
-    #[arg(long, default_value = "0:360:15")]
     pub angles: String,
     /// Captures of every (ratio, angle).
-    #[arg(long, default_value_t = 5)]
     pub repeats: usize,
     /// Session folder.
-    #[arg(long)]
     pub out: PathBuf,
     /// Continue the session in --out, capturing only missing frames.
-    #[arg(long)]
     pub resume: bool,
     /// Seed of the simulated faults and of the twin's sensor noise.
-    #[arg(long, default_value_t = 0)]
     pub seed: u64,
 }
 

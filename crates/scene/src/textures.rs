@@ -14,13 +14,19 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 /// The three simple textures.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Kind {
     Natural,
     Naive,
     Random,
 }
+
+cac_core::choices!(Kind {
+    Natural => "natural": "",
+    Naive => "naive": "",
+    Random => "random": "",
+});
 
 /// The Naive texture's palette (woodland camouflage: olive, brown, black, tan).
 pub(crate) const NAIVE_PALETTE: [[u8; 3]; 4] =

@@ -17,20 +17,28 @@ use cac_core::report::Table;
 use cac_detect::Detector;
 use std::path::Path;
 
-/// The rendered sequence and the codecs (also `cac bench video`'s flags).
-#[derive(Clone, Debug, clap::Args)]
+/// The rendered sequence and the codecs.
+#[derive(Clone, Debug, PartialEq)]
 pub struct VideoBench {
     /// Frame size of the rendered sequence.
-    #[arg(long, default_value_t = 640)]
     pub width: usize,
-    #[arg(long, default_value_t = 480)]
     pub height: usize,
     /// Frames (one turn of the turntable).
-    #[arg(long, default_value_t = 24)]
     pub frames: usize,
-    /// Codecs, comma-separated (h264, hevc, mjpeg).
-    #[arg(long, value_delimiter = ',', default_value = "h264,hevc,mjpeg")]
+    /// Codecs (h264, hevc, mjpeg).
     pub codecs: Vec<String>,
+}
+
+impl Default for VideoBench {
+    /// 640×480, 24 frames (one turn), every measured codec.
+    fn default() -> Self {
+        VideoBench {
+            width: 640,
+            height: 480,
+            frames: 24,
+            codecs: ["h264", "hevc", "mjpeg"].map(String::from).to_vec(),
+        }
+    }
 }
 
 impl VideoBench {

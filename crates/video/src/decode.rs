@@ -43,21 +43,19 @@ pub trait FrameStream {
     }
 }
 
-/// How to open an input (also `cac score-video`'s flags).
-#[derive(Clone, Debug, clap::Args)]
+/// How to open an input.
+#[derive(Clone, Debug, PartialEq)]
 pub struct OpenOptions {
     /// Counter-clockwise rotation (0, 90, 180, 270) overriding the video's metadata.
-    #[arg(long = "rotate", value_name = "DEGREES")]
     pub rotate_ccw: Option<u32>,
     /// Frame rate of image folders and patterns (their frames carry no times).
-    #[arg(long, default_value_t = 30.0)]
     pub fps: f64,
     /// Decode codecs other than H.264, HEVC, MJPEG and PNG (tolerances not measured).
-    #[arg(long = "any-codec")]
     pub allow_any_codec: bool,
 }
 
 impl Default for OpenOptions {
+    /// No rotation override, 30 frames/s, the measured codecs only.
     fn default() -> Self {
         OpenOptions {
             rotate_ccw: None,
@@ -398,26 +396,6 @@ impl Drop for FfmpegStream {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn the_flags_defaults_are_open_options_default() {
-        #[derive(clap::Parser)]
-        struct Line {
-            #[command(flatten)]
-            open: OpenOptions,
-        }
-        use clap::Parser;
-        let o = Line::try_parse_from(["score-video"]).unwrap().open;
-        let d = OpenOptions::default();
-        assert_eq!(
-            (o.rotate_ccw, o.fps, o.allow_any_codec),
-            (d.rotate_ccw, d.fps, d.allow_any_codec)
-        );
-        let o = Line::try_parse_from(["s", "--rotate", "90", "--any-codec"])
-            .unwrap()
-            .open;
-        assert_eq!((o.rotate_ccw, o.allow_any_codec), (Some(90), true));
-    }
 
     #[test]
     fn showinfo_lines() {

@@ -183,13 +183,18 @@ fn unit(field: &str) -> &'static str {
 }
 
 /// How frames of a logged session are grouped for P@0.5 ± std.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LogSegments {
     /// One segment per distance ratio (and repeat).
     Ratio,
     /// One segment per whole revolution within a ratio.
     Revolution,
 }
+
+cac_core::choices!(LogSegments {
+    Ratio => "ratio": "One segment per distance ratio (and repeat)",
+    Revolution => "revolution": "One segment per whole revolution within a ratio",
+});
 
 /// Ground truth from a log and a rig camera. Video time `t` is log time `t + offset_s`.
 pub struct LogGroundTruth<C: RigCamera> {

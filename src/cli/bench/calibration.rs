@@ -9,14 +9,14 @@ use std::path::PathBuf;
 #[derive(clap::Args, Debug)]
 pub struct Args {
     #[command(flatten)]
-    pub bench: CalibrationBench,
+    pub bench: crate::cli::flags::physical::CalibrationBenchFlags,
     /// CSV output file.
     #[arg(long, default_value = "bench-calibration.csv")]
     pub csv: PathBuf,
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let t = a.bench.run()?;
+    let t = CalibrationBench::from(a.bench).run()?;
     print!("{}", t.markdown());
     cac::io::write_atomic(&a.csv, t.csv().as_bytes())?;
     println!("wrote {}", a.csv.display());

@@ -14,7 +14,7 @@ pub struct Args {
     #[arg(long, default_value_t = 8)]
     pub images: usize,
     /// Detectors, comma-separated.
-    #[arg(long, value_delimiter = ',', value_parser = cac::detect::spec::MODEL_SPECS, default_value = "centernet,nanodet")]
+    #[arg(long, value_delimiter = ',', value_parser = crate::cli::values::MODEL_SPECS, default_value = "centernet,nanodet")]
     pub models: Vec<String>,
     /// Image side in pixels.
     #[arg(long, default_value_t = 512)]

@@ -18,7 +18,7 @@ use std::path::PathBuf;
 #[derive(clap::Args, Debug)]
 pub struct Args {
     #[command(flatten)]
-    pub job: RealismJob,
+    pub job: crate::cli::flags::eval::RealismFlags,
     /// Image side (pixels).
     #[arg(long, default_value_t = 416)]
     pub size: usize,
@@ -37,7 +37,7 @@ pub struct Args {
     /// How the Blender renderer forms the image: linear (physical), display (light × colour on
     /// display values, as cac does), cac-surfaces (and cac's surface model and reflected sky)
     /// or cac (and cac's unoccluded ambient).
-    #[arg(long, value_enum, default_value = "linear")]
+    #[arg(long, value_parser = crate::cli::values::choice::<blender::Shading>(), default_value = "linear")]
     pub blender_shading: blender::Shading,
     /// Blender's glossy rays see cac's sky rather than the uniform ambient world.
     #[arg(long)]
@@ -55,7 +55,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let mut job = a.job;
+    let mut job = RealismJob::from(a.job);
     job.cfg = SceneConfig::from_file_or(a.config.as_deref(), SceneConfig::default)?;
     let r = &mut job.cfg.render;
     (r.width, r.height, r.samples) = (a.size, a.size, a.samples);

@@ -14,13 +14,40 @@ use std::path::PathBuf;
 #[derive(ClapArgs, Debug)]
 pub struct Args {
     #[command(flatten)]
-    pub bench: VideoBench,
+    pub bench: BenchFlags,
     /// Detectors, comma-separated.
-    #[arg(long, value_delimiter = ',', value_parser = cac::detect::spec::MODEL_SPECS, default_value = "nanodet,centernet")]
+    #[arg(long, value_delimiter = ',', value_parser = crate::cli::values::MODEL_SPECS, default_value = "nanodet,centernet")]
     pub models: Vec<String>,
     /// CSV output file.
     #[arg(long, default_value = "bench-video.csv")]
     pub csv: PathBuf,
+}
+
+/// The rendered sequence and the codecs ([`VideoBench`]).
+#[derive(ClapArgs, Debug)]
+pub struct BenchFlags {
+    /// Frame size of the rendered sequence.
+    #[arg(long, default_value_t = VideoBench::default().width)]
+    pub width: usize,
+    #[arg(long, default_value_t = VideoBench::default().height)]
+    pub height: usize,
+    /// Frames (one turn of the turntable).
+    #[arg(long, default_value_t = VideoBench::default().frames)]
+    pub frames: usize,
+    /// Codecs, comma-separated (h264, hevc, mjpeg).
+    #[arg(long, value_delimiter = ',', default_value = "h264,hevc,mjpeg")]
+    pub codecs: Vec<String>,
+}
+
+impl From<BenchFlags> for VideoBench {
+    fn from(f: BenchFlags) -> Self {
+        VideoBench {
+            width: f.width,
+            height: f.height,
+            frames: f.frames,
+            codecs: f.codecs,
+        }
+    }
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -34,9 +61,32 @@ pub fn run(a: Args) -> Result<()> {
         .zip(&dets)
         .map(|(m, d)| (m.as_str(), d.as_ref()))
         .collect();
-    let t = a.bench.run(&tools, &named, &device)?;
+    let t = VideoBench::from(a.bench).run(&tools, &named, &device)?;
     print!("{}", t.markdown());
     cac::io::write_atomic(&a.csv, t.csv().as_bytes())?;
     println!("wrote {}", a.csv.display());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[test]
+    fn the_flags_defaults_are_the_librarys() {
+        #[derive(Parser)]
+        struct Line {
+            #[command(flatten)]
+            bench: BenchFlags,
+        }
+        let b = VideoBench::from(Line::try_parse_from(["bench"]).unwrap().bench);
+        assert_eq!(b, VideoBench::default());
+        let b = VideoBench::from(
+            Line::try_parse_from(["b", "--codecs", "mjpeg", "--frames", "3"])
+                .unwrap()
+                .bench,
+        );
+        assert_eq!((b.codecs, b.frames), (vec!["mjpeg".to_string()], 3));
+    }
 }

@@ -10,14 +10,14 @@ use std::path::PathBuf;
 #[derive(clap::Args, Debug)]
 pub struct Args {
     #[command(flatten)]
-    pub job: MethodsJob,
+    pub job: crate::cli::flags::eval::MethodsFlags,
     /// Training scene config (default: `SceneConfig::training()`, the protocol's distribution).
     #[arg(long)]
     pub config: Option<PathBuf>,
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let mut job = a.job;
+    let mut job = MethodsJob::from(a.job);
     job.scene = SceneConfig::from_file_or(a.config.as_deref(), SceneConfig::training)?;
     let md = job.run(&device::inference())?;
     println!(

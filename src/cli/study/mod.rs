@@ -24,7 +24,7 @@ pub enum Cmd {
 #[derive(clap::Args, Debug)]
 pub struct TopnArgs {
     #[command(flatten)]
-    pub job: TopnJob,
+    pub job: crate::cli::flags::eval::TopnFlags,
     /// Scene config (default: the demo's scene, the pickup at street level, 320² renders).
     #[arg(long)]
     pub config: Option<PathBuf>,
@@ -48,7 +48,7 @@ pub fn run(c: Cmd) -> Result<()> {
 }
 
 fn topn(a: TopnArgs) -> Result<()> {
-    let mut job = a.job;
+    let mut job = TopnJob::from(a.job);
     job.scene = SceneConfig::from_file_or(a.config.as_deref(), TopnJob::default_scene)?;
     job.part = match (a.task, a.shard, a.merge) {
         (Some(k), _, _) => Part::Task(k),

@@ -23,7 +23,7 @@ pub use objectives::objective;
 use serde::{Deserialize, Serialize};
 
 /// Which attack to run.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Method {
     /// Coated adversarial camouflage: dense-proposals loss, full atlas, 3D EOT (this paper).
@@ -39,25 +39,15 @@ pub enum Method {
     Camou,
 }
 
+cac_core::choices!(Method {
+    Cac => "cac": "Coated adversarial camouflage: dense-proposals loss, full atlas, 3D EOT (this paper)",
+    Advpat => "advpat": "Thys et al. 2019: minimise the best vehicle score; 2D patch, tiled on all sides",
+    Shapeshifter => "shapeshifter": "Chen et al. 2018: targeted loss over the proposals under 2D EOT; 2D patch, tiled",
+    Upc => "upc": "Huang et al. 2020: objectness + targeted classification + box regression, full atlas, 3D",
+    Camou => "camou": "Zhang et al. 2019: hide the vehicle (suppress car/bus/truck in every candidate), 3D",
+});
+
 impl Method {
-    pub const ALL: [Method; 5] = [
-        Method::Cac,
-        Method::Advpat,
-        Method::Shapeshifter,
-        Method::Upc,
-        Method::Camou,
-    ];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::Cac => "cac",
-            Method::Advpat => "advpat",
-            Method::Shapeshifter => "shapeshifter",
-            Method::Upc => "upc",
-            Method::Camou => "camou",
-        }
-    }
-
     /// Trained as a 2D patch (then pasted on the object), not on the atlas in 3D.
     pub fn is_2d(self) -> bool {
         matches!(self, Method::Advpat | Method::Shapeshifter)

@@ -24,33 +24,40 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 /// The demo's settings (also `cac demo`'s flags).
-#[derive(Debug, Clone, clap::Args)]
+#[derive(Debug, Clone)]
 pub struct DemoJob {
     /// Output folder.
-    #[arg(long, default_value = "demo-out")]
     pub out: PathBuf,
     /// Seed of the training run.
-    #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Attack iterations (640 at batch 1: the demo in under 3 minutes on 2 cores).
-    #[arg(long, default_value_t = 640)]
     pub iterations: usize,
     /// Views rendered per iteration. One view per step buys the most quality per second in a
     /// short run (docs/attack.md, the knob table: half the time per iteration).
-    #[arg(long, default_value_t = 1)]
     pub batch: usize,
     /// Protocol views per brightness level and viewpoint set (4 groups: FV/RV × bright/dark).
-    #[arg(long, default_value_t = 16)]
     pub views: usize,
     /// Seed of the protocol views (not the training seed: the texture never saw these views).
-    #[arg(long, default_value_t = 2026)]
     pub view_seed: u64,
     /// Photographed HDR environments (Blender's by name, e.g. `city,interior`, or .exr/.hdr
     /// files): every training and protocol view is lit by one of them, drawn per view with a
     /// random turn, and shows it behind the vehicle (image-based lighting). Default: the
     /// procedural sun, sky and ground.
-    #[arg(long, value_delimiter = ',')]
     pub hdri: Vec<String>,
+}
+
+impl Default for DemoJob {
+    fn default() -> Self {
+        DemoJob {
+            out: PathBuf::from("demo-out"),
+            seed: 0,
+            iterations: 640,
+            batch: 1,
+            views: 16,
+            view_seed: 2026,
+            hdri: vec![],
+        }
+    }
 }
 
 /// What the demo measured.

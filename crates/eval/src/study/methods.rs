@@ -14,60 +14,61 @@ use anyhow::{bail, Context, Result};
 use burn::tensor::Device;
 use cac_attack::baselines::Method;
 use cac_attack::AttackConfig;
+use cac_core::choice::Choice;
 use cac_detect as detect;
 use cac_render::config::SceneConfig;
 use cac_render::environment::ViewpointSet;
 use std::path::PathBuf;
 
 /// The study's settings: `cac study methods`'s flags (the scene comes from `--config`).
-#[derive(Debug, Clone, clap::Args)]
+#[derive(Debug, Clone)]
 pub struct MethodsJob {
     /// The training scene (judged with the protocol's renderer on its object).
-    #[arg(skip = SceneConfig::training())]
     pub scene: SceneConfig,
     /// Attacks, comma-separated (cac, advpat, shapeshifter, upc, camou).
-    #[arg(
-        long,
-        value_enum,
-        value_delimiter = ',',
-        default_value = "cac,advpat,shapeshifter,upc,camou"
-    )]
     pub methods: Vec<Method>,
     /// Also train CAC in hide mode suppressing these classes: `all`, or COCO labels joined by
     /// `+` (e.g. car+bus+truck). Repeat for several rows.
-    #[arg(long)]
     pub hide: Vec<String>,
     /// What the attacks train against and for.
-    #[command(flatten)]
     pub source: super::Source,
     /// Detectors the textures are judged by (those not among --models measure transfer).
-    #[arg(long, value_delimiter = ',', value_parser = detect::spec::MODEL_SPECS, default_value = "nanodet,centernet")]
     pub eval_models: Vec<String>,
     /// Training iterations per method (the same budget for all).
-    #[arg(long, default_value_t = 600)]
     pub iterations: usize,
     /// Textures evaluated beside the learned ones (see `cac eval --texture`).
-    #[arg(
-        long,
-        value_delimiter = ',',
-        default_value = "original,natural,naive,random"
-    )]
     pub textures: Vec<String>,
     /// Evaluation views per brightness level and set.
-    #[arg(long, default_value_t = 50)]
     pub views: usize,
     /// Evaluation viewpoint sets (fv, rv); a repeated set counts once.
-    #[arg(long, value_enum, value_delimiter = ',', default_value = "fv,rv")]
     pub sets: Vec<ViewpointSet>,
     /// Seed of the training runs.
-    #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Seed of the evaluation views (and of the simple textures).
-    #[arg(long, default_value_t = 31)]
     pub eval_seed: u64,
     /// Output folder: one run per method, eval/, methods.md and methods.csv.
-    #[arg(long, default_value = "study-methods")]
     pub out: PathBuf,
+}
+
+impl Default for MethodsJob {
+    fn default() -> Self {
+        MethodsJob {
+            scene: SceneConfig::training(),
+            methods: Method::ALL.to_vec(),
+            hide: vec![],
+            source: Default::default(),
+            eval_models: ["nanodet", "centernet"].map(String::from).to_vec(),
+            iterations: 600,
+            textures: ["original", "natural", "naive", "random"]
+                .map(String::from)
+                .to_vec(),
+            views: 50,
+            sets: vec![ViewpointSet::Free, ViewpointSet::Restricted],
+            seed: 0,
+            eval_seed: 31,
+            out: PathBuf::from("study-methods"),
+        }
+    }
 }
 
 /// A trained row: its name in the tables, its folder name and its settings.

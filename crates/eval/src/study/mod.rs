@@ -28,20 +28,27 @@ use std::path::Path;
 
 /// What a study's attacks train against and for (`cac study topn` and `methods` share these
 /// flags).
-#[derive(Clone, Debug, clap::Args)]
+#[derive(Clone, Debug)]
 pub struct Source {
     /// Which candidates are fixed: `overlap` (on the object, the n best) or `topn` (the paper's
     /// literal rule: the top n after NMS over the whole image).
-    #[arg(long, value_enum, default_value_t = ProposalRule::Overlap)]
     pub proposals: ProposalRule,
     /// Source detectors the attacks train against, comma-separated.
-    #[arg(long, value_delimiter = ',', value_parser = cac_detect::spec::MODEL_SPECS, default_value = "nanodet")]
     pub models: Vec<String>,
     /// COCO class the proposals are pushed towards.
-    #[arg(long, default_value = "person")]
     pub target: String,
-    #[arg(long, default_value_t = 2)]
     pub batch: usize,
+}
+
+impl Default for Source {
+    fn default() -> Self {
+        Source {
+            proposals: ProposalRule::Overlap,
+            models: ["nanodet"].map(String::from).to_vec(),
+            target: "person".into(),
+            batch: 2,
+        }
+    }
 }
 
 impl Source {
@@ -145,13 +152,7 @@ pub(crate) fn protocol_job(
 mod tests {
     #[test]
     fn a_studys_source_defaults_are_train_defaults() {
-        #[derive(clap::Parser)]
-        struct Line {
-            #[command(flatten)]
-            source: super::Source,
-        }
-        use clap::Parser;
-        let s = Line::try_parse_from(["cac study"]).unwrap().source;
+        let s = super::Source::default();
         let d = cac_attack::AttackConfig::default();
         assert_eq!(
             s.attack(d.iterations, d.seed),

@@ -34,40 +34,47 @@ pub enum Part {
 
 /// The study's settings: `cac study topn`'s flags (the scene comes from `--config`, the part
 /// from `--task`, `--shard` or `--merge`).
-#[derive(Debug, Clone, clap::Args)]
+#[derive(Debug, Clone)]
 pub struct TopnJob {
     /// The training scene (the evaluation uses it too, at `eval_size` when given).
-    #[arg(skip = TopnJob::default_scene())]
     pub scene: SceneConfig,
     /// Values of n, comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "1,4,16,64")]
     pub n: Vec<usize>,
     /// What the attacks train against and for.
-    #[command(flatten)]
     pub source: super::Source,
     /// Detectors the textures are evaluated on (those not among --models measure transfer).
-    #[arg(long, value_delimiter = ',', value_parser = cac_detect::spec::MODEL_SPECS, default_value = "centernet,nanodet")]
     pub eval_models: Vec<String>,
     /// Training iterations per run.
-    #[arg(long, default_value_t = 30)]
     pub iterations: usize,
     /// Evaluation views per brightness level and set.
-    #[arg(long, default_value_t = 6)]
     pub views: usize,
     /// Evaluation viewpoint sets (fv, rv); a repeated set counts once.
-    #[arg(long, value_enum, value_delimiter = ',', default_value = "fv")]
     pub sets: Vec<ViewpointSet>,
     /// Evaluation image side (default: the scene's).
-    #[arg(long = "size")]
     pub eval_size: Option<usize>,
     /// Seed of the training runs and of the evaluation views.
-    #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Output folder: one run per n, eval/, topn.png, topn.csv, topn.md and topn.html.
-    #[arg(long, default_value = "study-topn")]
     pub out: PathBuf,
-    #[arg(skip = Part::Whole)]
     pub part: Part,
+}
+
+impl Default for TopnJob {
+    fn default() -> Self {
+        TopnJob {
+            scene: TopnJob::default_scene(),
+            n: vec![1, 4, 16, 64],
+            source: Default::default(),
+            eval_models: ["centernet", "nanodet"].map(String::from).to_vec(),
+            iterations: 30,
+            views: 6,
+            sets: vec![ViewpointSet::Free],
+            eval_size: None,
+            seed: 0,
+            out: PathBuf::from("study-topn"),
+            part: Part::Whole,
+        }
+    }
 }
 
 /// What a process of the study did.

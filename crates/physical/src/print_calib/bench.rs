@@ -19,14 +19,21 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 /// The benchmark's settings (`cac bench calibration`'s flags but the output).
-#[derive(Clone, Debug, clap::Args)]
+#[derive(Clone, Debug)]
 pub struct CalibrationBench {
     /// Patch counts, comma separated.
-    #[arg(long, value_delimiter = ',', default_value = "24,48,96,192")]
     pub patches: Vec<usize>,
     /// Charts (seeds) per count; their figures are averaged.
-    #[arg(long, default_value_t = 3)]
     pub seeds: u64,
+}
+
+impl Default for CalibrationBench {
+    fn default() -> Self {
+        CalibrationBench {
+            patches: vec![24, 48, 96, 192],
+            seeds: 3,
+        }
+    }
 }
 
 /// Mean ΔE2000 and its 95th percentile of a response against a printer on `n` random colours.

@@ -20,36 +20,27 @@ use rand_chacha::ChaCha8Rng;
 use std::path::{Path, PathBuf};
 
 /// How to calibrate (`cac print calibrate`'s flags but the files).
-#[derive(Clone, Debug, clap::Args)]
+#[derive(Clone, Debug)]
 pub struct CalibrateOptions {
     /// The kind of printer the profile is for (default: the chart's); a photo of a chart made
     /// for another kind is refused.
-    #[arg(long = "printer", value_enum)]
     pub printer: Option<PrinterKind>,
     /// The profile's name (default: the printer kind and the photo's file name).
-    #[arg(long)]
     pub name: Option<String>,
     /// Share of the printed patches held out of the fit to judge it (0 to 0.5).
-    #[arg(long, default_value_t = 0.2)]
     pub held_out: f32,
     /// Seed of the held-out draw.
-    #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Paper: the printable width of the media (roll or sheet), mm; required for paper.
-    #[arg(long)]
     pub media_width_mm: Option<f32>,
     /// The camera's calibration (OpenCV or ROS YAML, e.g. calib/camera_opencv.yaml): the chart
     /// is read through its lens distortion (recommended for wide-angle webcams).
-    #[arg(long)]
     pub intrinsics: Option<PathBuf>,
     /// FDM: nozzle width, mm.
-    #[arg(long, default_value_t = 0.4)]
     pub nozzle_mm: f32,
     /// FDM: layer height, mm.
-    #[arg(long, default_value_t = 0.2)]
     pub layer_mm: f32,
     /// FDM: the object's longest side as it will be printed, mm; required for fdm.
-    #[arg(long)]
     pub object_size_mm: Option<f32>,
 }
 

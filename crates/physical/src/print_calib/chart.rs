@@ -77,7 +77,7 @@ pub const COLORCHECKER: [(&str, &str); 24] = [
 pub const CHECKER_GREYS: std::ops::Range<usize> = 18..24;
 
 /// The kind of printer a chart (and the profile fitted from it) is for.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum PrinterKind {
     /// Full-colour 3D printing (binder-jet, PolyJet, colour MJF): a fitted response.
@@ -88,22 +88,12 @@ pub enum PrinterKind {
     Fdm,
 }
 
-impl PrinterKind {
-    /// The name used on the command line, in `chart.json` and by `Profile::kind`.
-    pub fn name(self) -> &'static str {
-        match self {
-            PrinterKind::FullColour => "full-colour",
-            PrinterKind::Paper => "paper",
-            PrinterKind::Fdm => "fdm",
-        }
-    }
-}
-
-impl std::fmt::Display for PrinterKind {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
+// The names are those of the command line, `chart.json` and `Profile::kind`.
+cac_core::choices!(PrinterKind {
+    FullColour => "full-colour": "Full-colour 3D printing (binder-jet, PolyJet, colour MJF): a fitted response",
+    Paper => "paper": "Paper or vinyl (sheets, wraps): a fitted response and the media width",
+    Fdm => "fdm": "Multi-material FDM: the filaments' measured colours",
+});
 
 /// What a patch is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -164,24 +154,19 @@ pub struct Chart {
 }
 
 /// What to put on a chart (`cac print chart`'s flags).
-#[derive(Clone, Debug, clap::Args)]
+#[derive(Clone, Debug)]
 pub struct ChartSpec {
     /// The printer the chart calibrates.
-    #[arg(long = "printer", value_enum)]
     pub kind: PrinterKind,
     /// Colour patches to print besides the ColorChecker's squares (full-colour and paper).
-    #[arg(long, default_value_t = 192)]
     pub patches: usize,
     /// Seed of the patches' colours and places.
-    #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Centre-to-centre spacing of your ColorChecker card's patches, mm (its squares are drawn
     /// at this pitch so that the card laid on them covers them).
-    #[arg(long, default_value_t = 13.0)]
     pub checker_pitch_mm: f32,
     /// FDM: the filaments, comma separated, each NAME or NAME=#RRGGBB (the nominal colour its
     /// square is drawn in); 2 to 16.
-    #[arg(long, value_delimiter = ',')]
     pub filaments: Vec<String>,
 }
 

@@ -28,16 +28,19 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 /// Where the camera may be (on the command line `fv`/`free` or `rv`/`restricted`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ViewpointSet {
     /// Anywhere on the upper half of the viewing sphere within the elevation range.
-    #[value(name = "fv", alias = "free")]
     Free,
     /// Side views only: azimuth within ±α/2 of either side (α = 120° by default).
-    #[value(name = "rv", alias = "restricted")]
     Restricted,
 }
+
+cac_core::choices!(ViewpointSet {
+    Free => "fv" | "free": "Anywhere on the upper half of the viewing sphere within the elevation range",
+    Restricted => "rv" | "restricted": "Side views only: azimuth within ±α/2 of either side (α = 120° by default)",
+});
 
 impl ViewpointSet {
     /// `sets` without repeats, in the order given (a command line may name a set twice).
@@ -53,12 +56,17 @@ impl ViewpointSet {
 }
 
 /// Scene brightness level.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Brightness {
     Bright,
     Dark,
 }
+
+cac_core::choices!(Brightness {
+    Bright => "bright": "",
+    Dark => "dark": "",
+});
 
 /// Ambient and sun intensity of one brightness level.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
