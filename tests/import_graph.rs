@@ -28,7 +28,7 @@ fn root() -> &'static Path {
 }
 
 /// The path roots that name the project's own modules.
-const ROOTS: [&str; 12] = [
+const ROOTS: [&str; 13] = [
     "crate",
     "super",
     "self",
@@ -41,6 +41,7 @@ const ROOTS: [&str; 12] = [
     "cac_eval",
     "cac_physical",
     "cac_video",
+    "cac_bench",
 ];
 
 /// The crates under `crates/`: folder, the module its `lib.rs` is (none: only the listed
@@ -59,6 +60,7 @@ const CRATES: &[(&str, Option<&str>, &[&str])] = &[
     ("eval", Some("eval"), &["study"]),
     ("physical", Some("physical"), &["sim"]),
     ("video", Some("video"), &[]),
+    ("bench", Some("bench"), &[]),
 ];
 
 /// The module path where crate `krate`'s `crate::first…` lies in the pipeline's module tree.

@@ -6,7 +6,7 @@
 //! and against the simulated printer itself on fresh colours. Bad photos are refused naming what
 //! is wrong. Seeded throughout.
 
-use cac::physical::print_calib::bench::truth;
+use cac::bench::calibration::truth;
 use cac::physical::print_calib::{
     calibrate, photograph, CalibrateOptions, Chart, ChartSpec, PrinterKind, Role, Shot,
     SimulatedPrinter,

@@ -2,9 +2,10 @@
 //! (the bake's colour error against triangles and seconds). Parses, calls `cac::export`, prints.
 
 use anyhow::Result;
+use cac::bench::export as benchmark;
 use cac::export::{
-    self, benchmark, printability::BuildVolume, BakeLimits, ExportOptions, Format, RepairMode,
-    Scale, ThinPolicy,
+    self, printability::BuildVolume, BakeLimits, ExportOptions, Format, RepairMode, Scale,
+    ThinPolicy,
 };
 use cac::printer::Profile;
 use clap::Args as ClapArgs;

@@ -8,7 +8,8 @@ mod support;
 pub use support::require;
 
 use anyhow::{anyhow, bail, Context, Result};
-use cac::export::{self, benchmark, ExportOptions, PrintMesh, Scale};
+use cac::bench::export as benchmark;
+use cac::export::{self, ExportOptions, PrintMesh, Scale};
 use glam::{Vec2, Vec3};
 use quick_xml::events::Event;
 use std::collections::HashMap;

@@ -77,7 +77,7 @@ pub fn conv2d(
 }
 
 /// `y + b` with `b` one value per channel (axis 1).
-pub(crate) fn add_bias(y: Tensor<4>, b: Tensor<1>) -> Tensor<4> {
+pub fn add_bias(y: Tensor<4>, b: Tensor<1>) -> Tensor<4> {
     let c = b.dims()[0];
     crate::broadcast::add(y, b.reshape([1, c, 1, 1]))
 }

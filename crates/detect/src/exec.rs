@@ -187,105 +187,35 @@ impl Dataflow {
         let injected: HashMap<usize, O::Value> = run.inject.into_iter().collect();
         let cut: HashSet<usize> = injected.keys().copied().collect();
         let needed = self.needed(run.want, &cut);
-        let mut order = Vec::new();
-        for k in (0..self.len()).filter(|&k| needed[k]) {
-            let r = self.rank[k]
-                .ok_or_else(|| anyhow!("{src}: the graph has a cycle at {}", ops.describe(k)))?;
-            order.push((r, k));
-        }
-        order.sort_unstable();
-        let order: Vec<usize> = order.into_iter().map(|(_, k)| k).collect();
-        // Last reader of each slot, to free values early; what is asked for is kept.
-        let mut last_read: HashMap<usize, usize> = HashMap::new();
-        for &k in &order {
-            for &s in self.inputs[k].iter().flatten() {
-                last_read.insert(s, k);
-            }
-        }
+        let order = self.run_order(ops, &needed, &src)?;
+        let last_read = self.last_reads(&order);
         let keep: HashSet<usize> = run.want.iter().copied().collect();
         let mut vals: HashMap<usize, O::Value> = injected.clone();
         vals.extend(run.feeds);
-        for &k in &order {
-            for &s in self.inputs[k].iter().flatten() {
-                if self.producer(s).is_none() && !vals.contains_key(&s) && ops.constant(s).is_none()
-                {
-                    bail!("{src}: no value fed for graph input {}", ops.slot_name(s));
-                }
-            }
-        }
-        let get = |vals: &HashMap<usize, O::Value>, s: usize| -> Result<O::Value> {
-            vals.get(&s)
-                .or_else(|| ops.constant(s))
-                .cloned()
-                .ok_or_else(|| anyhow!("{src}: value {} missing", ops.slot_name(s)))
+        self.check_fed(ops, &order, &vals, &src)?;
+        let mut state = RunState {
+            flow: self,
+            ops,
+            src,
+            injected,
+            keep,
+            tapped: run.taps.iter().copied().collect(),
+            last_read,
+            vals,
+            pre: HashMap::new(),
+            deferred: HashSet::new(),
         };
-        let tapped: HashSet<usize> = run.taps.iter().copied().collect();
-        let mut pre: HashMap<usize, O::Value> = HashMap::new();
         let mut profile = PROFILE.load(Ordering::Relaxed).then(Profile::default);
-        // Inner nodes of fused pairs left to their outer node in this run.
-        let mut deferred: HashSet<usize> = HashSet::new();
         for &k in &order {
             let started = std::time::Instant::now();
-            if self.fused_inner.contains(&k) {
-                let (s, x) = (self.outputs[k][0], self.inputs[k][0]);
-                if !tapped.contains(&k)
-                    && !injected.contains_key(&s)
-                    && !keep.contains(&s)
-                    && x.is_some_and(|x| !pre.contains_key(&x))
-                {
-                    deferred.insert(k);
-                    continue;
-                }
+            if state.defer_inner(k) {
+                continue;
             }
             let fused_x = (self.fused.get(&k))
-                .filter(|(inner, _)| deferred.contains(inner))
+                .filter(|(inner, _)| state.deferred.contains(inner))
                 .map(|&(_, x)| x);
-            let (args, out) = if let Some(x) = fused_x {
-                let out = ops
-                    .eval_fused(k, &get(&vals, x)?)
-                    .with_context(|| format!("{src}: {} (fused)", ops.describe(k)))?;
-                (Vec::new(), out)
-            } else {
-                let args: Vec<Option<O::Value>> = self.inputs[k]
-                    .iter()
-                    .map(|s| s.map(|s| get(&vals, s)).transpose())
-                    .collect::<Result<_>>()?;
-                let refs: Vec<Option<&O::Value>> = args.iter().map(|v| v.as_ref()).collect();
-                let out = ops
-                    .eval(k, &refs)
-                    .with_context(|| format!("{src}: {}", ops.describe(k)))?;
-                (args, out)
-            };
-            if out.len() < self.outputs[k].len() {
-                bail!(
-                    "{src}: {} gave {} outputs, the graph reads {}",
-                    ops.describe(k),
-                    out.len(),
-                    self.outputs[k].len()
-                );
-            }
-            // The pre-tap pass: tapped nodes pass their input; their dependants run again.
-            if tapped.contains(&k) {
-                let x = args
-                    .first()
-                    .cloned()
-                    .flatten()
-                    .ok_or_else(|| anyhow!("{src}: tapped {} has no input", ops.describe(k)))?;
-                pre.insert(self.outputs[k][0], x);
-            } else if self.inputs[k].iter().flatten().any(|s| pre.contains_key(s)) {
-                let pre_args: Vec<Option<O::Value>> = self.inputs[k]
-                    .iter()
-                    .zip(&args)
-                    .map(|(s, v)| s.and_then(|s| pre.get(&s).cloned()).or_else(|| v.clone()))
-                    .collect();
-                let refs: Vec<Option<&O::Value>> = pre_args.iter().map(|v| v.as_ref()).collect();
-                let out = ops
-                    .eval(k, &refs)
-                    .with_context(|| format!("{src}: {}, pre-tap pass", ops.describe(k)))?;
-                for (s, v) in self.outputs[k].iter().zip(out) {
-                    pre.insert(*s, v);
-                }
-            }
+            let (args, out) = state.eval_node(k, fused_x)?;
+            state.pre_tap_pass(k, &args)?;
             if let Some(p) = profile.as_mut() {
                 let shape = out.first().and_then(|v| ops.settle(v));
                 let op = if fused_x.is_some() {
@@ -295,40 +225,214 @@ impl Dataflow {
                 };
                 p.add(op, k, shape, started.elapsed().as_secs_f64() * 1e3);
             }
-            for (s, v) in self.outputs[k].iter().zip(out) {
-                let read = last_read.contains_key(s) || keep.contains(s);
-                if read {
-                    vals.insert(*s, injected.get(s).cloned().unwrap_or(v));
-                }
-            }
-            for &s in self.inputs[k].iter().flatten() {
-                if last_read.get(&s) == Some(&k) && !keep.contains(&s) {
-                    vals.remove(&s);
-                    pre.remove(&s);
-                }
-            }
+            state.store_outputs(k, out);
+            state.free_inputs(k);
         }
         if let Some(p) = profile {
             p.print(ops);
         }
+        state.results(run.want, !run.taps.is_empty())
+    }
+
+    /// The needed nodes in topological order; a needed node on a cycle is an error.
+    fn run_order<O: Ops>(&self, ops: &O, needed: &[bool], src: &str) -> Result<Vec<usize>> {
+        let mut order = Vec::new();
+        for k in (0..self.len()).filter(|&k| needed[k]) {
+            let r = self.rank[k]
+                .ok_or_else(|| anyhow!("{src}: the graph has a cycle at {}", ops.describe(k)))?;
+            order.push((r, k));
+        }
+        order.sort_unstable();
+        Ok(order.into_iter().map(|(_, k)| k).collect())
+    }
+
+    /// The last node of `order` reading each slot, to free values early.
+    fn last_reads(&self, order: &[usize]) -> HashMap<usize, usize> {
+        let mut last_read: HashMap<usize, usize> = HashMap::new();
+        for &k in order {
+            for &s in self.inputs[k].iter().flatten() {
+                last_read.insert(s, k);
+            }
+        }
+        last_read
+    }
+
+    /// Refuses a run where a graph input read by `order` is neither fed nor a constant.
+    fn check_fed<O: Ops>(
+        &self,
+        ops: &O,
+        order: &[usize],
+        vals: &HashMap<usize, O::Value>,
+        src: &str,
+    ) -> Result<()> {
+        for &k in order {
+            for &s in self.inputs[k].iter().flatten() {
+                if self.producer(s).is_none() && !vals.contains_key(&s) && ops.constant(s).is_none()
+                {
+                    bail!("{src}: no value fed for graph input {}", ops.slot_name(s));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A node's arguments (`None`: an omitted optional input) and its outputs.
+type Evaluated<V> = (Vec<Option<V>>, Vec<V>);
+
+/// One run in progress: the values computed so far and what the run asked for.
+struct RunState<'r, O: Ops> {
+    flow: &'r Dataflow,
+    ops: &'r O,
+    src: String,
+    injected: HashMap<usize, O::Value>,
+    /// What is asked for (never freed).
+    keep: HashSet<usize>,
+    tapped: HashSet<usize>,
+    last_read: HashMap<usize, usize>,
+    vals: HashMap<usize, O::Value>,
+    /// Values of the pre-tap pass, where they differ from `vals`.
+    pre: HashMap<usize, O::Value>,
+    /// Inner nodes of fused pairs left to their outer node in this run.
+    deferred: HashSet<usize>,
+}
+
+impl<O: Ops> RunState<'_, O> {
+    /// The value of slot `s`: computed, fed, injected or constant.
+    fn get(&self, s: usize) -> Result<O::Value> {
+        let (ops, src) = (self.ops, &self.src);
+        self.vals
+            .get(&s)
+            .or_else(|| ops.constant(s))
+            .cloned()
+            .ok_or_else(|| anyhow!("{src}: value {} missing", ops.slot_name(s)))
+    }
+
+    /// Leaves node `k` to its fused outer node (true) where `k` is an inner node whose output
+    /// nothing else in this run needs.
+    fn defer_inner(&mut self, k: usize) -> bool {
+        let flow = self.flow;
+        if !flow.fused_inner.contains(&k) {
+            return false;
+        }
+        let (s, x) = (flow.outputs[k][0], flow.inputs[k][0]);
+        let alone = !self.tapped.contains(&k)
+            && !self.injected.contains_key(&s)
+            && !self.keep.contains(&s)
+            && x.is_some_and(|x| !self.pre.contains_key(&x));
+        if alone {
+            self.deferred.insert(k);
+        }
+        alone
+    }
+
+    /// Evaluates node `k` (as the fused op on `fused_x` where given) and returns its arguments
+    /// (empty when fused) and outputs, checking it gave as many outputs as the graph reads.
+    fn eval_node(&self, k: usize, fused_x: Option<usize>) -> Result<Evaluated<O::Value>> {
+        let (flow, ops, src) = (self.flow, self.ops, &self.src);
+        let (args, out) = if let Some(x) = fused_x {
+            let out = ops
+                .eval_fused(k, &self.get(x)?)
+                .with_context(|| format!("{src}: {} (fused)", ops.describe(k)))?;
+            (Vec::new(), out)
+        } else {
+            let args: Vec<Option<O::Value>> = flow.inputs[k]
+                .iter()
+                .map(|s| s.map(|s| self.get(s)).transpose())
+                .collect::<Result<_>>()?;
+            let refs: Vec<Option<&O::Value>> = args.iter().map(|v| v.as_ref()).collect();
+            let out = ops
+                .eval(k, &refs)
+                .with_context(|| format!("{src}: {}", ops.describe(k)))?;
+            (args, out)
+        };
+        if out.len() < flow.outputs[k].len() {
+            bail!(
+                "{src}: {} gave {} outputs, the graph reads {}",
+                ops.describe(k),
+                out.len(),
+                flow.outputs[k].len()
+            );
+        }
+        Ok((args, out))
+    }
+
+    /// The pre-tap pass: tapped nodes pass their input; their dependants run again.
+    fn pre_tap_pass(&mut self, k: usize, args: &[Option<O::Value>]) -> Result<()> {
+        let (flow, ops, src) = (self.flow, self.ops, &self.src);
+        if self.tapped.contains(&k) {
+            let x = args
+                .first()
+                .cloned()
+                .flatten()
+                .ok_or_else(|| anyhow!("{src}: tapped {} has no input", ops.describe(k)))?;
+            self.pre.insert(flow.outputs[k][0], x);
+        } else if flow.inputs[k]
+            .iter()
+            .flatten()
+            .any(|s| self.pre.contains_key(s))
+        {
+            let pre_args: Vec<Option<O::Value>> = flow.inputs[k]
+                .iter()
+                .zip(args)
+                .map(|(s, v)| {
+                    s.and_then(|s| self.pre.get(&s).cloned())
+                        .or_else(|| v.clone())
+                })
+                .collect();
+            let refs: Vec<Option<&O::Value>> = pre_args.iter().map(|v| v.as_ref()).collect();
+            let out = ops
+                .eval(k, &refs)
+                .with_context(|| format!("{src}: {}, pre-tap pass", ops.describe(k)))?;
+            for (s, v) in flow.outputs[k].iter().zip(out) {
+                self.pre.insert(*s, v);
+            }
+        }
+        Ok(())
+    }
+
+    /// Keeps the outputs of node `k` that are read later or asked for (injected values win).
+    fn store_outputs(&mut self, k: usize, out: Vec<O::Value>) {
+        for (s, v) in self.flow.outputs[k].iter().zip(out) {
+            let read = self.last_read.contains_key(s) || self.keep.contains(s);
+            if read {
+                let v = self.injected.get(s).cloned().unwrap_or(v);
+                self.vals.insert(*s, v);
+            }
+        }
+    }
+
+    /// Frees the inputs node `k` read last, unless they are asked for.
+    fn free_inputs(&mut self, k: usize) {
+        for &s in self.flow.inputs[k].iter().flatten() {
+            if self.last_read.get(&s) == Some(&k) && !self.keep.contains(&s) {
+                self.vals.remove(&s);
+                self.pre.remove(&s);
+            }
+        }
+    }
+
+    /// The values of `want`, and their pre-tap versions when the run had taps.
+    fn results(&self, want: &[usize], with_pre: bool) -> Result<Outputs<O::Value>> {
+        let (ops, src) = (self.ops, &self.src);
         let pick = |m: &HashMap<usize, O::Value>, s: usize| {
             m.get(&s)
                 .or_else(|| ops.constant(s))
                 .cloned()
                 .ok_or_else(|| anyhow!("{src}: {} was not computed", ops.slot_name(s)))
         };
-        let main = (run.want.iter())
-            .map(|&s| pick(&vals, s))
+        let main = (want.iter())
+            .map(|&s| pick(&self.vals, s))
             .collect::<Result<Vec<_>>>()?;
-        let pre = if run.taps.is_empty() {
-            Vec::new()
-        } else {
-            (run.want.iter())
-                .map(|&s| match pre.get(&s) {
+        let pre = if with_pre {
+            (want.iter())
+                .map(|&s| match self.pre.get(&s) {
                     Some(v) => Ok(v.clone()),
-                    None => pick(&vals, s),
+                    None => pick(&self.vals, s),
                 })
                 .collect::<Result<Vec<_>>>()?
+        } else {
+            Vec::new()
         };
         Ok((main, pre))
     }

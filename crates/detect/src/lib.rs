@@ -13,18 +13,17 @@
 //!
 //! Images go in as `[B, 3, H, W]` floats in [0, 1] on any device; the detector resizes them
 //! inside (differentiably), so gradients of any output reach the input image.
-//! [`bench`] times detectors (and their TFJS and PyTorch references) for `cac bench detect`
-//! (its Python peers run without the libtorch settings [`torch_env`] gives cac's own process);
-//! [`draw`] draws detections into an image.
+//! Detectors are timed beside their TFJS and PyTorch references by `cac-bench` (`cac bench
+//! detect`; its Python peers run without the libtorch settings [`torch_env`] gives cac's own
+//! process); [`draw`] draws detections into an image.
 
 // The kernel modules name burn's LibTorch backend in `tch` builds, which burn 0.22 marks deprecated.
 #[cfg_attr(feature = "tch", allow(deprecated))]
 pub mod activation;
-pub mod bench;
 #[cfg_attr(feature = "tch", allow(deprecated))]
 pub mod broadcast;
 mod catalogue;
-pub mod centernet;
+mod centernet;
 #[cfg_attr(feature = "tch", allow(deprecated))]
 pub mod conv;
 pub mod defence;
@@ -39,7 +38,7 @@ pub mod kernels;
 pub mod labels;
 #[cfg(feature = "tch")]
 mod libtorch;
-pub mod nanodet;
+mod nanodet;
 pub mod nms;
 pub mod onnx;
 pub mod preprocess;

@@ -30,7 +30,7 @@ pub unsafe fn prefer_huge_pages() {
 
 /// A Python peer (PyTorch, onnxruntime) as its users run it: without the huge-page setting cac
 /// gave its own libtorch, unless the user set it (then both have it).
-pub(crate) fn peer_command(python: impl AsRef<OsStr>) -> Command {
+pub fn peer_command(python: impl AsRef<OsStr>) -> Command {
     let mut c = Command::new(python);
     if HUGE_PAGES_SET_HERE.load(Ordering::Relaxed) {
         c.env_remove(TORCH_HUGE_PAGES_VAR);

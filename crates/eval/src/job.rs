@@ -285,27 +285,77 @@ fn report_part(
 ) -> Result<Outcome> {
     let start = Instant::now();
     let p = prepare(job, dets)?;
+    let got = texture_results(job, part, &p, dets, device, progress)?;
+    // Every texture is there: keep the merged ones whole in the cache (a later run reads one
+    // file), then write the report.
+    store_merged(&p, &got.results)?;
+    let (mut records, mut examples, mut skipped) = (vec![], vec![], vec![]);
+    for (r, _) in got.results {
+        records.extend(r.records);
+        examples.push(r.examples);
+        skipped.push(r.skipped);
+    }
+    let info = eval_info(job, &p.texs, p.models, skipped, got.reused.clone(), start)?;
+    let (files, report_md) = write_report(job, &info, &records, &examples)?;
+    Ok(Outcome {
+        info,
+        records,
+        files,
+        images_scored: got.scored,
+        reused: got.reused,
+        merged: got.merged,
+        out: job.out.clone(),
+        report_md,
+    })
+}
+
+/// Every texture's result, in the job's order, and where each came from.
+struct TextureResults {
+    /// Each texture's result, and whether it was assembled from shard files.
+    results: Vec<(TextureResult, bool)>,
+    /// Textures read whole from the cache.
+    reused: Vec<String>,
+    /// Textures assembled from shard files, with their shard count N.
+    merged: Vec<(String, usize)>,
+    /// Images rendered and scored.
+    scored: usize,
+}
+
+/// Each texture from the cache, else from its shard files, else (unless merging only)
+/// rendered, scored and stored in the cache.
+fn texture_results(
+    job: &EvalJob,
+    part: Part,
+    p: &Prepared,
+    dets: &[&dyn Detector],
+    device: &Device,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<TextureResults> {
     let per_texture = p.views.len();
     let total = per_texture * p.texs.len();
     let mut renderer = None;
-    let (mut results, mut reused, mut merged) = (vec![], vec![], vec![]);
+    let mut got = TextureResults {
+        results: vec![],
+        reused: vec![],
+        merged: vec![],
+        scored: 0,
+    };
     let mut done = 0;
-    let mut scored = 0;
     for (t, key) in p.texs.iter().zip(&p.keys) {
         if let Some(r) = cache::load(&p.cache_dir, &t.name, key)? {
-            reused.push(t.name.clone());
+            got.reused.push(t.name.clone());
             done += per_texture;
             progress(done, total);
-            results.push((r, false));
+            got.results.push((r, false));
             continue;
         }
         let from_shards = shard::merge(&p.cache_dir, &t.name, key, &p.groups, &p.views, &p.models);
         match (part, from_shards) {
             (_, Ok((r, n))) => {
-                merged.push((t.name.clone(), n));
+                got.merged.push((t.name.clone(), n));
                 done += per_texture;
                 progress(done, total);
-                results.push((r, true));
+                got.results.push((r, true));
             }
             (Part::Merge, Err(e)) => {
                 return Err(e.context(format!(
@@ -318,32 +368,42 @@ fn report_part(
                     done += 1;
                     progress(done, total);
                 })?;
-                scored += per_texture;
+                got.scored += per_texture;
                 cache::store(&p.cache_dir, &t.name, key, &r)?;
-                results.push((r, false));
+                got.results.push((r, false));
             }
         }
     }
-    // Every texture is there: keep the merged ones whole in the cache (a later run reads one
-    // file), then write the report.
+    Ok(got)
+}
+
+/// Stores the textures assembled from shard files whole in the cache.
+fn store_merged(p: &Prepared, results: &[(TextureResult, bool)]) -> Result<()> {
     for ((r, from_shards), (t, key)) in results.iter().zip(p.texs.iter().zip(&p.keys)) {
         if *from_shards {
             cache::store(&p.cache_dir, &t.name, key, r)?;
         }
     }
-    let (mut records, mut examples, mut skipped) = (vec![], vec![], vec![]);
-    for (r, _) in results {
-        records.extend(r.records);
-        examples.push(r.examples);
-        skipped.push(r.skipped);
-    }
-    let names: Vec<String> = p.texs.iter().map(|t| t.name.clone()).collect();
+    Ok(())
+}
+
+/// What was evaluated and how, for the report; the drop reference is the texture named
+/// Original, else the first.
+fn eval_info(
+    job: &EvalJob,
+    texs: &[textures::NamedTexture],
+    models: Vec<String>,
+    skipped: Vec<usize>,
+    reused: Vec<String>,
+    start: Instant,
+) -> Result<EvalInfo> {
+    let names: Vec<String> = texs.iter().map(|t| t.name.clone()).collect();
     let reference = names
         .iter()
         .find(|n| n.eq_ignore_ascii_case("original"))
         .unwrap_or(&names[0])
         .clone();
-    let info = EvalInfo {
+    Ok(EvalInfo {
         object: job.scene.object.mesh.clone(),
         protocol: job.protocol.clone(),
         plan: job.plan.clone(),
@@ -352,34 +412,35 @@ fn report_part(
         printed: printed_text(job)?,
         textures: names,
         reference,
-        models: p.models,
+        models,
         skipped,
-        reused: reused.clone(),
+        reused,
         seconds: start.elapsed().as_secs_f64(),
-    };
+    })
+}
+
+/// Writes the report's files into the output folder (with the job's extra figures); their
+/// names, and the text of report.md.
+fn write_report(
+    job: &EvalJob,
+    info: &EvalInfo,
+    records: &[super::run::ImageRecord],
+    examples: &[Vec<super::run::Example>],
+) -> Result<(Vec<String>, String)> {
     let (mut files, mut report_md) = (vec![], String::new());
     let extra = job
         .figures
         .iter()
         .map(|(c, p)| Ok((c.clone(), cac_core::io::load_rgb(p)?)))
         .collect::<Result<Vec<_>>>()?;
-    for (name, bytes) in report::files(&info, &records, &examples, &extra)? {
+    for (name, bytes) in report::files(info, records, examples, &extra)? {
         cac_core::io::write_atomic(&job.out.join(&name), &bytes)?;
         if name == "report.md" {
             report_md = String::from_utf8_lossy(&bytes).into_owned();
         }
         files.push(name);
     }
-    Ok(Outcome {
-        info,
-        records,
-        files,
-        images_scored: scored,
-        reused,
-        merged,
-        out: job.out.clone(),
-        report_md,
-    })
+    Ok((files, report_md))
 }
 
 /// The protocol statement's words for photographed light: empty under the sun and ambient.

@@ -18,18 +18,14 @@
 //!   [`gradcam`] where a detector looks.
 //! - The second renderer and its checks: [`blender`] (Cycles), [`agreement`] (cac's renderer
 //!   against Cycles), [`realism`] (whether the original object is recognised at all).
-//! - Benchmarks: [`bench`] the images scored per second (`cac bench eval`), [`ibl_bench`] the
-//!   photographed light's knobs against Cycles (`cac bench ibl`).
 //! - [`study`]: experiments that train with `cac-attack` and judge with this crate (the studies,
-//!   the demo, the attack benchmark, the training curve's judge).
+//!   the demo, the training curve's judge). Benchmarks are in `cac-bench`.
 
 pub mod agreement;
-pub mod bench;
 pub mod blender;
 pub mod cache;
 pub mod compare;
 pub mod gradcam;
-pub mod ibl_bench;
 pub mod job;
 mod protocol;
 pub mod realism;

@@ -201,7 +201,7 @@ pub fn run(
 }
 
 /// The conditions of a viewpoint set.
-pub(crate) fn views(
+pub fn views(
     set: ViewSet,
     cfg: &SceneConfig,
     n: usize,
@@ -242,7 +242,7 @@ pub(crate) fn views(
 
 /// The environment and conditions that light `conds` by `world` in cac's renderer (its
 /// strength as an exposure, its rotation as Blender's).
-pub(crate) fn lit_by(
+pub fn lit_by(
     cfg: &SceneConfig,
     world: &blender::World,
     conds: &[Condition],

@@ -295,24 +295,10 @@ pub fn files(
     let summ = summary::summary_rows(records, &i.textures, &i.models, &i.plan.sets, &i.reference);
     let brk = summary::breakdown_rows(records, &i.textures, &i.models);
 
-    let mut md = format!(
-        "# Evaluation: {}\n\n## Protocol\n\n```\n{proto}\n```\n",
-        i.object
-    );
-    for (stem, title, t) in &tabs {
-        md += &format!("\n## {title}\n\n{}", t.markdown());
+    for (stem, _, t) in &tabs {
         out.push((format!("{stem}.csv"), t.csv().into_bytes()));
     }
-    let reused = if i.reused.is_empty() {
-        String::new()
-    } else {
-        format!(" ({} reused from the cache)", i.reused.join(", "))
-    };
-    md += &format!(
-        "\nEvaluated in {:.0} s{reused}. Per-image records: records.csv; every figure: results.json.\n",
-        i.seconds
-    );
-    out.push(("report.md".into(), md.into_bytes()));
+    out.push(("report.md".into(), markdown(i, &proto, &tabs).into_bytes()));
     out.push(("summary.csv".into(), summ.csv().into_bytes()));
     out.push(("breakdown.csv".into(), brk.csv().into_bytes()));
     out.push((
@@ -333,6 +319,47 @@ pub fn files(
     for (_, title, t) in &tabs {
         h.heading(2, title).table(t);
     }
+    breakdown_plots(i, records, &mut h, &mut out)?;
+    if !extra.is_empty() {
+        h.heading(2, "Further figures");
+        for (cap, img) in extra {
+            h.image(img, cap)?;
+        }
+    }
+    example_views(i, examples, &mut h)?;
+    out.push(("report.html".into(), h.finish().into_bytes()));
+    Ok(out)
+}
+
+/// `report.md`: the protocol, the tables and where the rest is.
+fn markdown(i: &EvalInfo, proto: &str, tabs: &[(String, String, Table)]) -> String {
+    let mut md = format!(
+        "# Evaluation: {}\n\n## Protocol\n\n```\n{proto}\n```\n",
+        i.object
+    );
+    for (_, title, t) in tabs {
+        md += &format!("\n## {title}\n\n{}", t.markdown());
+    }
+    let reused = if i.reused.is_empty() {
+        String::new()
+    } else {
+        format!(" ({} reused from the cache)", i.reused.join(", "))
+    };
+    md += &format!(
+        "\nEvaluated in {:.0} s{reused}. Per-image records: records.csv; every figure: results.json.\n",
+        i.seconds
+    );
+    md
+}
+
+/// The HTML page's breakdowns: per model, P@0.5 against distance ratio, elevation and azimuth;
+/// each plot also goes into `out` as `plot_FACTOR_MODEL.png`.
+fn breakdown_plots(
+    i: &EvalInfo,
+    records: &[ImageRecord],
+    h: &mut Html,
+    out: &mut Vec<(String, Vec<u8>)>,
+) -> Result<()> {
     h.heading(2, "Breakdowns");
     for (k, model) in i.models.iter().enumerate() {
         let mut imgs = vec![];
@@ -353,12 +380,12 @@ pub fn files(
         h.heading(3, &format!("{model} (model {})", k + 1))
             .figures(&figs, 0)?;
     }
-    if !extra.is_empty() {
-        h.heading(2, "Further figures");
-        for (cap, img) in extra {
-            h.image(img, cap)?;
-        }
-    }
+    Ok(())
+}
+
+/// The HTML page's example views: per texture and model, each example with the ground truth
+/// and the model's detections drawn.
+fn example_views(i: &EvalInfo, examples: &[Vec<Example>], h: &mut Html) -> Result<()> {
     h.heading(2, "Example views");
     h.paragraph(
         "White: ground-truth box. Coloured: the model's detections (label and confidence).",
@@ -387,6 +414,5 @@ pub fn files(
             h.heading(3, &format!("{t} — {model}")).photos(&figs, 240)?;
         }
     }
-    out.push(("report.html".into(), h.finish().into_bytes()));
-    Ok(out)
+    Ok(())
 }

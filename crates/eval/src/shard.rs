@@ -79,6 +79,17 @@ pub fn merge(
     all_views: &[(usize, usize)],
     models: &[String],
 ) -> Result<(TextureResult, usize)> {
+    // Check the files' numbers, keys and views first; read records and examples after.
+    let parts = read_headers(dir, name, key)?;
+    let (n, by_k) = complete_split(dir, name, &parts)?;
+    check_views(&by_k, n, all_views)?;
+    let out = assemble(&by_k, key, groups, models)?;
+    Ok((out, n))
+}
+
+/// The headers of texture `name`'s shard files in `dir`; refuses none at all, and a file
+/// written with other settings (its key is not `key`).
+fn read_headers(dir: &Path, name: &str, key: &str) -> Result<Vec<ShardHeader>> {
     let files = cache::shard_files(dir, name)?;
     if files.is_empty() {
         bail!(
@@ -86,7 +97,6 @@ pub fn merge(
             dir.display()
         );
     }
-    // Check the files' numbers, keys and views first; read records and examples after.
     let parts: Vec<ShardHeader> = files
         .iter()
         .map(|f| cache::read_shard_header(f))
@@ -101,6 +111,16 @@ pub fn merge(
             );
         }
     }
+    Ok(parts)
+}
+
+/// The shard count N and the headers by shard number K; refuses shards of different counts, a
+/// shard present twice and a shard missing.
+fn complete_split<'a>(
+    dir: &Path,
+    name: &str,
+    parts: &'a [ShardHeader],
+) -> Result<(usize, BTreeMap<usize, &'a ShardHeader>)> {
     let n = parts[0].shard.1;
     if let Some(o) = parts.iter().find(|p| p.shard.1 != n) {
         bail!(
@@ -114,7 +134,7 @@ pub fn merge(
         );
     }
     let mut by_k: BTreeMap<usize, &ShardHeader> = BTreeMap::new();
-    for p in &parts {
+    for p in parts {
         if let Some(first) = by_k.insert(p.shard.0, p) {
             bail!(
                 "shard {}/{n} of texture {name:?} is present twice: {} and {}; remove one",
@@ -140,12 +160,16 @@ pub fn merge(
             missing.join(", ")
         );
     }
-    let mut out = TextureResult {
-        records: vec![],
-        skipped: 0,
-        examples: vec![],
-    };
-    for (&k, p) in &by_k {
+    Ok((n, by_k))
+}
+
+/// Refuses a file whose views are not those of its shard of `all_views`.
+fn check_views(
+    by_k: &BTreeMap<usize, &ShardHeader>,
+    n: usize,
+    all_views: &[(usize, usize)],
+) -> Result<()> {
+    for (&k, p) in by_k {
         let want = Shard { k, n }.part(all_views);
         if p.views != want {
             bail!(
@@ -156,6 +180,22 @@ pub fn merge(
             );
         }
     }
+    Ok(())
+}
+
+/// Reads every shard's records and examples (refusing a file changed since its header was
+/// read) and sorts them in the order of a single run.
+fn assemble(
+    by_k: &BTreeMap<usize, &ShardHeader>,
+    key: &str,
+    groups: &[ViewGroup],
+    models: &[String],
+) -> Result<TextureResult> {
+    let mut out = TextureResult {
+        records: vec![],
+        skipped: 0,
+        examples: vec![],
+    };
     for p in by_k.values() {
         let mut part: ShardPart = cache::read_shard(&p.path)?;
         if part.key != key || part.shard != p.shard {
@@ -176,7 +216,7 @@ pub fn merge(
         .sort_by_key(|r: &ImageRecord| (group(r.set, r.brightness), r.view, model(&r.model)));
     out.examples
         .sort_by_key(|e| (group(e.set, e.brightness), e.view));
-    Ok((out, n))
+    Ok(out)
 }
 
 #[cfg(test)]

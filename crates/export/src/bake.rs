@@ -290,7 +290,7 @@ fn split(t: &BakedTri, mid: [Option<u32>; 3], out: &mut Vec<BakedTri>) {
 
 /// Colour error of a bake against the texture.
 #[derive(Clone, Debug, Serialize)]
-pub(crate) struct ColourError {
+pub struct ColourError {
     pub samples: usize,
     /// Root mean square error per channel, in 8-bit sRGB steps.
     pub rmse_8bit: f64,
@@ -302,7 +302,7 @@ pub(crate) struct ColourError {
 /// Samples `n` area-uniform random points on the textured triangles and compares the baked
 /// colour (corner colours quantised to 8 bits, interpolated barycentrically in sRGB, as the
 /// 3MF stores them) with the texture's bilinear colour there.
-pub(crate) fn colour_error(mesh: &PrintMesh, baked: &Baked, n: usize, seed: u64) -> ColourError {
+pub fn colour_error(mesh: &PrintMesh, baked: &Baked, n: usize, seed: u64) -> ColourError {
     let area = |t: &BakedTri| {
         let [a, b, c] = t.v.map(|i| baked.positions[i as usize]);
         0.5 * (b - a).cross(c - a).length() as f64

@@ -19,7 +19,6 @@
 //! See `docs/export.md` for the conventions, tolerances and the bake's error/run-time table.
 
 pub mod bake;
-pub mod benchmark;
 mod load;
 mod mesh;
 mod obj;
@@ -46,4 +45,5 @@ pub use mesh::{Paint, PrintMesh, PrintReport, PrintTri, Scale};
 pub use options::{ExportOptions, Format, RepairMode};
 pub use pipeline::{export, ExportSummary, PRINTER_SIZE_TOLERANCE};
 pub use printability::{PrintLimits, Printability, ThinPolicy};
-pub use solidify::{Fidelity, SolidifyReport};
+pub use printcheck::weld_and_check;
+pub use solidify::{fidelity, solidify, Fidelity, SolidifyOptions, SolidifyReport};

@@ -395,7 +395,7 @@ pub struct Analysis {
 }
 
 /// Classifies and measures every triangle of `mesh` against `min_wall` (mm).
-pub(crate) fn analyse(mesh: &PrintMesh, min_wall: f32) -> Analysis {
+pub fn analyse(mesh: &PrintMesh, min_wall: f32) -> Analysis {
     let (all, _) = corners(mesh, |_| true);
     let all = SurfaceIndex::new(all);
     let diag = Vec3::from(mesh.report.size_mm).length().max(1e-6);

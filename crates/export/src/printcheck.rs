@@ -72,10 +72,7 @@ fn flip(t: &mut PrintTri) {
 }
 
 /// Welds, repairs what can safely be repaired, and reports the rest (see the module doc).
-pub(crate) fn weld_and_check(
-    raw: &[Vec3],
-    tris: &mut Vec<PrintTri>,
-) -> Result<(Vec<Vec3>, PrintReport)> {
+pub fn weld_and_check(raw: &[Vec3], tris: &mut Vec<PrintTri>) -> Result<(Vec<Vec3>, PrintReport)> {
     if tris.is_empty() {
         bail!("the mesh has no triangles");
     }

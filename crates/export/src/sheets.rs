@@ -11,6 +11,7 @@ use crate::mesh::{PrintMesh, Scale};
 use anyhow::{bail, ensure, Context, Result};
 use cac_core::memory::MemoryBudget;
 use cac_core::report::font::{draw_text, fill_rect, text_width};
+use cac_scene::Texture;
 use glam::Vec2;
 use image::RgbImage;
 use serde::Serialize;
@@ -660,46 +661,103 @@ fn render_piece(
     opts: &SheetOptions,
 ) {
     let tex = &mesh.textures[0];
-    let (tw, th) = (tex.width as f32, tex.height as f32);
-    let bleed_px = (opts.bleed_mm * px_per_mm).ceil() as i64;
-    let x0 = (pl.x_mm * px_per_mm).round() as i64 - bleed_px;
-    let y0 = (pl.y_mm * px_per_mm).round() as i64 - bleed_px;
-    let w = (pl.width_mm * px_per_mm).ceil() as i64 + 2 * bleed_px + 1;
-    let h = (pl.height_mm * px_per_mm).ceil() as i64 + 2 * bleed_px + 1;
-    // Piece pixel (local) <-> texel.
-    let texel_per_px = 1.0 / (mm_per_texel * px_per_mm);
-    let to_px = |t: Vec2| {
-        Vec2::new(
-            (t.x - pl.texels[0]) / texel_per_px + bleed_px as f32,
-            (t.y - pl.texels[1]) / texel_per_px + bleed_px as f32,
-        )
-    };
-    let mut mask = vec![false; (w * h) as usize];
-    for &ti in tris {
-        let uv = mesh.camo_uv(&mesh.tris[ti]).unwrap();
-        let p = uv.map(|u| to_px(Vec2::new(u.x * tw, (1.0 - u.y) * th)));
-        let area = (p[1] - p[0]).perp_dot(p[2] - p[0]);
-        if area.abs() < 1e-9 {
-            continue;
+    let win = PieceWindow::new(pl, tex, mm_per_texel, px_per_mm, opts.bleed_mm);
+    let mask = win.coverage(mesh, tris);
+    // Bleed: square dilation by bleed_px (two separable passes, sliding-window counts).
+    let bled = win.dilate(&win.dilate(&mask, true), false);
+    let line = (px_per_mm * 0.25).max(1.0) as i64;
+    win.paint(img, tex, &mask, &bled, line);
+}
+
+/// A piece's pixels on the page: where they start, how many (the piece, its bleed and one more
+/// per side) and the texels they show.
+struct PieceWindow {
+    /// The page pixel of the window's top-left corner.
+    x0: i64,
+    y0: i64,
+    /// The window's size (pixels).
+    w: i64,
+    h: i64,
+    bleed_px: i64,
+    texel_per_px: f32,
+    /// The texel at the piece's top-left corner (after the bleed).
+    origin: [f32; 2],
+    /// The texture's size (texels).
+    tw: f32,
+    th: f32,
+}
+
+impl PieceWindow {
+    /// The window of placement `pl` at `mm_per_texel` and `px_per_mm`, with `bleed_mm` around.
+    fn new(
+        pl: &Placement,
+        tex: &Texture,
+        mm_per_texel: f32,
+        px_per_mm: f32,
+        bleed_mm: f32,
+    ) -> PieceWindow {
+        let (tw, th) = (tex.width as f32, tex.height as f32);
+        let bleed_px = (bleed_mm * px_per_mm).ceil() as i64;
+        let x0 = (pl.x_mm * px_per_mm).round() as i64 - bleed_px;
+        let y0 = (pl.y_mm * px_per_mm).round() as i64 - bleed_px;
+        let w = (pl.width_mm * px_per_mm).ceil() as i64 + 2 * bleed_px + 1;
+        let h = (pl.height_mm * px_per_mm).ceil() as i64 + 2 * bleed_px + 1;
+        // Piece pixel (local) <-> texel.
+        let texel_per_px = 1.0 / (mm_per_texel * px_per_mm);
+        PieceWindow {
+            x0,
+            y0,
+            w,
+            h,
+            bleed_px,
+            texel_per_px,
+            origin: [pl.texels[0], pl.texels[1]],
+            tw,
+            th,
         }
-        let lo = p[0].min(p[1]).min(p[2]).floor().max(Vec2::ZERO);
-        let hi = p[0]
-            .max(p[1])
-            .max(p[2])
-            .ceil()
-            .min(Vec2::new((w - 1) as f32, (h - 1) as f32));
-        for yy in lo.y as i64..=hi.y as i64 {
-            for xx in lo.x as i64..=hi.x as i64 {
-                let q = Vec2::new(xx as f32 + 0.5, yy as f32 + 0.5);
-                let e = |a: Vec2, b: Vec2| (b - a).perp_dot(q - a) / area;
-                if e(p[0], p[1]) >= 0.0 && e(p[1], p[2]) >= 0.0 && e(p[2], p[0]) >= 0.0 {
-                    mask[(yy * w + xx) as usize] = true;
+    }
+
+    /// The window pixel (local) of texel position `t`.
+    fn to_px(&self, t: Vec2) -> Vec2 {
+        Vec2::new(
+            (t.x - self.origin[0]) / self.texel_per_px + self.bleed_px as f32,
+            (t.y - self.origin[1]) / self.texel_per_px + self.bleed_px as f32,
+        )
+    }
+
+    /// Which window pixels' centres the part's triangles `tris` cover (in UV space).
+    fn coverage(&self, mesh: &PrintMesh, tris: &[usize]) -> Vec<bool> {
+        let (w, h) = (self.w, self.h);
+        let mut mask = vec![false; (w * h) as usize];
+        for &ti in tris {
+            let uv = mesh.camo_uv(&mesh.tris[ti]).unwrap();
+            let p = uv.map(|u| self.to_px(Vec2::new(u.x * self.tw, (1.0 - u.y) * self.th)));
+            let area = (p[1] - p[0]).perp_dot(p[2] - p[0]);
+            if area.abs() < 1e-9 {
+                continue;
+            }
+            let lo = p[0].min(p[1]).min(p[2]).floor().max(Vec2::ZERO);
+            let hi = p[0]
+                .max(p[1])
+                .max(p[2])
+                .ceil()
+                .min(Vec2::new((w - 1) as f32, (h - 1) as f32));
+            for yy in lo.y as i64..=hi.y as i64 {
+                for xx in lo.x as i64..=hi.x as i64 {
+                    let q = Vec2::new(xx as f32 + 0.5, yy as f32 + 0.5);
+                    let e = |a: Vec2, b: Vec2| (b - a).perp_dot(q - a) / area;
+                    if e(p[0], p[1]) >= 0.0 && e(p[1], p[2]) >= 0.0 && e(p[2], p[0]) >= 0.0 {
+                        mask[(yy * w + xx) as usize] = true;
+                    }
                 }
             }
         }
+        mask
     }
-    // Bleed: square dilation by bleed_px (two separable passes, sliding-window counts).
-    let dilate = |m: &[bool], horizontal: bool| -> Vec<bool> {
+
+    /// `m` dilated by `bleed_px` along rows (`horizontal`) or columns, by sliding-window counts.
+    fn dilate(&self, m: &[bool], horizontal: bool) -> Vec<bool> {
+        let (w, h, bleed_px) = (self.w, self.h, self.bleed_px);
         let mut out = vec![false; m.len()];
         let (lines, len) = if horizontal { (h, w) } else { (w, h) };
         let idx = |line: i64, k: i64| {
@@ -720,36 +778,43 @@ fn render_piece(
             }
         }
         out
-    };
-    let bled = dilate(&dilate(&mask, true), false);
-    let line = (px_per_mm * 0.25).max(1.0) as i64;
-    for yy in 0..h {
-        for xx in 0..w {
-            let (gx, gy) = (x0 + xx, y0 + yy);
-            if gx < 0 || gy < 0 || gx >= img.width() as i64 || gy >= img.height() as i64 {
-                continue;
-            }
-            let i = (yy * w + xx) as usize;
-            if !bled[i] {
-                continue;
-            }
-            let inside = mask[i];
-            let near_edge = (-line..=line).any(|d| {
-                let (ax, ay) = (xx + d, yy);
-                let (bx, by) = (xx, yy + d);
-                let m = |x: i64, y: i64| {
-                    x >= 0 && y >= 0 && x < w && y < h && mask[(y * w + x) as usize]
+    }
+
+    /// Draws the window's `bled` pixels onto the page: the texture, and a cut line `line`
+    /// pixels wide inside the edge of `mask`.
+    fn paint(&self, img: &mut RgbImage, tex: &Texture, mask: &[bool], bled: &[bool], line: i64) {
+        let (w, h, bleed_px, texel_per_px) = (self.w, self.h, self.bleed_px, self.texel_per_px);
+        let (tw, th) = (self.tw, self.th);
+        for yy in 0..h {
+            for xx in 0..w {
+                let (gx, gy) = (self.x0 + xx, self.y0 + yy);
+                if gx < 0 || gy < 0 || gx >= img.width() as i64 || gy >= img.height() as i64 {
+                    continue;
+                }
+                let i = (yy * w + xx) as usize;
+                if !bled[i] {
+                    continue;
+                }
+                let inside = mask[i];
+                let near_edge = (-line..=line).any(|d| {
+                    let (ax, ay) = (xx + d, yy);
+                    let (bx, by) = (xx, yy + d);
+                    let m = |x: i64, y: i64| {
+                        x >= 0 && y >= 0 && x < w && y < h && mask[(y * w + x) as usize]
+                    };
+                    m(ax, ay) != inside || m(bx, by) != inside
+                });
+                let c = if inside && near_edge {
+                    [40, 40, 40]
+                } else {
+                    let tx =
+                        self.origin[0] + (xx - bleed_px) as f32 * texel_per_px + 0.5 * texel_per_px;
+                    let ty =
+                        self.origin[1] + (yy - bleed_px) as f32 * texel_per_px + 0.5 * texel_per_px;
+                    cac_core::colour::to_rgb8(tex.sample(Vec2::new(tx / tw, 1.0 - ty / th)))
                 };
-                m(ax, ay) != inside || m(bx, by) != inside
-            });
-            let c = if inside && near_edge {
-                [40, 40, 40]
-            } else {
-                let tx = pl.texels[0] + (xx - bleed_px) as f32 * texel_per_px + 0.5 * texel_per_px;
-                let ty = pl.texels[1] + (yy - bleed_px) as f32 * texel_per_px + 0.5 * texel_per_px;
-                cac_core::colour::to_rgb8(tex.sample(Vec2::new(tx / tw, 1.0 - ty / th)))
-            };
-            img.put_pixel(gx as u32, gy as u32, image::Rgb(c));
+                img.put_pixel(gx as u32, gy as u32, image::Rgb(c));
+            }
         }
     }
 }

@@ -193,6 +193,21 @@ pub fn write(out: &Path, s: &SessionScore, session: &str) -> Result<()> {
         &out.join("scores.json"),
         serde_json::to_string_pretty(s)?.as_bytes(),
     )?;
+    io(&out.join("frames.csv"), frames_table(s).csv().as_bytes())?;
+    let ratio_t = ratio_table(s);
+    io(&out.join("by_ratio.csv"), ratio_t.csv().as_bytes())?;
+    let angle_t = angle_table(s);
+    io(&out.join("by_angle.csv"), angle_t.csv().as_bytes())?;
+    let (fig6, polar) = plots(s)?;
+    cac_core::io::save_png_atomic(&out.join("p_vs_ratio.png"), &fig6)?;
+    cac_core::io::save_png_atomic(&out.join("polar.png"), &polar)?;
+    let h = report_html(s, session, &fig6, &polar, &ratio_t, &angle_t)?;
+    io(&out.join("report.html"), h.as_bytes())?;
+    Ok(())
+}
+
+/// `frames.csv`: every frame with its ground-truth box and each model's hit and confidence.
+fn frames_table(s: &SessionScore) -> Table {
     let mut frames = Table::new(
         [
             "frame", "ratio", "angle", "repeat", "gt_x1", "gt_y1", "gt_x2", "gt_y2",
@@ -223,7 +238,11 @@ pub fn write(out: &Path, s: &SessionScore, session: &str) -> Result<()> {
         }
         frames.row(row);
     }
-    io(&out.join("frames.csv"), frames.csv().as_bytes())?;
+    frames
+}
+
+/// `by_ratio.csv`: P@0.5 per model and distance ratio, mean and std over the repeats.
+fn ratio_table(s: &SessionScore) -> Table {
     let mut ratio_t = Table::new([
         "model",
         "distance ratio",
@@ -240,7 +259,11 @@ pub fn write(out: &Path, s: &SessionScore, session: &str) -> Result<()> {
             r.per_repeat.len().to_string(),
         ]);
     }
-    io(&out.join("by_ratio.csv"), ratio_t.csv().as_bytes())?;
+    ratio_t
+}
+
+/// `by_angle.csv`: P@0.5 per model and table angle.
+fn angle_table(s: &SessionScore) -> Table {
     let mut angle_t = Table::new(["model", "angle", "P@0.5", "frames"]);
     for a in &s.by_angle {
         angle_t.row([
@@ -250,8 +273,12 @@ pub fn write(out: &Path, s: &SessionScore, session: &str) -> Result<()> {
             a.frames.to_string(),
         ]);
     }
-    io(&out.join("by_angle.csv"), angle_t.csv().as_bytes())?;
+    angle_t
+}
 
+/// The plots: P@0.5 against distance ratio with error bars (Figure 6), and against table angle
+/// (polar, each model's curve closed).
+fn plots(s: &SessionScore) -> Result<(image::RgbImage, image::RgbImage)> {
     let ratio_series: Vec<Series> = s
         .models
         .iter()
@@ -291,8 +318,18 @@ pub fn write(out: &Path, s: &SessionScore, session: &str) -> Result<()> {
             .size(480, 480),
         &polar_series,
     )?;
-    cac_core::io::save_png_atomic(&out.join("p_vs_ratio.png"), &fig6)?;
-    cac_core::io::save_png_atomic(&out.join("polar.png"), &polar)?;
+    Ok((fig6, polar))
+}
+
+/// `report.html`: the session, the protocol, the plots and the tables.
+fn report_html(
+    s: &SessionScore,
+    session: &str,
+    fig6: &image::RgbImage,
+    polar: &image::RgbImage,
+    ratio_t: &Table,
+    angle_t: &Table,
+) -> Result<String> {
     let skipped = s.frames.iter().filter(|f| f.gt.is_none()).count();
     let mut h = Html::new("Physical test: P@0.5");
     h.paragraph(&format!(
@@ -306,17 +343,16 @@ pub fn write(out: &Path, s: &SessionScore, session: &str) -> Result<()> {
     h.figures(
         &[
             (
-                &fig6,
+                fig6,
                 "P@0.5 against distance ratio (mean ± std over repeats)",
             ),
-            (&polar, "P@0.5 against table angle"),
+            (polar, "P@0.5 against table angle"),
         ],
         480,
     )?;
-    h.heading(2, "By distance ratio").table(&ratio_t);
-    h.heading(2, "By table angle").table(&angle_t);
-    io(&out.join("report.html"), h.finish().as_bytes())?;
-    Ok(())
+    h.heading(2, "By distance ratio").table(ratio_t);
+    h.heading(2, "By table angle").table(angle_t);
+    Ok(h.finish())
 }
 
 #[cfg(test)]

@@ -243,102 +243,15 @@ impl EnvironmentMap {
         radiance: Vec<[f32; 3]>,
         sun_threshold: f32,
     ) -> Result<EnvironmentMap> {
-        if w < 2 || h < 2 || radiance.len() != w * h {
-            bail!(
-                "HDR environment {}: {w}x{h} is not a usable map",
-                path.display()
-            );
-        }
-        if w != 2 * h {
-            bail!(
-                "HDR environment {}: {w}x{h} is not equirectangular (width must be twice the height)",
-                path.display()
-            );
-        }
-        if let Some(i) = radiance
-            .iter()
-            .position(|t| t.iter().any(|v| !v.is_finite()))
-        {
-            bail!(
-                "HDR environment {}: texel ({}, {}) is {:?} (radiance must be finite)",
-                path.display(),
-                i % w,
-                i / w,
-                radiance[i]
-            );
-        }
+        check_radiance(&path, w, h, &radiance)?;
         // Lossy compression (Blender's maps are DWAB) rings slightly below zero: no light.
         let radiance: Vec<[f32; 3]> = radiance
             .into_iter()
             .map(|t| t.map(|v| v.max(0.0)))
             .collect();
-        let d_omega = |y: usize| {
-            let el = (0.5 - (y as f32 + 0.5) / h as f32) * PI;
-            (2.0 * PI / w as f32) * (PI / h as f32) * el.cos()
-        };
-        let (mut sum, mut area) = (0.0f64, 0.0f64);
-        let (mut peak, mut peak_lum) = (0usize, -1.0f32);
-        for (i, t) in radiance.iter().enumerate() {
-            let (l, dw) = (luminance(*t), d_omega(i / w));
-            sum += (l * dw) as f64;
-            area += dw as f64;
-            if l > peak_lum {
-                (peak, peak_lum) = (i, l);
-            }
-        }
-        let threshold = sun_threshold * (sum / area) as f32;
-        let peak_dir = texel_dir(peak % w, peak / w, w, h);
-        let cos_cone = 15f32.to_radians().cos();
-        let mut residual = radiance.clone();
-        let (mut sun_e, mut sun_dir) = ([0.0f32; 3], Vec3::ZERO);
-        if threshold > 0.0 && peak_lum > threshold {
-            for (i, t) in residual.iter_mut().enumerate() {
-                let (x, y) = (i % w, i / w);
-                let l = luminance(*t);
-                let d = texel_dir(x, y, w, h);
-                if l > threshold && d.dot(peak_dir) >= cos_cone {
-                    let k = threshold / l;
-                    let dw = d_omega(y);
-                    for c in 0..3 {
-                        sun_e[c] += t[c] * (1.0 - k) * dw;
-                        t[c] *= k;
-                    }
-                    sun_dir += d * (l - threshold) * dw;
-                }
-            }
-        }
-        let sun = (luminance(sun_e) > 0.0).then(|| MapSun {
-            dir: sun_dir.normalize(),
-            irradiance: sun_e,
-        });
-        let (mut sh_upper, mut sh_lower) = ([[0.0f32; 3]; 9], [[0.0f32; 3]; 9]);
-        let mut sh_lower_unit = [0.0f32; 9];
-        for y in 0..h {
-            let dw = d_omega(y);
-            for x in 0..w {
-                let d = texel_dir(x, y, w, h);
-                let basis = sh_basis(d);
-                let t = residual[y * w + x];
-                let upper = d.y > 0.0;
-                let sh = if upper { &mut sh_upper } else { &mut sh_lower };
-                for k in 0..9 {
-                    for c in 0..3 {
-                        sh[k][c] += t[c] * basis[k] * dw;
-                    }
-                    if !upper {
-                        sh_lower_unit[k] += basis[k] * dw;
-                    }
-                }
-            }
-        }
-        let f = REFLECTION_DOWNSAMPLE;
-        let mut reflections = vec![box_filter(&residual, w, h, (w / f).max(1), (h / f).max(1))];
-        while reflections.len() < REFLECTION_LEVELS {
-            let (prev, pw) = reflections.last().expect("the sharpest level");
-            let ph = prev.len() / pw;
-            let next = box_filter(prev, *pw, ph, (pw / 2).max(1), (ph / 2).max(1));
-            reflections.push(next);
-        }
+        let (residual, sun) = split_sun(&radiance, w, h, sun_threshold);
+        let (sh_upper, sh_lower, sh_lower_unit) = residual_sh(&residual, w, h);
+        let reflections = reflection_chain(&residual, w, h);
         Ok(EnvironmentMap {
             path,
             width: w,
@@ -369,6 +282,128 @@ impl EnvironmentMap {
         let (texels, rw) = &self.reflections[0];
         PI / (texels.len() / rw) as f32
     }
+}
+
+/// Refuses a map that is too small, not `w x h`, not equirectangular or not finite.
+fn check_radiance(path: &Path, w: usize, h: usize, radiance: &[[f32; 3]]) -> Result<()> {
+    if w < 2 || h < 2 || radiance.len() != w * h {
+        bail!(
+            "HDR environment {}: {w}x{h} is not a usable map",
+            path.display()
+        );
+    }
+    if w != 2 * h {
+        bail!(
+            "HDR environment {}: {w}x{h} is not equirectangular (width must be twice the height)",
+            path.display()
+        );
+    }
+    if let Some(i) = radiance
+        .iter()
+        .position(|t| t.iter().any(|v| !v.is_finite()))
+    {
+        bail!(
+            "HDR environment {}: texel ({}, {}) is {:?} (radiance must be finite)",
+            path.display(),
+            i % w,
+            i / w,
+            radiance[i]
+        );
+    }
+    Ok(())
+}
+
+/// The solid angle of a texel of row `y` of a `w x h` equirectangular map.
+fn texel_solid_angle(y: usize, w: usize, h: usize) -> f32 {
+    let el = (0.5 - (y as f32 + 0.5) / h as f32) * PI;
+    (2.0 * PI / w as f32) * (PI / h as f32) * el.cos()
+}
+
+/// Splits `radiance` into the residual and the sun: the excess over `sun_threshold` × the mean
+/// luminance of the texels within 15° of the brightest one (no sun when none exceeds it).
+fn split_sun(
+    radiance: &[[f32; 3]],
+    w: usize,
+    h: usize,
+    sun_threshold: f32,
+) -> (Vec<[f32; 3]>, Option<MapSun>) {
+    let d_omega = |y: usize| texel_solid_angle(y, w, h);
+    let (mut sum, mut area) = (0.0f64, 0.0f64);
+    let (mut peak, mut peak_lum) = (0usize, -1.0f32);
+    for (i, t) in radiance.iter().enumerate() {
+        let (l, dw) = (luminance(*t), d_omega(i / w));
+        sum += (l * dw) as f64;
+        area += dw as f64;
+        if l > peak_lum {
+            (peak, peak_lum) = (i, l);
+        }
+    }
+    let threshold = sun_threshold * (sum / area) as f32;
+    let peak_dir = texel_dir(peak % w, peak / w, w, h);
+    let cos_cone = 15f32.to_radians().cos();
+    let mut residual = radiance.to_vec();
+    let (mut sun_e, mut sun_dir) = ([0.0f32; 3], Vec3::ZERO);
+    if threshold > 0.0 && peak_lum > threshold {
+        for (i, t) in residual.iter_mut().enumerate() {
+            let (x, y) = (i % w, i / w);
+            let l = luminance(*t);
+            let d = texel_dir(x, y, w, h);
+            if l > threshold && d.dot(peak_dir) >= cos_cone {
+                let k = threshold / l;
+                let dw = d_omega(y);
+                for c in 0..3 {
+                    sun_e[c] += t[c] * (1.0 - k) * dw;
+                    t[c] *= k;
+                }
+                sun_dir += d * (l - threshold) * dw;
+            }
+        }
+    }
+    let sun = (luminance(sun_e) > 0.0).then(|| MapSun {
+        dir: sun_dir.normalize(),
+        irradiance: sun_e,
+    });
+    (residual, sun)
+}
+
+/// The residual's spherical-harmonic coefficients over the upper and the lower hemisphere, and
+/// those of a unit radiance over the lower one.
+fn residual_sh(residual: &[[f32; 3]], w: usize, h: usize) -> (Sh9, Sh9, [f32; 9]) {
+    let (mut sh_upper, mut sh_lower) = ([[0.0f32; 3]; 9], [[0.0f32; 3]; 9]);
+    let mut sh_lower_unit = [0.0f32; 9];
+    for y in 0..h {
+        let dw = texel_solid_angle(y, w, h);
+        for x in 0..w {
+            let d = texel_dir(x, y, w, h);
+            let basis = sh_basis(d);
+            let t = residual[y * w + x];
+            let upper = d.y > 0.0;
+            let sh = if upper { &mut sh_upper } else { &mut sh_lower };
+            for k in 0..9 {
+                for c in 0..3 {
+                    sh[k][c] += t[c] * basis[k] * dw;
+                }
+                if !upper {
+                    sh_lower_unit[k] += basis[k] * dw;
+                }
+            }
+        }
+    }
+    (sh_upper, sh_lower, sh_lower_unit)
+}
+
+/// The reflection chain of the residual: box-filtered by [`REFLECTION_DOWNSAMPLE`] per side,
+/// then each of the [`REFLECTION_LEVELS`] levels half as wide as the one before.
+fn reflection_chain(residual: &[[f32; 3]], w: usize, h: usize) -> Vec<(Vec<[f32; 3]>, usize)> {
+    let f = REFLECTION_DOWNSAMPLE;
+    let mut reflections = vec![box_filter(residual, w, h, (w / f).max(1), (h / f).max(1))];
+    while reflections.len() < REFLECTION_LEVELS {
+        let (prev, pw) = reflections.last().expect("the sharpest level");
+        let ph = prev.len() / pw;
+        let next = box_filter(prev, *pw, ph, (pw / 2).max(1), (ph / 2).max(1));
+        reflections.push(next);
+    }
+    reflections
 }
 
 /// `src` (`w x h`) averaged into `ow x oh` boxes (each source texel into the box it falls in,

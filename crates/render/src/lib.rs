@@ -8,7 +8,7 @@
 //! 4. [`composite`]: plan + atlas tensor → image tensor, differentiable with respect to the atlas.
 //!
 //! Geometry is fixed during an attack, so steps 1–3 run once per view on the CPU and only step 4
-//! is in the autodiff graph. [`bench`] measures ray casting for `cac bench render`.
+//! is in the autodiff graph. Ray casting is measured by `cac-bench` (`cac bench render`).
 //!
 //! Crate `cac-render`: this module (`cac::render`), with [`environment`] (the sampled viewing and
 //! lighting conditions, the one image-formation call) and [`config`] (the scene config and presets)
@@ -18,7 +18,6 @@ pub mod config;
 pub mod environment;
 
 pub mod accel;
-pub mod bench;
 pub mod camera;
 pub mod composite;
 pub mod gbuffer;

@@ -98,7 +98,45 @@ pub fn load(path: &Path) -> Result<Scene> {
     for img in &images {
         scene.textures.push(texture_from(img, path)?);
     }
-    // One scene material per glTF material, plus a default one at the end.
+    let (default_mat, texcoord_set) = add_materials(&mut scene, &doc);
+    let prims = Primitives {
+        path,
+        buffers: &buffers,
+        texcoord_set,
+        default_mat,
+    };
+
+    let gscene = doc
+        .default_scene()
+        .or_else(|| doc.scenes().next())
+        .ok_or_else(|| anyhow!("{}: the file has no scene", path.display()))?;
+    let mut stack: Vec<(gltf::Node, Mat4)> = gscene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
+    let mut depth_guard = 0usize;
+    while let Some((node, parent)) = stack.pop() {
+        depth_guard += 1;
+        if depth_guard > 1_000_000 {
+            bail!("{}: the node tree is cyclic or too large", path.display());
+        }
+        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+        if let Some(mesh) = node.mesh() {
+            for prim in mesh.primitives() {
+                if prim.mode() != gltf::mesh::Mode::Triangles {
+                    continue;
+                }
+                prims.add(&mut scene, &mesh, &prim, world)?;
+            }
+        }
+        for c in node.children() {
+            stack.push((c, world));
+        }
+    }
+    scene.paintable = vec![false; scene.materials.len()];
+    Ok(scene)
+}
+
+/// Adds one scene material per glTF material, plus a default one at the end; gives the default's
+/// index and each material's base-colour texture coordinate set (the default's: 0).
+fn add_materials(scene: &mut Scene, doc: &gltf::Document) -> (u32, Vec<u32>) {
     let mut texcoord_set = Vec::new();
     for (i, m) in doc.materials().enumerate() {
         let pbr = m.pbr_metallic_roughness();
@@ -122,96 +160,116 @@ pub fn load(path: &Path) -> Result<Scene> {
     let default_mat = scene.materials.len() as u32;
     scene.materials.push(Material::plain("default", [0.6; 3]));
     texcoord_set.push(0);
+    (default_mat, texcoord_set)
+}
 
-    let gscene = doc
-        .default_scene()
-        .or_else(|| doc.scenes().next())
-        .ok_or_else(|| anyhow!("{}: the file has no scene", path.display()))?;
-    let mut stack: Vec<(gltf::Node, Mat4)> = gscene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
-    let mut depth_guard = 0usize;
-    while let Some((node, parent)) = stack.pop() {
-        depth_guard += 1;
-        if depth_guard > 1_000_000 {
-            bail!("{}: the node tree is cyclic or too large", path.display());
+/// One primitive's vertex attributes (world frame) and triangle indices, as read.
+struct PrimitiveData {
+    pos: Vec<Vec3>,
+    nrm: Option<Vec<Vec3>>,
+    uv: Option<Vec<Vec2>>,
+    idx: Vec<u32>,
+}
+
+/// What reading primitives needs besides the scene: the file, its buffers and the materials.
+struct Primitives<'a> {
+    path: &'a Path,
+    buffers: &'a [gltf::buffer::Data],
+    /// Per scene material, the texture coordinate set its base-colour texture reads.
+    texcoord_set: Vec<u32>,
+    /// The material of primitives that name none.
+    default_mat: u32,
+}
+
+impl Primitives<'_> {
+    /// Appends a triangle primitive of `mesh`, placed by `world`, to the scene.
+    fn add(
+        &self,
+        scene: &mut Scene,
+        mesh: &gltf::Mesh,
+        prim: &gltf::Primitive,
+        world: Mat4,
+    ) -> Result<()> {
+        let mat = prim
+            .material()
+            .index()
+            .map(|i| i as u32)
+            .unwrap_or(self.default_mat);
+        let set = self.texcoord_set[mat as usize];
+        let PrimitiveData { pos, nrm, uv, idx } = self.read(mesh, prim, world, set)?;
+        let flip = world.determinant() < 0.0;
+        let (po, uo, no) = (
+            scene.positions.len() as u32,
+            scene.uvs.len() as u32,
+            scene.normals.len() as u32,
+        );
+        let has_uv = uv.as_ref().is_some_and(|u| u.len() == pos.len());
+        let has_n = nrm.as_ref().is_some_and(|n| n.len() == pos.len());
+        scene.positions.extend(&pos);
+        if has_uv {
+            scene.uvs.extend(uv.unwrap());
         }
-        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
-        if let Some(mesh) = node.mesh() {
-            for prim in mesh.primitives() {
-                if prim.mode() != gltf::mesh::Mode::Triangles {
-                    continue;
-                }
-                let mat = prim
-                    .material()
-                    .index()
-                    .map(|i| i as u32)
-                    .unwrap_or(default_mat);
-                let set = texcoord_set[mat as usize];
-                let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
-                let pos: Vec<Vec3> = reader
-                    .read_positions()
-                    .ok_or_else(|| {
-                        anyhow!(
-                            "{}: a primitive of mesh '{}' has no positions",
-                            path.display(),
-                            mesh.name().unwrap_or("?")
-                        )
-                    })?
-                    .map(|p| world.transform_point3(Vec3::from(p)))
-                    .collect();
-                let nm = world.inverse().transpose();
-                let nrm: Option<Vec<Vec3>> = reader.read_normals().map(|it| {
-                    it.map(|n| nm.transform_vector3(Vec3::from(n)).normalize_or_zero())
-                        .collect()
-                });
-                let uv: Option<Vec<Vec2>> = reader.read_tex_coords(set).map(|t| {
-                    // glTF's UV origin is the top-left; cac's (like OBJ's) is bottom-left.
-                    t.into_f32().map(|[u, v]| Vec2::new(u, 1.0 - v)).collect()
-                });
-                let idx: Vec<u32> = match reader.read_indices() {
-                    Some(i) => i.into_u32().collect(),
-                    None => (0..pos.len() as u32).collect(),
-                };
-                if idx.len() % 3 != 0 || idx.iter().any(|&i| i as usize >= pos.len()) {
-                    bail!(
-                        "{}: mesh '{}' has out-of-range or incomplete indices",
-                        path.display(),
-                        mesh.name().unwrap_or("?")
-                    );
-                }
-                let flip = world.determinant() < 0.0;
-                let (po, uo, no) = (
-                    scene.positions.len() as u32,
-                    scene.uvs.len() as u32,
-                    scene.normals.len() as u32,
-                );
-                let has_uv = uv.as_ref().is_some_and(|u| u.len() == pos.len());
-                let has_n = nrm.as_ref().is_some_and(|n| n.len() == pos.len());
-                scene.positions.extend(&pos);
-                if has_uv {
-                    scene.uvs.extend(uv.unwrap());
-                }
-                if has_n {
-                    scene.normals.extend(nrm.unwrap());
-                }
-                for t in idx.chunks_exact(3) {
-                    let t = if flip {
-                        [t[0], t[2], t[1]]
-                    } else {
-                        [t[0], t[1], t[2]]
-                    };
-                    scene.triangles.push(Triangle {
-                        p: t.map(|i| i + po),
-                        uv: has_uv.then(|| t.map(|i| i + uo)),
-                        n: has_n.then(|| t.map(|i| i + no)),
-                        material: mat,
-                    });
-                }
-            }
+        if has_n {
+            scene.normals.extend(nrm.unwrap());
         }
-        for c in node.children() {
-            stack.push((c, world));
+        for t in idx.chunks_exact(3) {
+            let t = if flip {
+                [t[0], t[2], t[1]]
+            } else {
+                [t[0], t[1], t[2]]
+            };
+            scene.triangles.push(Triangle {
+                p: t.map(|i| i + po),
+                uv: has_uv.then(|| t.map(|i| i + uo)),
+                n: has_n.then(|| t.map(|i| i + no)),
+                material: mat,
+            });
         }
+        Ok(())
     }
-    scene.paintable = vec![false; scene.materials.len()];
-    Ok(scene)
+
+    /// Reads a primitive's positions and normals (into the world frame), its texture
+    /// coordinates of set `set` (flipped to a bottom-left origin) and its checked indices.
+    fn read(
+        &self,
+        mesh: &gltf::Mesh,
+        prim: &gltf::Primitive,
+        world: Mat4,
+        set: u32,
+    ) -> Result<PrimitiveData> {
+        let path = self.path;
+        let reader = prim.reader(|b| self.buffers.get(b.index()).map(|d| &d.0[..]));
+        let pos: Vec<Vec3> = reader
+            .read_positions()
+            .ok_or_else(|| {
+                anyhow!(
+                    "{}: a primitive of mesh '{}' has no positions",
+                    path.display(),
+                    mesh.name().unwrap_or("?")
+                )
+            })?
+            .map(|p| world.transform_point3(Vec3::from(p)))
+            .collect();
+        let nm = world.inverse().transpose();
+        let nrm: Option<Vec<Vec3>> = reader.read_normals().map(|it| {
+            it.map(|n| nm.transform_vector3(Vec3::from(n)).normalize_or_zero())
+                .collect()
+        });
+        let uv: Option<Vec<Vec2>> = reader.read_tex_coords(set).map(|t| {
+            // glTF's UV origin is the top-left; cac's (like OBJ's) is bottom-left.
+            t.into_f32().map(|[u, v]| Vec2::new(u, 1.0 - v)).collect()
+        });
+        let idx: Vec<u32> = match reader.read_indices() {
+            Some(i) => i.into_u32().collect(),
+            None => (0..pos.len() as u32).collect(),
+        };
+        if idx.len() % 3 != 0 || idx.iter().any(|&i| i as usize >= pos.len()) {
+            bail!(
+                "{}: mesh '{}' has out-of-range or incomplete indices",
+                path.display(),
+                mesh.name().unwrap_or("?")
+            );
+        }
+        Ok(PrimitiveData { pos, nrm, uv, idx })
+    }
 }

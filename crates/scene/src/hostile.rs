@@ -81,55 +81,21 @@ pub fn write_case(dir: &Path, name: &str, seed: u64) -> Result<HostileCase> {
         "huge_1km" => vehicle(&mut m, &mut rng, 1000.0 / 4.5),
         "degenerate" => {
             vehicle(&mut m, &mut rng, 1.0);
-            // Zero-area triangles: collinear corners, repeated corners, a point.
-            let a = m.vertex([0.0, 2.2, 0.0]);
-            let b = m.vertex([1.0, 2.2, 0.0]);
-            let c = m.vertex([2.0, 2.2, 0.0]);
-            let t = m.uv([0.5, 0.5]);
-            m.face(&[(a, t), (b, t), (c, t)]);
-            m.face(&[(a, t), (a, t), (b, t)]);
-            m.face(&[(c, t), (c, t), (c, t)]);
+            degenerate_faces(&mut m);
         }
         "non_finite" => {
             vehicle(&mut m, &mut rng, 1.0);
-            let a = m.vertex([f32::NAN, 0.0, 0.0]);
-            let b = m.vertex([f32::INFINITY, 1.0, 0.0]);
-            let c = m.vertex([0.0, f32::NEG_INFINITY, 1.0]);
-            let t = m.uv([0.5, 0.5]);
-            m.face(&[(a, t), (b, t), (c, t)]);
+            non_finite_face(&mut m);
             expect = Expect::Refused("non-finite");
         }
         "million_triangles" => {
             m.material("paint", None);
             sphere(&mut m, 2.0, 500, 1000); // 2 · 500 · 1000 = 1 M triangles
         }
-        "tiny_parts" => {
-            m.material("paint", None);
-            for _ in 0..10_000 {
-                let c: [f32; 3] = std::array::from_fn(|_| rng.random_range(-2.0..2.0f32));
-                let c = [c[0], c[1].abs(), c[2] * 0.5];
-                let h = rng.random_range(0.002..0.01f32);
-                m.group(&format!("part{}", m.groups));
-                m.cuboid(
-                    [c[0] - h, c[1] - h, c[2] - h],
-                    [c[0] + h, c[1] + h, c[2] + h],
-                    |_, q| q,
-                );
-            }
-        }
+        "tiny_parts" => tiny_parts(&mut m, &mut rng),
         "nonmanifold_fan" => {
             vehicle(&mut m, &mut rng, 1.0);
-            // Eight fins sharing one edge above the cabin.
-            let a = m.vertex([-0.5, 2.2, 0.0]);
-            let b = m.vertex([0.5, 2.2, 0.0]);
-            let t0 = m.uv([0.1, 0.1]);
-            let t1 = m.uv([0.9, 0.1]);
-            let t2 = m.uv([0.5, 0.9]);
-            for k in 0..8 {
-                let ang = k as f32 * std::f32::consts::TAU / 8.0;
-                let c = m.vertex([0.0, 2.2 + 0.4 * ang.sin(), 0.4 * ang.cos()]);
-                m.face(&[(a, t0), (b, t1), (c, t2)]);
-            }
+            fin_fan(&mut m);
         }
         "inverted" => {
             vehicle(&mut m, &mut rng, 1.0);
@@ -166,6 +132,56 @@ pub fn write_case(dir: &Path, name: &str, seed: u64) -> Result<HostileCase> {
         expect,
         triangles,
     })
+}
+
+/// Zero-area triangles above the cabin: collinear corners, repeated corners, a point.
+fn degenerate_faces(m: &mut Obj) {
+    let a = m.vertex([0.0, 2.2, 0.0]);
+    let b = m.vertex([1.0, 2.2, 0.0]);
+    let c = m.vertex([2.0, 2.2, 0.0]);
+    let t = m.uv([0.5, 0.5]);
+    m.face(&[(a, t), (b, t), (c, t)]);
+    m.face(&[(a, t), (a, t), (b, t)]);
+    m.face(&[(c, t), (c, t), (c, t)]);
+}
+
+/// One triangle whose corners are NaN, +inf and -inf.
+fn non_finite_face(m: &mut Obj) {
+    let a = m.vertex([f32::NAN, 0.0, 0.0]);
+    let b = m.vertex([f32::INFINITY, 1.0, 0.0]);
+    let c = m.vertex([0.0, f32::NEG_INFINITY, 1.0]);
+    let t = m.uv([0.5, 0.5]);
+    m.face(&[(a, t), (b, t), (c, t)]);
+}
+
+/// Ten thousand cubes of 4 to 20 mm, each its own group, scattered through a 4 x 2 x 2 m box.
+fn tiny_parts(m: &mut Obj, rng: &mut impl Rng) {
+    m.material("paint", None);
+    for _ in 0..10_000 {
+        let c: [f32; 3] = std::array::from_fn(|_| rng.random_range(-2.0..2.0f32));
+        let c = [c[0], c[1].abs(), c[2] * 0.5];
+        let h = rng.random_range(0.002..0.01f32);
+        m.group(&format!("part{}", m.groups));
+        m.cuboid(
+            [c[0] - h, c[1] - h, c[2] - h],
+            [c[0] + h, c[1] + h, c[2] + h],
+            |_, q| q,
+        );
+    }
+}
+
+/// Eight fins sharing one edge above the cabin (a non-manifold fan).
+fn fin_fan(m: &mut Obj) {
+    let a = m.vertex([-0.5, 2.2, 0.0]);
+    let b = m.vertex([0.5, 2.2, 0.0]);
+    let t0 = m.uv([0.1, 0.1]);
+    let t1 = m.uv([0.9, 0.1]);
+    let t2 = m.uv([0.5, 0.9]);
+    for k in 0..8 {
+        let ang = k as f32 * std::f32::consts::TAU / 8.0;
+        let c = m.vertex([0.0, 2.2 + 0.4 * ang.sin(), 0.4 * ang.cos()]);
+        m.face(&[(a, t0), (b, t1), (c, t2)]);
+    }
 }
 
 /// FNV-1a of a name, to give each case its own stream from one seed.

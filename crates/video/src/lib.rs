@@ -5,14 +5,13 @@
 //! calibrated rig), frame sampling and P@0.5 per segment ([`score`], an adapter of the scoring
 //! core `eval::score`), rendered turntable sequences ([`twin`]), boxes drawn into an
 //! annotated video or frame folder ([`annotate`]), and the per-frame CSV, plot and HTML report
-//! ([`report`]); [`job`] runs all of it for `cac score-video`. [`encode`] holds the encoding presets of the fixtures and the benchmark ([`bench`]).
+//! ([`report`]); [`job`] runs all of it for `cac score-video`. [`encode`] holds the encoding presets of the fixtures and the benchmark (`cac-bench`).
 //!
 //! ffmpeg and ffprobe are found on `PATH`, or where the caller says ([`Tools::locate`]; the
 //! command line passes `CAC_FFMPEG` / `CAC_FFPROBE`).
 
 pub mod annotate;
 pub mod annotations;
-pub mod bench;
 pub mod csv;
 pub mod decode;
 pub mod encode;

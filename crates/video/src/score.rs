@@ -4,7 +4,7 @@
 //! (the ground truth's segments — revolutions, distance ratios, annotated ranges — or fixed time
 //! windows).
 
-use super::annotations::GroundTruth;
+use super::annotations::{GroundTruth, GtBox};
 use super::decode::{FrameStream, VideoFrame};
 use anyhow::{bail, Result};
 use burn::tensor::Device;
@@ -215,25 +215,7 @@ pub fn score_stream(
     device: &Device,
     on_frame: &mut dyn FnMut(&VideoFrame, &FrameRecord) -> Result<()>,
 ) -> Result<VideoScores> {
-    if detectors.is_empty() {
-        bail!("no detectors to score with");
-    }
-    let (w, h) = stream.size();
-    if let Some(s) = gt.frame_size() {
-        if s != (w, h) {
-            bail!(
-                "the ground truth is for {}x{} frames but {} gives {w}x{h} frames (rotation?)",
-                s.0,
-                s.1,
-                stream.describe()
-            );
-        }
-    }
-    if let Segmenting::Window(s) = opts.segmenting {
-        if !(s.is_finite() && s > 0.0) {
-            bail!("segment window must be a positive number of seconds, got {s}");
-        }
-    }
+    let (w, h) = check_inputs(stream, gt, detectors, opts)?;
     let mut sampler = Sampler::new(opts.sampling.clone())?;
     let scorer = Scorer::new(detectors, &opts.protocol)?;
     let mut res = VideoScores {
@@ -272,45 +254,7 @@ pub fn score_stream(
                 res.unannotated += 1;
                 continue;
             };
-            let b = g.bbox;
-            if b[0] < -1.0 || b[1] < -1.0 || b[2] > w as f32 + 1.0 || b[3] > h as f32 + 1.0 {
-                bail!(
-                    "frame {} (t = {:.3} s): ground-truth box {b:?} lies outside the {w}x{h} frame \
-                     (rotation or scale of the annotations?)",
-                    f.index,
-                    f.pts
-                );
-            }
-            let segment = match opts.segmenting {
-                Segmenting::Window(s) => {
-                    let k = (f.pts / s).floor();
-                    format!("{:.2}-{:.2} s", k * s, (k + 1.0) * s)
-                }
-                Segmenting::FromGroundTruth => g.segment.clone().unwrap_or_else(|| "all".into()),
-            };
-            let x = image_to_tensor(&f.image, device);
-            let label = || format!("frame {}", f.index);
-            let models: Vec<ModelFrame> = scorer
-                .frame(x, &b, Some(&label))?
-                .into_iter()
-                .map(|o| {
-                    res.detect_s += o.ms / 1e3;
-                    ModelFrame {
-                        matched: matched(&o.detections, &b, &opts.protocol),
-                        score: o.score,
-                        detections: o.detections,
-                        ms: o.ms,
-                    }
-                })
-                .collect();
-            let rec = FrameRecord {
-                index: f.index,
-                pts: f.pts,
-                segment,
-                gt: b,
-                angle_deg: g.angle_deg,
-                models,
-            };
+            let rec = score_frame(&f, &g, (w, h), &scorer, opts, device, &mut res.detect_s)?;
             on_frame(&f, &rec)?;
             res.frames.push(rec);
         }
@@ -322,6 +266,89 @@ pub fn score_stream(
         .map(|(m, d)| summarise(&res.frames, m, d.name()))
         .collect();
     Ok(res)
+}
+
+/// Refuses what cannot be scored (no detectors, ground truth made on frames of another size, a
+/// segment window that is not a positive number of seconds); the stream's frame size.
+fn check_inputs(
+    stream: &dyn FrameStream,
+    gt: &dyn GroundTruth,
+    detectors: &[&dyn Detector],
+    opts: &ScoreOptions,
+) -> Result<(u32, u32)> {
+    if detectors.is_empty() {
+        bail!("no detectors to score with");
+    }
+    let (w, h) = stream.size();
+    if let Some(s) = gt.frame_size() {
+        if s != (w, h) {
+            bail!(
+                "the ground truth is for {}x{} frames but {} gives {w}x{h} frames (rotation?)",
+                s.0,
+                s.1,
+                stream.describe()
+            );
+        }
+    }
+    if let Segmenting::Window(s) = opts.segmenting {
+        if !(s.is_finite() && s > 0.0) {
+            bail!("segment window must be a positive number of seconds, got {s}");
+        }
+    }
+    Ok((w, h))
+}
+
+/// Detects on one annotated frame with every model and scores it against its ground truth `g`
+/// (refused when the box lies outside the `w`×`h` frame); adds the detection time to
+/// `detect_s`.
+fn score_frame(
+    f: &VideoFrame,
+    g: &GtBox,
+    (w, h): (u32, u32),
+    scorer: &Scorer,
+    opts: &ScoreOptions,
+    device: &Device,
+    detect_s: &mut f64,
+) -> Result<FrameRecord> {
+    let b = g.bbox;
+    if b[0] < -1.0 || b[1] < -1.0 || b[2] > w as f32 + 1.0 || b[3] > h as f32 + 1.0 {
+        bail!(
+            "frame {} (t = {:.3} s): ground-truth box {b:?} lies outside the {w}x{h} frame \
+             (rotation or scale of the annotations?)",
+            f.index,
+            f.pts
+        );
+    }
+    let segment = match opts.segmenting {
+        Segmenting::Window(s) => {
+            let k = (f.pts / s).floor();
+            format!("{:.2}-{:.2} s", k * s, (k + 1.0) * s)
+        }
+        Segmenting::FromGroundTruth => g.segment.clone().unwrap_or_else(|| "all".into()),
+    };
+    let x = image_to_tensor(&f.image, device);
+    let label = || format!("frame {}", f.index);
+    let models: Vec<ModelFrame> = scorer
+        .frame(x, &b, Some(&label))?
+        .into_iter()
+        .map(|o| {
+            *detect_s += o.ms / 1e3;
+            ModelFrame {
+                matched: matched(&o.detections, &b, &opts.protocol),
+                score: o.score,
+                detections: o.detections,
+                ms: o.ms,
+            }
+        })
+        .collect();
+    Ok(FrameRecord {
+        index: f.index,
+        pts: f.pts,
+        segment,
+        gt: b,
+        angle_deg: g.angle_deg,
+        models,
+    })
 }
 
 /// One model's summary over the records.

@@ -1,10 +1,10 @@
 //! `cac bench attack`: the iteration time split and the white-box error against training time
-//! (`cac::study::attack_bench`); prints the tables as they are measured and writes CSVs. A
+//! (`cac::bench::attack`); prints the tables as they are measured and writes CSVs. A
 //! benchmark, not a test: it asserts nothing.
 
 use crate::cli::{device, train};
 use anyhow::Result;
-use cac::study::attack_bench::{error_against_time, time_split, Setting};
+use cac::bench::attack::{error_against_time, time_split, Setting};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]

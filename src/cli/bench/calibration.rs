@@ -1,9 +1,9 @@
 //! `cac bench calibration`: the print chart's patch count against the calibration's held-out
 //! and true ΔE2000 and its time, on the digital twin (measured by
-//! `cac::physical::print_calib::bench`). Prints a table and writes a CSV.
+//! `cac::bench::calibration`). Prints a table and writes a CSV.
 
 use anyhow::Result;
-use cac::physical::print_calib::bench::CalibrationBench;
+use cac::bench::calibration::CalibrationBench;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]

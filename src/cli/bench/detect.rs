@@ -2,11 +2,11 @@
 //! resolution, batch 1 and 4, and the TFJS reference runner's wasm backend timed in the same
 //! run; then the Faster R-CNN models against PyTorch ([`super::frcnn`]); with `--onnx`, users'
 //! ONNX detectors against onnxruntime and PyTorch (onnx2torch) at the same thread counts. Prints tables and writes
-//! CSVs. A benchmark, not a test: it asserts nothing. Measured by `cac::detect::bench`.
+//! CSVs. A benchmark, not a test: it asserts nothing. Measured by `cac::bench::detect`.
 
 use crate::cli::device;
 use anyhow::Result;
-use cac::detect::bench;
+use cac::bench::detect as bench;
 use clap::Args;
 use std::path::PathBuf;
 

@@ -1,7 +1,7 @@
 //! `cac bench eval`: images scored per second, end to end (render + detect + score), for each
 //! detector alone and for all of them sharing one render, on the protocol's FV views of the
 //! default pickup. Prints a table and writes CSV. A benchmark, not a test: it asserts nothing.
-//! Measured by `cac::eval::bench`.
+//! Measured by `cac::bench::eval`.
 
 use crate::cli::{device, train};
 use anyhow::{bail, Result};
@@ -40,7 +40,7 @@ pub fn run(a: Args) -> Result<()> {
     let dets = train::load_detectors(&a.models)?;
     let refs = cac::detect::refs(&dets);
     let dev = device::inference();
-    let t = cac::eval::bench::throughput(&stage, &refs, a.images, (a.size, a.samples), &dev)?;
+    let t = cac::bench::eval::throughput(&stage, &refs, a.images, (a.size, a.samples), &dev)?;
     println!(
         "end-to-end evaluation throughput ({}, FV bright views, {}x{}, {} spp):\n",
         a.object, a.size, a.size, a.samples

@@ -5,10 +5,10 @@
 //! tools/torchvision_oracle.py `--bench`, run as a subprocess).
 //! Fastest of `--runs` runs after a warm-up, on both sides. Synthetic weights: timings do not
 //! depend on the values beyond the proposal and detection counts. Measured by
-//! `cac::detect::bench`.
+//! `cac::bench::detect`.
 
 use anyhow::Result;
-use cac::detect::bench::{self, BenchDevice};
+use cac::bench::detect::{self as bench, BenchDevice};
 use cac::report::Table;
 
 /// Prints the table and returns it (for the CSV).

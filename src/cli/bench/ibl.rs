@@ -1,12 +1,12 @@
 //! `cac bench ibl`: cac's image-based lighting against Cycles rendering the same views with the
 //! same HDR environment, per knob (spherical-harmonic order, occlusion rays): error in 8-bit
 //! levels on the object and the whole image, against Cycles and against cac's finest setting,
-//! and shading time per view. Measured by `cac::eval::ibl_bench`; this prints and writes CSV.
+//! and shading time per view. Measured by `cac::bench::ibl`; this prints and writes CSV.
 
 use crate::cli::device;
 use anyhow::Result;
+use cac::bench::ibl::{self as ibl_bench, IblBenchJob};
 use cac::config::SceneConfig;
-use cac::eval::ibl_bench::{self, IblBenchJob};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]

@@ -2,11 +2,11 @@
 //! (`cac::detect::activation`, fused kernels) beside burn's composite ops on the same backend and
 //! PyTorch on the same feature map and thread count, forward and forward+backward, at 1 and 2
 //! threads. Prints the table and writes CSV. A benchmark, not a test: it asserts nothing.
-//! Measured by `cac::detect::bench::activation_rows`.
+//! Measured by `cac::bench::detect::activation_rows`.
 
 use crate::cli::device;
 use anyhow::Result;
-use cac::detect::bench;
+use cac::bench::detect as bench;
 use clap::Args as ClapArgs;
 use std::path::PathBuf;
 

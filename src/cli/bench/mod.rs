@@ -16,7 +16,7 @@ pub mod render;
 pub mod video;
 
 use crate::cli::device::{self, Backend};
-use cac::detect::bench::BenchDevice;
+use cac::bench::detect::BenchDevice;
 
 /// The backends a detector benchmark times side by side: those `--backends` names, else the one
 /// `CAC_DEVICE` names, else every CPU backend of this build (Flex, and libtorch in a `tch`

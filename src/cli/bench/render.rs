@@ -1,10 +1,10 @@
 //! `cac bench render`: BVH build time and primary-ray throughput (1 and 2 threads, beside Embree
 //! when it is installed) and the anti-aliasing error against time, measured by
-//! `cac::render::bench` and `cac::environment::bench`. Prints tables and writes CSV.
+//! `cac::bench::render` and `cac::bench::anti_aliasing`. Prints tables and writes CSV.
 
 use anyhow::{Context, Result};
-use cac::environment::bench as aa_bench;
-use cac::render::bench;
+use cac::bench::anti_aliasing as aa_bench;
+use cac::bench::render as bench;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]

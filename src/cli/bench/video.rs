@@ -2,12 +2,12 @@
 //! pickup is rendered by the digital twin, encoded with each codec, then timed: decoding alone
 //! (frames/s) and scoring with each detector (frames scored per second, decode included).
 //! Prints a table and writes a CSV. A benchmark, not a test: it asserts nothing. Measured by
-//! `cac::video::bench`.
+//! `cac::bench::video`.
 
 use crate::cli::device;
 use anyhow::Result;
+use cac::bench::video::VideoBench;
 use cac::detect::{self, Detector};
-use cac::video::bench::VideoBench;
 use clap::Args as ClapArgs;
 use std::path::PathBuf;
 

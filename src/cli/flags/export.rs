@@ -1,6 +1,6 @@
 //! `cac bench export`'s flags, mapped onto [`ExportBench`].
 
-use cac::export::benchmark::ExportBench;
+use cac::bench::export::ExportBench;
 use cac::export::Scale;
 use std::path::PathBuf;
 
@@ -35,7 +35,7 @@ pub struct ExportBenchFlags {
     pub solid_input_triangles: usize,
 }
 
-impl From<ExportBenchFlags> for cac::export::benchmark::ExportBench {
+impl From<ExportBenchFlags> for cac::bench::export::ExportBench {
     fn from(f: ExportBenchFlags) -> Self {
         ExportBench {
             mesh: f.mesh,

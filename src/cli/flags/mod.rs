@@ -38,7 +38,7 @@ mod tests {
 
     #[test]
     fn every_flags_default_is_its_settings_default() {
-        use cac::{attack, eval, export, physical, study};
+        use cac::{attack, eval, physical, study};
         defaults_agree::<super::attack::AttackFlags, attack::AttackConfig>();
         defaults_agree::<super::eval::BatchFlags, eval::slurm::Batch>();
         defaults_agree::<super::eval::RealismFlags, eval::realism::RealismJob>();
@@ -48,11 +48,11 @@ mod tests {
         defaults_agree::<super::eval::MethodsFlags, study::methods::MethodsJob>();
         defaults_agree::<
             super::physical::CalibrationBenchFlags,
-            physical::print_calib::bench::CalibrationBench,
+            cac::bench::calibration::CalibrationBench,
         >();
         defaults_agree::<super::physical::CalibrateFlags, physical::print_calib::CalibrateOptions>(
         );
-        defaults_agree::<super::export::ExportBenchFlags, export::benchmark::ExportBench>();
+        defaults_agree::<super::export::ExportBenchFlags, cac::bench::export::ExportBench>();
     }
 
     #[test]

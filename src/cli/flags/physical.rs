@@ -1,9 +1,9 @@
 //! The physical test's flags (capture, camera check, printer calibration), mapped onto
 //! `cac-physical`'s plain settings.
 
+use cac::bench::calibration::CalibrationBench;
 use cac::physical::camera_check::CameraCheck;
 use cac::physical::capture::CaptureJob;
-use cac::physical::print_calib::bench::CalibrationBench;
 use cac::physical::print_calib::{CalibrateOptions, ChartSpec, PrinterKind};
 use std::path::PathBuf;
 
@@ -91,7 +91,7 @@ pub struct CalibrationBenchFlags {
     pub seeds: u64,
 }
 
-impl From<CalibrationBenchFlags> for cac::physical::print_calib::bench::CalibrationBench {
+impl From<CalibrationBenchFlags> for cac::bench::calibration::CalibrationBench {
     fn from(f: CalibrationBenchFlags) -> Self {
         CalibrationBench {
             patches: f.patches,

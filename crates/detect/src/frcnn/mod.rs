@@ -39,7 +39,7 @@ use transform::Geometry;
 use weights::{Loader, StateDict};
 
 /// The three torchvision models by their cac names.
-pub(crate) const MODELS: [&str; 3] = [
+pub const MODELS: [&str; 3] = [
     "frcnn-mobilenet-v3-320",
     "frcnn-mobilenet-v3",
     "frcnn-resnet50",
@@ -68,7 +68,7 @@ pub struct FrcnnConfig {
 }
 
 impl Arch {
-    pub(crate) fn from_name(name: &str) -> Result<Self> {
+    pub fn from_name(name: &str) -> Result<Self> {
         Ok(match name {
             "frcnn-mobilenet-v3-320" => Arch::MobileNetV3Large320,
             "frcnn-mobilenet-v3" => Arch::MobileNetV3Large,
@@ -231,11 +231,7 @@ impl FasterRcnn {
     }
 
     /// The RPN's proposals per image from the FPN levels (host boxes, resized-image pixels).
-    pub(crate) fn rpn_proposals(
-        &self,
-        features: &[Tensor<4>],
-        g: Geometry,
-    ) -> Result<Vec<Vec<[f32; 4]>>> {
+    pub fn rpn_proposals(&self, features: &[Tensor<4>], g: Geometry) -> Result<Vec<Vec<[f32; 4]>>> {
         let detached: Vec<Tensor<4>> = features.iter().map(|f| f.clone().detach()).collect();
         let levels = self.rpn.forward(&detached)?;
         let b = features[0].dims()[0];

@@ -16,7 +16,7 @@
 
 use super::config::OnnxConfig;
 use super::graph::OnnxGraph;
-use super::model::{Dim, Model};
+use super::model::{Dim, Io, Model};
 use super::runtime;
 use super::value::{Dev, Val};
 use crate::detector::{check_images, Candidates, Detection, Detector};
@@ -85,56 +85,13 @@ impl OnnxDetector {
     /// exists, or the defaults; checks the graph, finds the head with one dry run.
     pub fn load(path: &Path, config: Option<&Path>, device: &Device) -> Result<Self> {
         let src = path.display().to_string();
-        let beside = path.with_extension("toml");
-        let mut config = match config {
-            Some(c) => OnnxConfig::load(c)?,
-            None if beside.is_file() => OnnxConfig::load(&beside)?,
-            None => OnnxConfig::default(),
-        };
+        let mut config = load_config(path, config)?;
         let model = Model::load(path)?;
         not_a_detector(&model, &src)?;
         let graph = OnnxGraph::new(model, device)?;
-        // A file that selects its boxes inside runs up to the dense head before the selection
-        // (named by the config, or found); the rest of the graph is never run.
-        let named = config.output.is_some() && config.boxes.is_some();
-        if !named {
-            if let Some(select) = selection_inside(&graph.model) {
-                let found = head_before_selection(&graph.model)
-                    .ok_or_else(|| anyhow!("{src}: {}", refuse_selection(&select)))?;
-                found.apply(&graph.model, &mut config, &src)?;
-            }
-        }
-        let input_io = match &config.input {
-            Some(n) => graph
-                .graph_inputs()
-                .iter()
-                .find(|i| &i.name == n)
-                .ok_or_else(|| anyhow!("{src}: no graph input named {n:?}"))?,
-            None => graph
-                .graph_inputs()
-                .first()
-                .ok_or_else(|| anyhow!("{src}: the graph has no input"))?,
-        }
-        .clone();
-        ensure!(
-            input_io.dims.len() == 4
-                && matches!(
-                    input_io.dims[1],
-                    Dim::Fixed(3) | Dim::Param(_) | Dim::Unknown
-                ),
-            "{src}: input {:?} has shape {}; an image input [B, 3, H, W] is expected",
-            input_io.name,
-            input_io.shape_text()
-        );
-        let size = match (config.input_size, &input_io.dims[2], &input_io.dims[3]) {
-            (Some([w, h]), ..) => (w, h),
-            (None, Dim::Fixed(h), Dim::Fixed(w)) => (*w, *h),
-            _ => bail!(
-                "{src}: input {:?} has a dynamic size {}; set input_size = [width, height] in the config",
-                input_io.name,
-                input_io.shape_text()
-            ),
-        };
+        stop_before_selection(&graph, &mut config, &src)?;
+        let input_io = image_input(&graph, &config, &src)?;
+        let size = input_size(&config, &input_io, &src)?;
         let batch_one = input_io.dims[0] == Dim::Fixed(1);
         let output = match &config.output {
             Some(o) => o.clone(),
@@ -150,52 +107,10 @@ impl OnnxDetector {
             .chain(config.boxes.as_deref())
             .collect();
         let outs = graph.run_images(&input_io.name, zeros, &probe)?;
-        let shape = outs[0].shape().to_vec();
-        ensure!(
-            shape.len() == 3,
-            "{src}: output {output:?} has shape {shape:?}; a dense [B, A, N] output is expected (set output in the config)"
-        );
-        let head = match config.head.as_str() {
-            "yolov8" => Head::V8,
-            "yolov5" => Head::V5,
-            "split" => Head::Split,
-            _ if config.boxes.is_some() => Head::Split,
-            _ if shape[1] < shape[2] => Head::V8,
-            _ => Head::V5,
-        };
-        let n_classes = match head {
-            Head::Split => {
-                let bs = outs[1].shape();
-                ensure!(
-                    bs.len() == 3 && bs[2] == 4 && bs[..2] == shape[..2],
-                    "{src}: boxes output {:?} has shape {bs:?}, scores {output:?} {shape:?}; [B, N, 4] and [B, N, C] are expected",
-                    config.boxes.as_deref().unwrap_or_default()
-                );
-                shape[2]
-            }
-            _ => {
-                let per = if head == Head::V8 { shape[1] } else { shape[2] };
-                let skip = if head == Head::V8 { 4 } else { 5 };
-                ensure!(
-                    per > skip,
-                    "{src}: output {output:?} of shape {shape:?} has no class scores for a {:?} head",
-                    head
-                );
-                per - skip
-            }
-        };
+        let (head, n_classes) = dense_head(&config, &outs, &output, &src)?;
         let classes = class_names(&config, graph.model.meta("names"), n_classes)
             .with_context(|| src.clone())?;
-        let taps = if config.scores == "sigmoid" {
-            let t = sigmoid_taps(&graph, &output);
-            ensure!(
-                !t.is_empty(),
-                "{src}: no Sigmoid node feeds {output:?} through layout ops; set scores = \"probabilities\" or \"logits\" in the config"
-            );
-            t
-        } else {
-            Vec::new()
-        };
+        let taps = logit_taps(&graph, &config, &output, &src)?;
         let name = path
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
@@ -542,6 +457,131 @@ impl OnnxDetector {
             logits,
         })
     }
+}
+
+/// The config named, or the `.toml` beside `path`, or the defaults.
+fn load_config(path: &Path, config: Option<&Path>) -> Result<OnnxConfig> {
+    let beside = path.with_extension("toml");
+    Ok(match config {
+        Some(c) => OnnxConfig::load(c)?,
+        None if beside.is_file() => OnnxConfig::load(&beside)?,
+        None => OnnxConfig::default(),
+    })
+}
+
+/// A file that selects its boxes inside runs up to the dense head before the selection (named
+/// by the config, or found here and written into `config`); the rest of the graph is never run.
+fn stop_before_selection(graph: &OnnxGraph, config: &mut OnnxConfig, src: &str) -> Result<()> {
+    let named = config.output.is_some() && config.boxes.is_some();
+    if !named {
+        if let Some(select) = selection_inside(&graph.model) {
+            let found = head_before_selection(&graph.model)
+                .ok_or_else(|| anyhow!("{src}: {}", refuse_selection(&select)))?;
+            found.apply(&graph.model, config, src)?;
+        }
+    }
+    Ok(())
+}
+
+/// The image input (named by the config, or the first), checked to be `[B, 3, H, W]`.
+fn image_input(graph: &OnnxGraph, config: &OnnxConfig, src: &str) -> Result<Io> {
+    let input_io = match &config.input {
+        Some(n) => graph
+            .graph_inputs()
+            .iter()
+            .find(|i| &i.name == n)
+            .ok_or_else(|| anyhow!("{src}: no graph input named {n:?}"))?,
+        None => graph
+            .graph_inputs()
+            .first()
+            .ok_or_else(|| anyhow!("{src}: the graph has no input"))?,
+    }
+    .clone();
+    ensure!(
+        input_io.dims.len() == 4
+            && matches!(
+                input_io.dims[1],
+                Dim::Fixed(3) | Dim::Param(_) | Dim::Unknown
+            ),
+        "{src}: input {:?} has shape {}; an image input [B, 3, H, W] is expected",
+        input_io.name,
+        input_io.shape_text()
+    );
+    Ok(input_io)
+}
+
+/// The network input's `(width, height)`: the config's, or the graph's fixed one.
+fn input_size(config: &OnnxConfig, input_io: &Io, src: &str) -> Result<(usize, usize)> {
+    Ok(
+        match (config.input_size, &input_io.dims[2], &input_io.dims[3]) {
+            (Some([w, h]), ..) => (w, h),
+            (None, Dim::Fixed(h), Dim::Fixed(w)) => (*w, *h),
+            _ => bail!(
+                "{src}: input {:?} has a dynamic size {}; set input_size = [width, height] in the config",
+                input_io.name,
+                input_io.shape_text()
+            ),
+        },
+    )
+}
+
+/// The head layout and its class count, from the config and the dry run's outputs (the scores
+/// `output`, then the boxes where the config names them).
+fn dense_head(config: &OnnxConfig, outs: &[Val], output: &str, src: &str) -> Result<(Head, usize)> {
+    let shape = outs[0].shape().to_vec();
+    ensure!(
+        shape.len() == 3,
+        "{src}: output {output:?} has shape {shape:?}; a dense [B, A, N] output is expected (set output in the config)"
+    );
+    let head = match config.head.as_str() {
+        "yolov8" => Head::V8,
+        "yolov5" => Head::V5,
+        "split" => Head::Split,
+        _ if config.boxes.is_some() => Head::Split,
+        _ if shape[1] < shape[2] => Head::V8,
+        _ => Head::V5,
+    };
+    let n_classes = match head {
+        Head::Split => {
+            let bs = outs[1].shape();
+            ensure!(
+                bs.len() == 3 && bs[2] == 4 && bs[..2] == shape[..2],
+                "{src}: boxes output {:?} has shape {bs:?}, scores {output:?} {shape:?}; [B, N, 4] and [B, N, C] are expected",
+                config.boxes.as_deref().unwrap_or_default()
+            );
+            shape[2]
+        }
+        _ => {
+            let per = if head == Head::V8 { shape[1] } else { shape[2] };
+            let skip = if head == Head::V8 { 4 } else { 5 };
+            ensure!(
+                per > skip,
+                "{src}: output {output:?} of shape {shape:?} has no class scores for a {:?} head",
+                head
+            );
+            per - skip
+        }
+    };
+    Ok((head, n_classes))
+}
+
+/// The Sigmoid nodes to tap for the class logits where the scores are sigmoids (none else).
+fn logit_taps(
+    graph: &OnnxGraph,
+    config: &OnnxConfig,
+    output: &str,
+    src: &str,
+) -> Result<Vec<usize>> {
+    Ok(if config.scores == "sigmoid" {
+        let t = sigmoid_taps(graph, output);
+        ensure!(
+            !t.is_empty(),
+            "{src}: no Sigmoid node feeds {output:?} through layout ops; set scores = \"probabilities\" or \"logits\" in the config"
+        );
+        t
+    } else {
+        Vec::new()
+    })
 }
 
 /// Refuses an ultralytics model of another task (its `task` metadata): a segmentation, pose,

@@ -197,10 +197,10 @@ impl OnnxGraph {
     pub fn source(&self) -> String {
         self.model.source()
     }
-    pub(crate) fn graph_inputs(&self) -> &[Io] {
+    pub fn graph_inputs(&self) -> &[Io] {
         &self.model.inputs
     }
-    pub(crate) fn graph_outputs(&self) -> &[Io] {
+    pub fn graph_outputs(&self) -> &[Io] {
         &self.model.outputs
     }
     pub fn node(&self, k: usize) -> &NodeDef {

@@ -141,6 +141,39 @@ pub(crate) fn conv_transpose(a: &Args) -> Result<Val> {
     let full: [usize; 2] = std::array::from_fn(|i| {
         stride[i] * (s[2 + i] - 1) + (ws[2 + i] - 1) * dilation[i] + 1 + out_pad[i]
     });
+    let pads = transposed_pads(a, [s[2], s[3]], stride, full)?;
+    let out: [usize; 2] = std::array::from_fn(|i| full[i].saturating_sub(pads[i].0 + pads[i].1));
+    ensure!(
+        out[0] > 0 && out[1] > 0,
+        "pads {pads:?} leave nothing of the {full:?} output"
+    );
+    let y = conv_transpose2d(
+        xt,
+        wt,
+        None,
+        ConvTransposeOptions::new(stride, [0, 0], [0, 0], dilation, group),
+    );
+    let mut y = output_window(y, pads, out, s[0], m);
+    if let Some(b) = a.opt(2) {
+        let b = b.dev(a.dev)?;
+        ensure!(
+            b.shape.iter().product::<usize>() == m,
+            "bias of shape {:?} for {m} output channels",
+            b.shape
+        );
+        y = y + b.t.reshape([1, m, 1, 1]);
+    }
+    Ok(Val::D(Dev::from(y)?))
+}
+
+/// ConvTranspose's `(begin, end)` crop per spatial axis of the uncropped output `full`, for an
+/// input of spatial size `input`.
+fn transposed_pads(
+    a: &Args,
+    input: [usize; 2],
+    stride: [usize; 2],
+    full: [usize; 2],
+) -> Result<[(usize, usize); 2]> {
     let auto = a.s("auto_pad").unwrap_or("NOTSET");
     // An explicit output shape (or SAME's input × stride) sets the total padding, split as
     // SAME_UPPER / SAME_LOWER say (NOTSET and VALID as SAME_LOWER would, as onnxruntime does).
@@ -149,10 +182,10 @@ pub(crate) fn conv_transpose(a: &Args) -> Result<Val> {
             Some([o[o.len() - 2] as usize, o[o.len() - 1] as usize])
         }
         Some(o) => bail!("output_shape {o:?}: two positive spatial sizes expected"),
-        None if auto.starts_with("SAME_") => Some([s[2] * stride[0], s[3] * stride[1]]),
+        None if auto.starts_with("SAME_") => Some([input[0] * stride[0], input[1] * stride[1]]),
         None => None,
     };
-    let pads: [(usize, usize); 2] = match (target, auto) {
+    Ok(match (target, auto) {
         (Some(t), _) => {
             let mut p = [(0, 0); 2];
             for i in 0..2 {
@@ -177,20 +210,19 @@ pub(crate) fn conv_transpose(a: &Args) -> Result<Val> {
             Some(p) => bail!("pads {p:?}: four non-negative values expected"),
         },
         (None, p) => bail!("auto_pad {p} is not supported"),
-    };
-    let out: [usize; 2] = std::array::from_fn(|i| full[i].saturating_sub(pads[i].0 + pads[i].1));
-    ensure!(
-        out[0] > 0 && out[1] > 0,
-        "pads {pads:?} leave nothing of the {full:?} output"
-    );
-    let y = conv_transpose2d(
-        xt,
-        wt,
-        None,
-        ConvTransposeOptions::new(stride, [0, 0], [0, 0], dilation, group),
-    );
-    // The window [begin, begin + out) per axis; burn's output stops short of the
-    // output_padding rows/columns, which no input reaches: they are zeros (before the bias).
+    })
+}
+
+/// The window `[begin, begin + out)` per spatial axis of burn's uncropped output `y` (`n`
+/// images, `m` channels); burn's output stops short of the output_padding rows/columns, which
+/// no input reaches: they are zeros (before the bias).
+fn output_window(
+    y: Tensor<4>,
+    pads: [(usize, usize); 2],
+    out: [usize; 2],
+    n: usize,
+    m: usize,
+) -> Tensor<4> {
     let [_, _, yh, yw] = y.dims();
     let keep = |i: usize, have: usize| {
         let start = pads[i].0.min(have);
@@ -199,20 +231,11 @@ pub(crate) fn conv_transpose(a: &Args) -> Result<Val> {
     };
     let (h0, h1, hpad) = keep(0, yh);
     let (w0, w1, wpad) = keep(1, yw);
-    let mut y = y.slice([0..s[0], 0..m, h0..h1, w0..w1]);
+    let mut y = y.slice([0..n, 0..m, h0..h1, w0..w1]);
     if hpad > 0 || wpad > 0 {
         y = pad_constant(y, &[(0, hpad), (0, wpad)], 0.0);
     }
-    if let Some(b) = a.opt(2) {
-        let b = b.dev(a.dev)?;
-        ensure!(
-            b.shape.iter().product::<usize>() == m,
-            "bias of shape {:?} for {m} output channels",
-            b.shape
-        );
-        y = y + b.t.reshape([1, m, 1, 1]);
-    }
-    Ok(Val::D(Dev::from(y)?))
+    y
 }
 
 /// `scale * (x - mean) / sqrt(var + epsilon) + bias` per channel (axis 1).
@@ -299,7 +322,33 @@ pub fn resize(a: &Args) -> Result<Val> {
     let x = a.dev_input(0)?;
     let r = x.rank();
     let in_shape = x.shape.clone();
-    let (scales, sizes): (Option<Vec<f32>>, Option<Vec<i64>>) = if a.node.op == "Upsample" {
+    let (scales, sizes) = resize_scales_and_sizes(a)?;
+    let (out, scale) = resize_output_shape(&in_shape, sizes, scales)?;
+    let sampling = Sampling::of(a);
+    let mut v = x;
+    for k in r.saturating_sub(2)..r {
+        if out[k] == in_shape[k] && scale[k] == 1.0 {
+            continue;
+        }
+        let (n_in, n_out, sc) = (in_shape[k], out[k], scale[k]);
+        let axis = AxisResize {
+            n_in,
+            n_out,
+            scale: sc,
+            last: (n_in - 1) as f32,
+        };
+        v = sampling.resize_axis(a, v, k, &axis)?;
+    }
+    Ok(Val::D(v))
+}
+
+/// Resize's scales and sizes, where given.
+type ScalesAndSizes = (Option<Vec<f32>>, Option<Vec<i64>>);
+
+/// Resize's `(scales, sizes)` inputs (Upsample's and opset 10's scales alone), refusing
+/// `antialias` and `axes`.
+fn resize_scales_and_sizes(a: &Args) -> Result<ScalesAndSizes> {
+    let (scales, sizes): ScalesAndSizes = if a.node.op == "Upsample" {
         let s = match a.opt(1) {
             Some(v) => v.host()?.floats(),
             None => a
@@ -320,6 +369,17 @@ pub fn resize(a: &Args) -> Result<Val> {
         a.opt(4).is_none() && a.i("antialias").unwrap_or(0) == 0,
         "antialias and axes are not supported"
     );
+    Ok((scales, sizes))
+}
+
+/// The output shape and the scale per axis (sizes win over scales); only the last two axes
+/// may change.
+fn resize_output_shape(
+    in_shape: &[usize],
+    sizes: Option<Vec<i64>>,
+    scales: Option<Vec<f32>>,
+) -> Result<(Vec<usize>, Vec<f32>)> {
+    let r = in_shape.len();
     let (out, scale): (Vec<usize>, Vec<f32>) = match (sizes, scales) {
         (Some(sz), _) => {
             ensure!(sz.len() == r, "sizes {sz:?} for rank {r}");
@@ -340,98 +400,133 @@ pub fn resize(a: &Args) -> Result<Val> {
         (0..r.saturating_sub(2)).all(|k| out[k] == in_shape[k]),
         "resizing axes other than the last two ({in_shape:?} to {out:?}) is not supported"
     );
-    let mode = a.s("mode").unwrap_or("nearest");
-    let ctm = if a.node.op == "Upsample" || a.opset < 11 {
-        "asymmetric"
-    } else {
-        a.s("coordinate_transformation_mode")
-            .unwrap_or("half_pixel")
-    };
-    let nearest_mode = a.s("nearest_mode").unwrap_or(if a.opset < 11 {
-        "floor"
-    } else {
-        "round_prefer_floor"
-    });
-    let mut v = x;
-    for k in r.saturating_sub(2)..r {
-        if out[k] == in_shape[k] && scale[k] == 1.0 {
-            continue;
+    Ok((out, scale))
+}
+
+/// One resized axis: input and output lengths, the scale, and the last input index.
+struct AxisResize {
+    n_in: usize,
+    n_out: usize,
+    scale: f32,
+    last: f32,
+}
+
+/// How Resize samples: its mode, coordinate transformation and nearest-neighbour rounding.
+struct Sampling<'a> {
+    mode: &'a str,
+    ctm: &'a str,
+    nearest_mode: &'a str,
+}
+
+impl<'a> Sampling<'a> {
+    /// The attributes of `a`, with the defaults of its op and opset.
+    fn of(a: &Args<'a>) -> Self {
+        let mode = a.s("mode").unwrap_or("nearest");
+        let ctm = if a.node.op == "Upsample" || a.opset < 11 {
+            "asymmetric"
+        } else {
+            a.s("coordinate_transformation_mode")
+                .unwrap_or("half_pixel")
+        };
+        let nearest_mode = a.s("nearest_mode").unwrap_or(if a.opset < 11 {
+            "floor"
+        } else {
+            "round_prefer_floor"
+        });
+        Sampling {
+            mode,
+            ctm,
+            nearest_mode,
         }
-        let (n_in, n_out, sc) = (in_shape[k], out[k], scale[k]);
-        let src = |i: usize| -> Result<f32> {
-            let i = i as f32;
-            Ok(match ctm {
-                "half_pixel" => (i + 0.5) / sc - 0.5,
-                "pytorch_half_pixel" if n_out > 1 => (i + 0.5) / sc - 0.5,
-                "pytorch_half_pixel" => 0.0,
-                "align_corners" if n_out > 1 => i * (n_in - 1) as f32 / (n_out - 1) as f32,
-                "align_corners" => 0.0,
-                "asymmetric" => i / sc,
-                "tf_half_pixel_for_nn" => (i + 0.5) / sc,
-                m => bail!("coordinate_transformation_mode {m} is not supported"),
-            })
-        };
-        let last = (n_in - 1) as f32;
-        let ax = v.axis(k);
-        v = match mode {
-            "nearest" => {
-                let idx = (0..n_out)
-                    .map(|i| {
-                        let c = src(i)?;
-                        let f = c.floor();
-                        let j = match nearest_mode {
-                            "floor" => f,
-                            "ceil" => c.ceil(),
-                            "round_prefer_ceil" => (c + 0.5).floor(),
-                            "round_prefer_floor" if c - f == 0.5 => f,
-                            "round_prefer_floor" => c.round(),
-                            m => bail!("nearest_mode {m} is not supported"),
-                        };
-                        Ok(j.clamp(0.0, last) as i64)
-                    })
-                    .collect::<Result<Vec<_>>>()?;
-                let mut shape = v.shape.clone();
-                shape[k] = n_out;
-                let idx = Tensor::<1, Int>::from_data(TensorData::new(idx, [n_out]), a.dev);
-                Dev {
-                    t: v.t.select(ax, idx),
-                    shape,
-                }
-            }
-            "linear" | "bilinear" => {
-                let mut lo = Vec::with_capacity(n_out);
-                let mut hi = Vec::with_capacity(n_out);
-                let mut w = Vec::with_capacity(n_out);
-                for i in 0..n_out {
-                    let c = src(i)?.clamp(0.0, last);
-                    let f = c.floor();
-                    lo.push(f as i64);
-                    hi.push((f as i64 + 1).min(n_in as i64 - 1));
-                    w.push(c - f);
-                }
-                let mut shape = v.shape.clone();
-                shape[k] = n_out;
-                let mut ws = [1usize; MAX_RANK];
-                ws[ax] = n_out;
-                let wt = Tensor::<1>::from_data(TensorData::new(w, [n_out]), a.dev)
-                    .reshape(ws)
-                    .expand(pad6(&shape));
-                let sel = |i: Vec<i64>| {
-                    v.t.clone().select(
-                        ax,
-                        Tensor::<1, Int>::from_data(TensorData::new(i, [n_out]), a.dev),
-                    )
-                };
-                let (l, h) = (sel(lo), sel(hi));
-                Dev {
-                    t: l.clone() + (h - l) * wt,
-                    shape,
-                }
-            }
-            m => bail!("Resize mode {m} is not supported"),
-        };
     }
-    Ok(Val::D(v))
+
+    /// The input coordinate of output index `i` on `axis`.
+    fn source_coordinate(&self, axis: &AxisResize, i: usize) -> Result<f32> {
+        let (n_in, n_out, sc) = (axis.n_in, axis.n_out, axis.scale);
+        let i = i as f32;
+        Ok(match self.ctm {
+            "half_pixel" => (i + 0.5) / sc - 0.5,
+            "pytorch_half_pixel" if n_out > 1 => (i + 0.5) / sc - 0.5,
+            "pytorch_half_pixel" => 0.0,
+            "align_corners" if n_out > 1 => i * (n_in - 1) as f32 / (n_out - 1) as f32,
+            "align_corners" => 0.0,
+            "asymmetric" => i / sc,
+            "tf_half_pixel_for_nn" => (i + 0.5) / sc,
+            m => bail!("coordinate_transformation_mode {m} is not supported"),
+        })
+    }
+
+    /// `v` resized along its axis `k` as `axis` says.
+    fn resize_axis(&self, a: &Args, v: Dev, k: usize, axis: &AxisResize) -> Result<Dev> {
+        match self.mode {
+            "nearest" => self.resize_nearest(a, v, k, axis),
+            "linear" | "bilinear" => self.resize_linear(a, v, k, axis),
+            m => bail!("Resize mode {m} is not supported"),
+        }
+    }
+
+    /// Nearest-neighbour resize of `v` along axis `k`: the rounded source index per output.
+    fn resize_nearest(&self, a: &Args, v: Dev, k: usize, axis: &AxisResize) -> Result<Dev> {
+        let n_out = axis.n_out;
+        let ax = v.axis(k);
+        let idx = (0..n_out)
+            .map(|i| {
+                let c = self.source_coordinate(axis, i)?;
+                let f = c.floor();
+                let j = match self.nearest_mode {
+                    "floor" => f,
+                    "ceil" => c.ceil(),
+                    "round_prefer_ceil" => (c + 0.5).floor(),
+                    "round_prefer_floor" if c - f == 0.5 => f,
+                    "round_prefer_floor" => c.round(),
+                    m => bail!("nearest_mode {m} is not supported"),
+                };
+                Ok(j.clamp(0.0, axis.last) as i64)
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let mut shape = v.shape.clone();
+        shape[k] = n_out;
+        let idx = Tensor::<1, Int>::from_data(TensorData::new(idx, [n_out]), a.dev);
+        Ok(Dev {
+            t: v.t.select(ax, idx),
+            shape,
+        })
+    }
+
+    /// Linear resize of `v` along axis `k`: `lo + (hi - lo) * w` between the two neighbouring
+    /// source samples.
+    fn resize_linear(&self, a: &Args, v: Dev, k: usize, axis: &AxisResize) -> Result<Dev> {
+        let (n_in, n_out) = (axis.n_in, axis.n_out);
+        let ax = v.axis(k);
+        let mut lo = Vec::with_capacity(n_out);
+        let mut hi = Vec::with_capacity(n_out);
+        let mut w = Vec::with_capacity(n_out);
+        for i in 0..n_out {
+            let c = self.source_coordinate(axis, i)?.clamp(0.0, axis.last);
+            let f = c.floor();
+            lo.push(f as i64);
+            hi.push((f as i64 + 1).min(n_in as i64 - 1));
+            w.push(c - f);
+        }
+        let mut shape = v.shape.clone();
+        shape[k] = n_out;
+        let mut ws = [1usize; MAX_RANK];
+        ws[ax] = n_out;
+        let wt = Tensor::<1>::from_data(TensorData::new(w, [n_out]), a.dev)
+            .reshape(ws)
+            .expand(pad6(&shape));
+        let sel = |i: Vec<i64>| {
+            v.t.clone().select(
+                ax,
+                Tensor::<1, Int>::from_data(TensorData::new(i, [n_out]), a.dev),
+            )
+        };
+        let (l, h) = (sel(lo), sel(hi));
+        Ok(Dev {
+            t: l.clone() + (h - l) * wt,
+            shape,
+        })
+    }
 }
 
 pub fn softmax(a: &Args) -> Result<Val> {

@@ -102,6 +102,8 @@ impl Session {
                 file.display()
             );
         }
+        // `Inner` is a unit struct when the crate is built without onnxruntime.
+        #[allow(clippy::default_constructed_unit_structs)]
         let s = Session {
             file: file.to_path_buf(),
             input: input.to_string(),

@@ -1,12 +1,10 @@
 //! Studies: experiments that train runs with `attack` and judge the learned textures with
 //! `eval`, so they sit after both stages. [`topn`] is the denseness study (`cac study topn`),
 //! [`methods`] CAC against the baselines (`cac study methods`), [`demo`] the main job on the
-//! embedded defaults (`cac demo`) and [`attack_bench`] the attack's iteration time and white-box
-//! error against training time (`cac bench attack`); [`curve`] judges a training run as it goes
+//! embedded defaults (`cac demo`); [`curve`] judges a training run as it goes
 //! (`cac train --eval-every`). They share [`train_run`]: one resumable run
 //! folder trained up to its iteration count, or only read when it is finished.
 
-pub mod attack_bench;
 pub mod curve;
 pub mod demo;
 mod figures;

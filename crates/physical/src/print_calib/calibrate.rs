@@ -153,6 +153,54 @@ pub fn calibrate(
     photo_name: &str,
 ) -> Result<Calibration> {
     let kind = chart.printer;
+    check_options(kind, opts)?;
+    let lens = lens_for_photo(photo, lens)?;
+    let seen = read_chart(photo, chart, lens.as_ref())?;
+    let clipped = clipped_patches(chart, &seen.readings)?;
+    let timer = Stopwatch::start();
+    let (camera, checker_de2000) = correct_camera(chart, &seen.readings)?;
+    let name = opts
+        .name
+        .clone()
+        .unwrap_or_else(|| format!("{kind} printer calibrated from {photo_name}"));
+    let mut out = Calibration {
+        profile: Profile {
+            name,
+            fdm: None,
+            full_colour: None,
+            paper: None,
+        },
+        markers_px: seen.markers_px,
+        smallest_patch_px: seen.smallest,
+        checker_de2000,
+        fitted: 0,
+        held_out: 0,
+        clipped: clipped.len(),
+        fit_de2000: None,
+        held_out_de2000: None,
+        fit_ms: 0.0,
+    };
+    if kind == PrinterKind::Fdm {
+        out.profile.fdm = Some(measure_filaments(
+            chart,
+            &seen.readings,
+            &camera,
+            opts,
+            photo_name,
+        ));
+    } else {
+        fit_printed(chart, &seen.readings, &camera, &clipped, opts, &mut out)?;
+    }
+    out.fit_ms = timer.ms();
+    out.profile
+        .printer()
+        .context("the calibrated profile does not check")?;
+    Ok(out)
+}
+
+/// Refuses options that do not fit the chart's printer kind: another `--printer`, a held-out
+/// share out of range, a missing media width (paper) or object size (FDM).
+fn check_options(kind: PrinterKind, opts: &CalibrateOptions) -> Result<()> {
     if let Some(k) = opts.printer {
         if k != kind {
             bail!(
@@ -174,13 +222,19 @@ pub fn calibrate(
         },
         PrinterKind::FullColour => {}
     }
+    Ok(())
+}
+
+/// Refuses a photo too small to read, and scales the lens's calibration to the photo's size
+/// (refusing one made for another aspect ratio: another camera or a cropped photo).
+fn lens_for_photo(photo: &RgbImage, lens: Option<&CameraModel>) -> Result<Option<CameraModel>> {
     let (w, h) = photo.dimensions();
     if w.min(h) < MIN_SIDE_PX {
         bail!(
             "the photo is too small: {w}×{h} pixels, at least {MIN_SIDE_PX} on its short side are needed (and each patch {MIN_PATCH_PX} pixels across)"
         );
     }
-    let lens = match lens {
+    Ok(match lens {
         None => None,
         Some(l) => {
             let (a, b) = (w as f64 / h as f64, l.width as f64 / l.height as f64);
@@ -193,9 +247,23 @@ pub fn calibrate(
             }
             Some(l.scaled(w as usize, h as usize))
         }
-    };
+    })
+}
+
+/// The chart as read from the photo.
+struct ChartReading {
+    /// The markers in the photo (pixels), as in [`Calibration::markers_px`].
+    markers_px: [[f64; 2]; 4],
+    /// Every patch of the chart, in the chart's order.
+    readings: Vec<PatchReading>,
+    /// The smallest patch's side, pixels.
+    smallest: f64,
+}
+
+/// Locates the chart by its markers and reads every patch; refuses patches too small to read.
+fn read_chart(photo: &RgbImage, chart: &Chart, lens: Option<&CameraModel>) -> Result<ChartReading> {
     let markers = detect::find_markers(photo);
-    let loc = detect::locate(photo, chart, &markers, lens.as_ref())?;
+    let loc = detect::locate(photo, chart, &markers, lens)?;
     let readings: Vec<PatchReading> = chart
         .patches
         .iter()
@@ -210,6 +278,16 @@ pub fn calibrate(
             "the photo is too small: the chart's patches are only {smallest:.1} pixels across in it (at least {MIN_PATCH_PX}); photograph the chart closer or at a higher resolution"
         );
     }
+    Ok(ChartReading {
+        markers_px: loc.markers_px,
+        readings,
+        smallest,
+    })
+}
+
+/// The clipped patches (indices); refuses an overexposed photo (any ColorChecker square
+/// clipped, or more than one patch in 20).
+fn clipped_patches(chart: &Chart, readings: &[PatchReading]) -> Result<Vec<usize>> {
     let clipped: Vec<usize> = (0..readings.len())
         .filter(|&i| readings[i].clipped >= CLIPPED_SHARE)
         .collect();
@@ -227,7 +305,15 @@ pub fn calibrate(
             chart.patches[i].srgb
         );
     }
-    let timer = Stopwatch::start();
+    Ok(clipped)
+}
+
+/// Fits the camera's correction on the ColorChecker, with the checker's ΔE2000 after it
+/// against its published values (mean, largest).
+fn correct_camera(
+    chart: &Chart,
+    readings: &[PatchReading],
+) -> Result<(CameraCorrection, [f32; 2])> {
     let checker: Vec<usize> = chart.of(Role::Checker).map(|(i, _)| i).collect();
     let seen: [[f32; 3]; 24] = std::array::from_fn(|k| readings[checker[k]].linear);
     let camera = CameraCorrection::fit(&seen)?;
@@ -242,94 +328,89 @@ pub fn calibrate(
         fit::mean_p95(&checker_de)[0],
         checker_de.iter().fold(0.0f32, |a, &b| a.max(b)),
     ];
-    let name = opts
-        .name
-        .clone()
-        .unwrap_or_else(|| format!("{kind} printer calibrated from {photo_name}"));
-    let mut out = Calibration {
-        profile: Profile {
-            name,
-            fdm: None,
-            full_colour: None,
-            paper: None,
-        },
-        markers_px: loc.markers_px,
-        smallest_patch_px: smallest,
-        checker_de2000,
-        fitted: 0,
-        held_out: 0,
-        clipped: clipped.len(),
-        fit_de2000: None,
-        held_out_de2000: None,
-        fit_ms: 0.0,
+    Ok((camera, checker_de2000))
+}
+
+/// FDM: the filaments' colours as measured through the camera's correction.
+fn measure_filaments(
+    chart: &Chart,
+    readings: &[PatchReading],
+    camera: &CameraCorrection,
+    opts: &CalibrateOptions,
+    photo_name: &str,
+) -> Fdm {
+    let filaments = chart
+        .of(Role::Filament)
+        .map(|(i, p)| Filament {
+            name: p.name.clone(),
+            srgb: colour::to_hex(camera.apply(readings[i].linear).map(colour::encode)),
+            source: format!("measured by cac print calibrate from {photo_name}"),
+        })
+        .collect();
+    Fdm {
+        filaments,
+        nozzle_mm: opts.nozzle_mm,
+        layer_mm: opts.layer_mm,
+        object_size_mm: opts.object_size_mm.unwrap_or_default(),
+    }
+}
+
+/// Paper and full colour: draws the held-out patches, fits the response on the rest, judges it
+/// on both and puts it in `out`'s profile.
+fn fit_printed(
+    chart: &Chart,
+    readings: &[PatchReading],
+    camera: &CameraCorrection,
+    clipped: &[usize],
+    opts: &CalibrateOptions,
+    out: &mut Calibration,
+) -> Result<()> {
+    let mut usable: Vec<usize> = chart
+        .of(Role::Printed)
+        .map(|(i, _)| i)
+        .filter(|i| !clipped.contains(i))
+        .collect();
+    usable.shuffle(&mut ChaCha8Rng::seed_from_u64(opts.seed));
+    let hold = if opts.held_out > 0.0 {
+        ((opts.held_out * usable.len() as f32).round() as usize).max(1)
+    } else {
+        0
     };
-    if kind == PrinterKind::Fdm {
-        let filaments = chart
-            .of(Role::Filament)
-            .map(|(i, p)| Filament {
-                name: p.name.clone(),
-                srgb: colour::to_hex(camera.apply(readings[i].linear).map(colour::encode)),
-                source: format!("measured by cac print calibrate from {photo_name}"),
+    let (held, fitted) = usable.split_at(hold);
+    if fitted.len() < 12 {
+        bail!(
+            "only {} patches are left to fit the response (at least 12): lower --held-out or print more patches",
+            fitted.len()
+        );
+    }
+    let measured = |i: usize| camera.apply(readings[i].linear);
+    let req: Vec<[f32; 3]> = fitted.iter().map(|&i| chart.srgb(i)).collect();
+    let got: Vec<[f32; 3]> = fitted.iter().map(|&i| measured(i)).collect();
+    let Some(mut response) = fit::fit_response(&req, &got) else {
+        bail!("the printed patches do not determine a response (too few distinct colours)");
+    };
+    let de = |set: &[usize]| -> Vec<f32> {
+        set.iter()
+            .map(|&i| {
+                let want = measured(i).map(colour::encode);
+                colour::delta_e2000_srgb(response.apply(chart.srgb(i)), want)
             })
-            .collect();
-        out.profile.fdm = Some(Fdm {
-            filaments,
-            nozzle_mm: opts.nozzle_mm,
-            layer_mm: opts.layer_mm,
-            object_size_mm: opts.object_size_mm.unwrap_or_default(),
+            .collect()
+    };
+    out.fit_de2000 = Some(fit::mean_p95(&de(fitted)));
+    if !held.is_empty() {
+        out.held_out_de2000 = Some(fit::mean_p95(&de(held)));
+    }
+    response.held_out_de2000 = out.held_out_de2000;
+    out.fitted = fitted.len();
+    out.held_out = held.len();
+    if chart.printer == PrinterKind::Paper {
+        out.profile.paper = Some(Paper {
+            response,
+            media_width_mm: opts.media_width_mm.unwrap_or_default(),
         });
     } else {
-        let mut usable: Vec<usize> = chart
-            .of(Role::Printed)
-            .map(|(i, _)| i)
-            .filter(|i| !clipped.contains(i))
-            .collect();
-        usable.shuffle(&mut ChaCha8Rng::seed_from_u64(opts.seed));
-        let hold = if opts.held_out > 0.0 {
-            ((opts.held_out * usable.len() as f32).round() as usize).max(1)
-        } else {
-            0
-        };
-        let (held, fitted) = usable.split_at(hold);
-        if fitted.len() < 12 {
-            bail!(
-                "only {} patches are left to fit the response (at least 12): lower --held-out or print more patches",
-                fitted.len()
-            );
-        }
-        let measured = |i: usize| camera.apply(readings[i].linear);
-        let req: Vec<[f32; 3]> = fitted.iter().map(|&i| chart.srgb(i)).collect();
-        let got: Vec<[f32; 3]> = fitted.iter().map(|&i| measured(i)).collect();
-        let Some(mut response) = fit::fit_response(&req, &got) else {
-            bail!("the printed patches do not determine a response (too few distinct colours)");
-        };
-        let de = |set: &[usize]| -> Vec<f32> {
-            set.iter()
-                .map(|&i| {
-                    let want = measured(i).map(colour::encode);
-                    colour::delta_e2000_srgb(response.apply(chart.srgb(i)), want)
-                })
-                .collect()
-        };
-        out.fit_de2000 = Some(fit::mean_p95(&de(fitted)));
-        if !held.is_empty() {
-            out.held_out_de2000 = Some(fit::mean_p95(&de(held)));
-        }
-        response.held_out_de2000 = out.held_out_de2000;
-        out.fitted = fitted.len();
-        out.held_out = held.len();
-        if kind == PrinterKind::Paper {
-            out.profile.paper = Some(Paper {
-                response,
-                media_width_mm: opts.media_width_mm.unwrap_or_default(),
-            });
-        } else {
-            out.profile.full_colour = Some(FullColour { response });
-        }
+        out.profile.full_colour = Some(FullColour { response });
     }
-    out.fit_ms = timer.ms();
-    out.profile
-        .printer()
-        .context("the calibrated profile does not check")?;
-    Ok(out)
+    Ok(())
 }

@@ -16,9 +16,8 @@
 //! 4. [`calibrate`]: the whole run and its refusals (no markers, clipped patches, a chart of
 //!    another printer kind, a photo too small, a photo of another chart); writes the profile.
 //! 5. [`simulate`]: a simulated printer and the digital twin photographing the printed chart
-//!    (tests, `cac bench calibration`), and [`bench`], that benchmark.
+//!    (tests, and `cac bench calibration` in `cac-bench`).
 
-pub mod bench;
 pub mod calibrate;
 pub mod chart;
 pub mod detect;

@@ -170,21 +170,53 @@ pub fn photograph(page: &RgbImage, chart: &Chart, shot: &Shot) -> Result<RgbImag
     let [w, h] = chart.page_mm.map(|v| v / 1000.0);
     let centre_y = h / 2.0 + 0.05;
     let lens = &shot.lens;
+    let d = camera_distance(w, h, shot);
+    let settings = RenderSettings {
+        width: lens.width,
+        height: lens.height,
+        samples: shot.samples,
+        vfov_deg: 45.0, // unused: the lens gives the rays
+        atlas_res: shot.atlas,
+    };
+    let rig = Rig {
+        renderer: Renderer::new(page_scene(w, h, centre_y), settings)
+            .context("the chart's twin")?,
+        config: twin_config(shot, centre_y, d),
+        lens: lens.clone(),
+        room: None,
+    };
+    let atlas = lit_atlas(page, shot);
+    let pose = Pose {
+        angle_deg: shot.angle_deg,
+        horizontal_m: d,
+    };
+    let twin = DigitalTwin::new(Arc::new(rig), &atlas, Box::new(move || Ok(pose)), shot.seed);
+    Ok(twin.render(pose, 0)?.image)
+}
+
+/// The camera's horizontal distance from the turntable's axis, m: the nearer half of the page
+/// (`w` × `h` m), foreshortened, spans `fill` of half the width; its height fits in 90 % of the
+/// frame.
+fn camera_distance(w: f32, h: f32, shot: &Shot) -> f64 {
+    let lens = &shot.lens;
     let theta = shot.angle_deg.to_radians();
     let half_w = f64::from(w) / 2.0;
-    // The nearer half of the page, foreshortened, spans `fill` of half the width; its height
-    // fits in 90 % of the frame.
     let near = half_w * theta.sin().abs();
-    let d = (lens.fx * half_w * theta.cos() / (shot.fill * lens.width as f64 / 2.0) + near)
-        .max(lens.fy * f64::from(h) / 2.0 / (0.45 * lens.height as f64) + near);
-    // The page stands on the turntable's axis facing +X (the camera at angle 0), top-left first.
+    (lens.fx * half_w * theta.cos() / (shot.fill * lens.width as f64 / 2.0) + near)
+        .max(lens.fy * f64::from(h) / 2.0 / (0.45 * lens.height as f64) + near)
+}
+
+/// The page (`w` × `h` m) as a textured quad standing on the turntable's axis facing +X (the
+/// camera at angle 0), its centre `centre_y` m up.
+fn page_scene(w: f32, h: f32, centre_y: f32) -> Scene {
+    // Top-left first.
     let corners = [
         Vec3::new(0.0, centre_y + h / 2.0, w / 2.0),
         Vec3::new(0.0, centre_y + h / 2.0, -w / 2.0),
         Vec3::new(0.0, centre_y - h / 2.0, -w / 2.0),
         Vec3::new(0.0, centre_y - h / 2.0, w / 2.0),
     ];
-    let scene = Scene {
+    Scene {
         name: "print chart".into(),
         positions: corners.to_vec(),
         normals: vec![],
@@ -211,15 +243,13 @@ pub fn photograph(page: &RgbImage, chart: &Chart, shot: &Shot) -> Result<RgbImag
         }],
         textures: vec![],
         paintable: vec![true],
-    };
-    let settings = RenderSettings {
-        width: lens.width,
-        height: lens.height,
-        samples: shot.samples,
-        vfov_deg: 45.0, // unused: the lens gives the rays
-        atlas_res: shot.atlas,
-    };
-    let config = RigConfig {
+    }
+}
+
+/// The twin rig's settings: the camera `d` m from the axis, looking down on the page's centre
+/// (`centre_y` m up) by the shot's elevation; no rail; the shot's samples and exposure.
+fn twin_config(shot: &Shot, centre_y: f32, d: f64) -> RigConfig {
+    RigConfig {
         camera: CameraMount {
             intrinsics: Default::default(),
             resolution: None,
@@ -249,13 +279,11 @@ pub fn photograph(page: &RgbImage, chart: &Chart, shot: &Shot) -> Result<RgbImag
             exposure: shot.exposure,
             ..Default::default()
         },
-    };
-    let rig = Rig {
-        renderer: Renderer::new(scene, settings).context("the chart's twin")?,
-        config,
-        lens: lens.clone(),
-        room: None,
-    };
+    }
+}
+
+/// The page as the quad's texture, resized to the shot's atlas and tinted by the lamp.
+fn lit_atlas(page: &RgbImage, shot: &Shot) -> Texture {
     let mut atlas = Texture::from_rgb8(page);
     if atlas.width != shot.atlas || atlas.height != shot.atlas {
         atlas = atlas.resized(shot.atlas, shot.atlas);
@@ -265,10 +293,5 @@ pub fn photograph(page: &RgbImage, chart: &Chart, shot: &Shot) -> Result<RgbImag
             *v *= k;
         }
     }
-    let pose = Pose {
-        angle_deg: shot.angle_deg,
-        horizontal_m: d,
-    };
-    let twin = DigitalTwin::new(Arc::new(rig), &atlas, Box::new(move || Ok(pose)), shot.seed);
-    Ok(twin.render(pose, 0)?.image)
+    atlas
 }

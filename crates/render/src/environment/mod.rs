@@ -5,10 +5,9 @@
 //! ground) goes to the renderer; its photometric part is applied as tensor ops so gradients pass:
 //! print error on the atlas ([`print_error`]), and lighten/darken plus sensor noise on the image
 //! ([`photometric`]). [`form`] is the one image-formation call that chains them with the renderer.
-//! See `docs/environment.md` for every parameter and its default. [`bench`] measures
-//! anti-aliasing error against time for `cac bench render`.
+//! See `docs/environment.md` for every parameter and its default. Anti-aliasing error against
+//! time is measured by `cac-bench` (`cac bench render`).
 
-pub mod bench;
 mod formation;
 mod transforms;
 

@@ -3,14 +3,14 @@
 //! milk truck, with 1 and 2 threads, beside Embree (Python `embreex`) casting the same rays when
 //! it is installed ([`rays`]). Timed with the one timer (`report::timer`); the table is a
 //! [`Table`] for the CSV file. (The anti-aliasing half of the benchmark forms images under an
-//! environment condition: `environment::bench`.)
+//! environment condition: [`crate::anti_aliasing`].)
 
-use super::{accel::Accel, gbuffer::GBuffer};
-use crate::camera::Viewpoint;
-use crate::renderer::RenderSettings;
 use anyhow::Result;
 use cac_core::report::timer::fastest_ms;
 use cac_core::report::Table;
+use cac_render::camera::Viewpoint;
+use cac_render::RenderSettings;
+use cac_render::{accel::Accel, gbuffer::GBuffer};
 use cac_scene::{LoadOptions, Scene};
 use std::path::Path;
 
@@ -68,7 +68,7 @@ pub fn rays(size: usize, repeats: usize, python: &str) -> Result<Vec<RayScene>> 
         let hits = g0
             .data
             .iter()
-            .filter(|s| s.surface == super::gbuffer::Surface::Object)
+            .filter(|s| s.surface == cac_render::gbuffer::Surface::Object)
             .count();
         let embree = embree(python, &scene, &g0, repeats);
         let mut runs = vec![];
@@ -233,7 +233,7 @@ fn cast_times(
     threads: usize,
     scene: &Scene,
     accel: &Accel,
-    cam: &crate::camera::Camera,
+    cam: &cac_render::camera::Camera,
     g0: &GBuffer,
 ) -> Result<(f64, f64)> {
     let dirs: Vec<glam::Vec3> = g0.data.iter().map(|s| s.dir).collect();

@@ -6,15 +6,15 @@
 //! row repeats the largest count on a printer with strong tone curves (dot gain), which the
 //! root-polynomial response cannot follow along the grey axis. Asserts nothing.
 
-use super::calibrate::{calibrate, CalibrateOptions};
-use super::chart::{Chart, ChartSpec, PrinterKind};
-use super::fit::mean_p95;
-use super::simulate::{photograph, Shot, SimulatedPrinter};
 use anyhow::Result;
 use cac_core::colour;
 use cac_core::printer::Response;
 use cac_core::report::timer::Stopwatch;
 use cac_core::report::Table;
+use cac_physical::print_calib::calibrate::{calibrate, CalibrateOptions};
+use cac_physical::print_calib::chart::{Chart, ChartSpec, PrinterKind};
+use cac_physical::print_calib::fit::mean_p95;
+use cac_physical::print_calib::simulate::{photograph, Shot, SimulatedPrinter};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

@@ -5,12 +5,12 @@
 //! against cac's own finest setting (the knob's own convergence), with its shading time per
 //! view. One [`Table`] row per environment and setting; asserts nothing.
 
-use super::blender::{self, BlenderSettings};
-use super::realism::{lit_by, views, ViewSet};
 use anyhow::{Context, Result};
 use burn::tensor::Device;
 use cac_core::report::timer::Stopwatch;
 use cac_core::report::Table;
+use cac_eval::blender::{self, BlenderSettings};
+use cac_eval::realism::{lit_by, views, ViewSet};
 use cac_render::config::SceneConfig;
 use cac_render::environment::{self, Brightness, Condition, Environment};
 use cac_render::ibl::{IblSettings, REFLECTION_LEVELS};

@@ -1,13 +1,13 @@
 //! The anti-aliasing half of `cac bench render`: the error against time of 1, 4, 16 samples per
 //! pixel against 64, on a 256² jeep under one plain bright condition (the other half, ray
-//! throughput, is `render::bench`).
+//! throughput, is [`crate::render`]).
 
-use super::{Brightness, Condition, EnvConfig, Environment};
-use crate::bench::best_of;
-use crate::camera::Viewpoint;
-use crate::renderer::{RenderSettings, Renderer};
+use crate::render::best_of;
 use anyhow::Result;
 use cac_core::report::Table;
+use cac_render::camera::Viewpoint;
+use cac_render::environment::{plan, Brightness, Condition, EnvConfig, Environment};
+use cac_render::{RenderSettings, Renderer};
 
 /// Anti-aliasing error against time on a 256² jeep: `(samples, seconds per frame, PSNR dB
 /// against 64 samples)` for 1, 4, 16 and 64 samples, fastest of `repeats` (at most 3).
@@ -28,7 +28,7 @@ pub fn anti_aliasing(repeats: usize) -> Result<Vec<(usize, f64, f64)>> {
         )?;
         let atlas = r.scene.initial_atlas(r.settings.atlas_res);
         let (secs, img) = best_of(repeats.min(3), || {
-            let plan = super::plan(&r, &env, &cond).expect("plan");
+            let plan = plan(&r, &env, &cond).expect("plan");
             plan.render_cpu(&atlas)
         });
         Ok((secs, img))

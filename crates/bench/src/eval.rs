@@ -3,12 +3,12 @@
 //! on free-viewpoint bright views of a stage (the first view is a warm-up). Timed with the one
 //! timer (`report::timer`); one [`Table`] row per detector set.
 
-use super::{score_image, Protocol};
 use anyhow::Result;
 use burn::tensor::{Device, Tensor};
 use cac_core::report::timer::Stopwatch;
 use cac_core::report::Table;
 use cac_detect::Detector;
+use cac_eval::{score_image, Protocol};
 use cac_render::config::Stage;
 use cac_render::environment::{self, Brightness, Condition, Environment, ViewpointSet};
 use cac_render::{self as render, Renderer};

@@ -6,13 +6,13 @@
 //! `tools/torchvision_oracle.py --bench`) and onnxruntime for users' ONNX detectors
 //! ([`onnx_models`], `tools/onnx/ort_run.py --bench`).
 
-use super::frcnn::{synthetic, Arch, FasterRcnn};
-use crate::catalogue::{Weights, MODELS};
-use crate::detector::Detector;
 use anyhow::{Context, Result};
 use burn::tensor::{Device, Distribution, Tensor};
 use cac_core::report::timer::time;
 use cac_core::report::Table;
+use cac_detect::frcnn::{synthetic, Arch, FasterRcnn};
+use cac_detect::Detector;
+use cac_detect::{Weights, MODELS};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -112,7 +112,7 @@ pub(crate) fn torch_ms(
 ) -> Option<(f64, f64)> {
     let script = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
         .join("tools/torchvision_oracle.py");
-    let out = crate::torch_env::peer_command(python)
+    let out = cac_detect::torch_env::peer_command(python)
         .arg(script)
         .args(["--bench", model, "--threads", &threads.to_string()])
         .args(["--iters", &runs.to_string(), "--size", &format!("{h}x{w}")])
@@ -192,7 +192,7 @@ pub fn tfjs_models(
     backends: &[BenchDevice],
     on_row: &mut dyn FnMut(&Table),
 ) -> Result<Table> {
-    let models = super::fetch::ensure_models()?;
+    let models = cac_detect::fetch::ensure_models()?;
     let root = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."));
     let runner = runner
         .map(Path::to_path_buf)
@@ -229,7 +229,7 @@ pub fn tfjs_models(
         };
         let dets = backends
             .iter()
-            .map(|b| crate::catalogue::load(name, &models, &b.inference))
+            .map(|b| cac_detect::load(name, &models, &b.inference))
             .collect::<Result<Vec<_>>>()?;
         for ((b, det), batch) in backends_by_batch(backends, &dets, &[1, 4]) {
             let (w, h) = det.input_size();
@@ -305,12 +305,12 @@ pub fn frcnn_models(
         "forward_over_torch",
         "backward_over_torch",
     ]);
-    for name in super::frcnn::MODELS {
+    for name in cac_detect::frcnn::MODELS {
         let mut peers: Vec<(&str, Option<(f64, f64)>)> = Vec::new();
         for b in backends {
             let ((w, h), fwd, bwd) =
                 frcnn_forward_backward_ms(name, runs, &b.inference, &b.training)?;
-            let device = match crate::host::computes_on_host(&b.inference) {
+            let device = match cac_detect::computes_on_host(&b.inference) {
                 true => "cpu",
                 false => "cuda",
             };
@@ -370,7 +370,7 @@ pub(crate) fn ort_ms(
     std::fs::write(&feed, serde_json::to_vec(&v).ok()?).ok()?;
     let script =
         Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../..")).join("tools/onnx/ort_run.py");
-    let out = crate::torch_env::peer_command(python)
+    let out = cac_detect::torch_env::peer_command(python)
         .arg(script)
         .arg(model)
         .arg(&feed)
@@ -405,7 +405,7 @@ pub struct OnnxRow {
     pub ort_ms: Option<f64>,
     pub torch_ms: Option<(f64, f64)>,
     /// `detect` (pre-processing, graph, decoding, NMS) on cac's executor and, where it was
-    /// enabled, with onnxruntime running the graph ([`super::onnx::runtime`]).
+    /// enabled, with onnxruntime running the graph ([`cac_detect::onnx::runtime`]).
     pub detect_ms: f64,
     pub detect_runtime_ms: Option<f64>,
 }
@@ -451,12 +451,12 @@ pub fn onnx_models(
     ]);
     for f in files {
         let spec = format!("onnx:{f}");
-        let (path, config) = super::onnx::parse_spec(&spec)
+        let (path, config) = cac_detect::onnx::parse_spec(&spec)
             .with_context(|| format!("{f:?}: write MODEL.onnx[:CONFIG.toml]"))?;
         let mut peers = None;
         for b in backends {
             let (inference, training) = (&b.inference, &b.training);
-            let det = super::onnx::OnnxDetector::load(&path, config.as_deref(), inference)?;
+            let det = cac_detect::onnx::OnnxDetector::load(&path, config.as_deref(), inference)?;
             let (w, h) = det.input_size();
             let input = det.graph().graph_inputs()[0].name.clone();
             let output = det.graph().graph_outputs()[0].name.clone();
@@ -467,7 +467,7 @@ pub fn onnx_models(
                 Ok(())
             })?;
             let (fwd, bwd) = forward_backward_ms(&det, runs, x.clone(), training)?;
-            use super::onnx::Engine;
+            use cac_detect::onnx::Engine;
             let detect = |engine| {
                 time(runs, || {
                     det.detect_with(x.clone(), engine)?;
@@ -534,7 +534,7 @@ fn onnx_torch_ms(
     let script =
         Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../..")).join("tools/torch_bench.py");
     let dims = shape.map(|d| d.to_string()).join(",");
-    let out = crate::torch_env::peer_command(python)
+    let out = cac_detect::torch_env::peer_command(python)
         .arg(script)
         .arg("onnx")
         .arg(model)
@@ -574,55 +574,7 @@ pub fn activation_rows(
     (inference, training): (&Device, &Device),
     on_row: &mut dyn FnMut(&Table),
 ) -> Result<Table> {
-    use super::activation as fast;
-    use burn::tensor::activation;
-    use burn::tensor::ops::ConvOptions;
-    type Op = Box<dyn Fn(Tensor<4>) -> Tensor<4> + Send + Sync>;
-    let c = shape[1];
-    let w3 = Tensor::<4>::random([c, c, 3, 3], Distribution::Uniform(-0.5, 0.5), inference);
-    let w1 = Tensor::<4>::random([c, c, 1, 1], Distribution::Uniform(-0.5, 0.5), inference);
-    let conv = |w: &Tensor<4>, pad: usize, ours: bool| -> Op {
-        let w = w.clone();
-        Box::new(move |x: Tensor<4>| {
-            let w = w.clone().to_device(&x.device());
-            let o = ConvOptions::new([1, 1], [pad, pad], [1, 1], 1);
-            match ours {
-                true => super::conv::conv2d(x, w, None, o),
-                false => burn::tensor::module::conv2d(x, w, None, o),
-            }
-        })
-    };
-    let bias = Tensor::<1>::random([c], Distribution::Uniform(-0.5, 0.5), inference);
-    let bias_add = |ours: bool| -> Op {
-        let b = bias.clone();
-        Box::new(move |x: Tensor<4>| {
-            let b = b.clone().to_device(&x.device());
-            match ours {
-                true => super::conv::add_bias(x, b),
-                false => x + b.reshape([1, c, 1, 1]),
-            }
-        })
-    };
-    let ops: Vec<(&str, Op, Op)> = vec![
-        (
-            "sigmoid",
-            Box::new(fast::sigmoid),
-            Box::new(activation::sigmoid),
-        ),
-        (
-            "silu",
-            Box::new(fast::silu),
-            Box::new(|x: Tensor<4>| x.clone() * activation::sigmoid(x)),
-        ),
-        (
-            "leaky_relu",
-            Box::new(|x| fast::leaky_relu(x, 0.1)),
-            Box::new(|x| activation::leaky_relu(x, 0.1)),
-        ),
-        ("conv3x3", conv(&w3, 1, true), conv(&w3, 1, false)),
-        ("bias_add", bias_add(true), bias_add(false)),
-        ("conv1x1", conv(&w1, 0, true), conv(&w1, 0, false)),
-    ];
+    let ops = hot_ops(shape[1], inference);
     let mut rows = Table::new([
         "op",
         "shape",
@@ -643,19 +595,7 @@ pub fn activation_rows(
         for (name, fused, composite) in &ops {
             let x = Tensor::<4>::random(shape, Distribution::Uniform(-6.0, 6.0), inference);
             let xa = Tensor::<4>::random(shape, Distribution::Uniform(-6.0, 6.0), training);
-            let measure = |f: &Op| -> Result<(f64, f64)> {
-                let fwd = time(runs, || {
-                    let _ = f(x.clone());
-                    Ok(())
-                })?;
-                let bwd = time(runs, || {
-                    let x = xa.clone().require_grad();
-                    let g = f(x.clone()).sum().backward();
-                    x.grad(&g).context("no gradient")?;
-                    Ok(())
-                })?;
-                Ok((fwd, bwd))
-            };
+            let measure = |f: &HotOp| op_forward_backward_ms(f, &x, &xa, runs);
             let ((ff, fb), (cf, cb)) =
                 pool.install(|| Ok::<_, anyhow::Error>((measure(fused)?, measure(composite)?)))?;
             let peer = torch.as_ref().and_then(|v| v.get(*name).copied());
@@ -678,6 +618,90 @@ pub fn activation_rows(
     Ok(rows)
 }
 
+/// One op of [`activation_rows`]: a feature map in, one out.
+type HotOp = Box<dyn Fn(Tensor<4>) -> Tensor<4> + Send + Sync>;
+
+/// The hot ops on `c` channels as `(name, cac's op, burn's op)`, with seeded weights on
+/// `device` (3×3 convolution, 1×1 convolution, then the bias, drawn in that order).
+fn hot_ops(c: usize, device: &Device) -> Vec<(&'static str, HotOp, HotOp)> {
+    use burn::tensor::activation;
+    use cac_detect::activation as fast;
+    let w3 = Tensor::<4>::random([c, c, 3, 3], Distribution::Uniform(-0.5, 0.5), device);
+    let w1 = Tensor::<4>::random([c, c, 1, 1], Distribution::Uniform(-0.5, 0.5), device);
+    let bias = Tensor::<1>::random([c], Distribution::Uniform(-0.5, 0.5), device);
+    vec![
+        (
+            "sigmoid",
+            Box::new(fast::sigmoid),
+            Box::new(activation::sigmoid),
+        ),
+        (
+            "silu",
+            Box::new(fast::silu),
+            Box::new(|x: Tensor<4>| x.clone() * activation::sigmoid(x)),
+        ),
+        (
+            "leaky_relu",
+            Box::new(|x| fast::leaky_relu(x, 0.1)),
+            Box::new(|x| activation::leaky_relu(x, 0.1)),
+        ),
+        ("conv3x3", conv_op(&w3, 1, true), conv_op(&w3, 1, false)),
+        (
+            "bias_add",
+            bias_add_op(&bias, c, true),
+            bias_add_op(&bias, c, false),
+        ),
+        ("conv1x1", conv_op(&w1, 0, true), conv_op(&w1, 0, false)),
+    ]
+}
+
+/// A stride-1 convolution by `w` padded by `pad`: cac's (`ours`) or burn's.
+fn conv_op(w: &Tensor<4>, pad: usize, ours: bool) -> HotOp {
+    use burn::tensor::ops::ConvOptions;
+    let w = w.clone();
+    Box::new(move |x: Tensor<4>| {
+        let w = w.clone().to_device(&x.device());
+        let o = ConvOptions::new([1, 1], [pad, pad], [1, 1], 1);
+        match ours {
+            true => cac_detect::conv::conv2d(x, w, None, o),
+            false => burn::tensor::module::conv2d(x, w, None, o),
+        }
+    })
+}
+
+/// Adding the per-channel `bias` (`c` channels): cac's (`ours`) or burn's broadcast add.
+fn bias_add_op(bias: &Tensor<1>, c: usize, ours: bool) -> HotOp {
+    let b = bias.clone();
+    Box::new(move |x: Tensor<4>| {
+        let b = b.clone().to_device(&x.device());
+        match ours {
+            true => cac_detect::conv::add_bias(x, b),
+            false => x + b.reshape([1, c, 1, 1]),
+        }
+    })
+}
+
+/// Fastest forward and forward + backward (of `f(x).sum()` to the input) ms of `runs`, on `x`
+/// and on its autodiff twin `xa`.
+fn op_forward_backward_ms(
+    f: &HotOp,
+    x: &Tensor<4>,
+    xa: &Tensor<4>,
+    runs: usize,
+) -> Result<(f64, f64)> {
+    let fwd = time(runs, || {
+        let _ = f(x.clone());
+        Ok(())
+    })?;
+    let bwd = time(runs, || {
+        let x = xa.clone().require_grad();
+        let g = f(x.clone()).sum().backward();
+        x.grad(&g).context("no gradient")?;
+        Ok(())
+    })?;
+    Ok((fwd, bwd))
+}
+
 /// PyTorch's (forward, forward+backward) ms per activation, or None when torch cannot run.
 fn torch_activation_ms(
     python: &str,
@@ -687,7 +711,7 @@ fn torch_activation_ms(
 ) -> Option<std::collections::HashMap<String, (f64, f64)>> {
     let script =
         Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../..")).join("tools/torch_bench.py");
-    let out = crate::torch_env::peer_command(python)
+    let out = cac_detect::torch_env::peer_command(python)
         .arg(script)
         .args(["ops", "--shape", shape, "--threads", &threads.to_string()])
         .args(["--runs", &runs.to_string()])

@@ -4,17 +4,17 @@
 //! with each detector (frames scored per second, decode included). One [`Table`] row per codec
 //! and model.
 
-use super::encode::{encode_sequence, H264, HEVC, MJPEG};
-use super::twin::{render_turntable, TwinCalibration};
-use crate::annotations::Annotations;
-use crate::decode::OpenOptions;
-use crate::score::ScoreOptions;
-use crate::tools::Tools;
 use anyhow::Result;
 use burn::tensor::Device;
 use cac_core::report::timer::Stopwatch;
 use cac_core::report::Table;
 use cac_detect::Detector;
+use cac_video::annotations::Annotations;
+use cac_video::decode::OpenOptions;
+use cac_video::encode::{encode_sequence, H264, HEVC, MJPEG};
+use cac_video::score::ScoreOptions;
+use cac_video::twin::{render_turntable, TwinCalibration};
+use cac_video::Tools;
 use std::path::Path;
 
 /// The rendered sequence and the codecs.
@@ -73,7 +73,7 @@ impl VideoBench {
             encode_sequence(tools, &dir.path().join("f%04d.png"), 24.0, args, &[], &path)?;
             // Decoding alone.
             let t0 = Stopwatch::start();
-            let mut s = crate::decode::open(tools, &path, &OpenOptions::default())?;
+            let mut s = cac_video::decode::open(tools, &path, &OpenOptions::default())?;
             let mut n = 0;
             while s.next_frame()?.is_some() {
                 n += 1;
@@ -89,9 +89,9 @@ impl VideoBench {
                 "".into(),
             ]);
             for (m, d) in dets {
-                let mut s = crate::decode::open(tools, &path, &OpenOptions::default())?;
+                let mut s = cac_video::decode::open(tools, &path, &OpenOptions::default())?;
                 let t0 = Stopwatch::start();
-                let r = crate::score::score_stream(
+                let r = cac_video::score::score_stream(
                     s.as_mut(),
                     &gt,
                     &[*d],

@@ -2,10 +2,10 @@
 //! seconds taken and the colour error against the texture; optionally the solidifier's error
 //! against time at several grid spacings (`cac bench export`, run by [`ExportBench::run`]).
 
-use crate::bake::{bake, colour_error, BakeLimits};
-use crate::mesh::{PrintMesh, Scale};
 use anyhow::{Context, Result};
 use cac_core::memory::MemoryBudget;
+use cac_export::bake::{bake, colour_error, BakeLimits};
+use cac_export::{PrintMesh, Scale};
 use cac_scene::generate::value_noise;
 use cac_scene::Texture;
 use serde::Serialize;
@@ -149,7 +149,7 @@ pub struct SolidRow {
     pub seconds: f64,
     /// Peak resident memory of the process so far (MB; Linux, else 0).
     pub peak_mb: f64,
-    pub fidelity: crate::solidify::Fidelity,
+    pub fidelity: cac_export::Fidelity,
 }
 
 /// Subdivides `mesh` (midpoint splits, as the bake does) until it has at least `n` triangles,
@@ -167,26 +167,26 @@ pub(crate) fn refine(mesh: &PrintMesh, n: usize) -> Result<PrintMesh> {
             &MemoryBudget::default(),
         )?;
         if b.tris.len() >= n {
-            let mut tris: Vec<crate::mesh::PrintTri> = b
+            let mut tris: Vec<cac_export::PrintTri> = b
                 .tris
                 .iter()
                 .map(|t| {
                     let src = &mesh.tris[t.parent as usize];
                     let paint = match src.paint {
-                        crate::mesh::Paint::Texture { tex, uv } => crate::mesh::Paint::Texture {
+                        cac_export::Paint::Texture { tex, uv } => cac_export::Paint::Texture {
                             tex,
                             uv: t.bary.map(|w| uv[0] * w.x + uv[1] * w.y + uv[2] * w.z),
                         },
                         p => p,
                     };
-                    crate::mesh::PrintTri {
+                    cac_export::PrintTri {
                         v: t.v,
                         paint,
                         part: src.part,
                     }
                 })
                 .collect();
-            let (positions, report) = crate::printcheck::weld_and_check(&b.positions, &mut tris)?;
+            let (positions, report) = cac_export::weld_and_check(&b.positions, &mut tris)?;
             return Ok(PrintMesh {
                 positions,
                 tris,
@@ -205,22 +205,22 @@ pub(crate) fn run_solid(
     min_wall: f32,
     samples: usize,
 ) -> Result<Vec<SolidRow>> {
-    let a = crate::printability::analyse(mesh, min_wall);
+    let a = cac_export::printability::analyse(mesh, min_wall);
     let mut rows = vec![];
     for &h in voxels {
         let t = Instant::now();
-        let (s, _) = crate::solidify::solidify(
+        let (s, _) = cac_export::solidify(
             mesh,
             &a,
-            &crate::solidify::SolidifyOptions {
+            &cac_export::SolidifyOptions {
                 voxel_mm: h,
                 min_wall_mm: min_wall,
-                thin: crate::printability::ThinPolicy::Thicken,
+                thin: cac_export::printability::ThinPolicy::Thicken,
                 memory: MemoryBudget::current(),
             },
         )?;
         let seconds = t.elapsed().as_secs_f64();
-        let fidelity = crate::solidify::fidelity(mesh, &a.kinds, &s, None, samples, 5);
+        let fidelity = cac_export::fidelity(mesh, &a.kinds, &s, None, samples, 5);
         rows.push(SolidRow {
             input_triangles: mesh.tris.len(),
             voxel_mm: h,
@@ -333,12 +333,12 @@ pub struct ExportBenchOutcome {
 
 impl ExportBench {
     pub fn run(&self) -> Result<ExportBenchOutcome> {
-        let scene = crate::load::load_mesh(&self.mesh, &Default::default())?;
+        let scene = cac_export::load_mesh(&self.mesh, &Default::default())?;
         let camo = match &self.texture {
-            Some(p) => crate::load::load_texture(p, &MemoryBudget::current())?,
+            Some(p) => cac_export::load_texture(p, &MemoryBudget::current())?,
             None => synthetic_camouflage(self.res, 11),
         };
-        let mesh = crate::load::prepare(&scene, &camo, self.scale)
+        let mesh = cac_export::prepare(&scene, &camo, self.scale)
             .with_context(|| format!("mesh {}", self.mesh.display()))?;
         let limits: Vec<BakeLimits> = self
             .texels

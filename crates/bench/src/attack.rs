@@ -5,7 +5,6 @@
 //! street-level views, scored with `eval`). Each part prints its rows as they are measured and
 //! returns them as a [`Table`] for CSV. Timed with the one timer (`report::timer`).
 
-use crate::Protocol;
 use anyhow::Result;
 use burn::tensor::Device;
 use cac_attack::loss::Goal;
@@ -15,6 +14,7 @@ use cac_attack::Trainer;
 use cac_core::report::timer::{median, Stopwatch};
 use cac_core::report::Table;
 use cac_detect::Detector;
+use cac_eval::Protocol;
 use cac_render::config::{self, SceneConfig};
 use cac_render::environment::{street_views, Brightness, Environment};
 use cac_render::Renderer;
@@ -129,11 +129,11 @@ pub fn error_against_time(
         c.render.atlas_res = res;
         let r = Renderer::new(scene.clone(), c.render.clone())?;
         let eval_r = Renderer::new(scene.clone(), config::eval_render(&c.render))?;
-        let score = |atlas: &Texture| -> Result<crate::Summary> {
-            let r = crate::evaluate(&eval_r, &denv, &views, atlas, det, &proto, device)?;
-            Ok(crate::summarise(&r.scores[0]))
+        let score = |atlas: &Texture| -> Result<cac_eval::Summary> {
+            let r = cac_eval::evaluate(&eval_r, &denv, &views, atlas, det, &proto, device)?;
+            Ok(cac_eval::summarise(&r.scores[0]))
         };
-        let mut report = |it: usize, secs: f64, s: &crate::Summary| {
+        let mut report = |it: usize, secs: f64, s: &cac_eval::Summary| {
             let (p, t) = (s.p_at_05, s.targeted_success);
             println!("{batch:>5} {n:>5} {res:>7} {it:>10} {secs:>10.1} {p:>7.3} {t:>14.3}");
             rows.row([
