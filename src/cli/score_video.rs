@@ -170,26 +170,3 @@ pub fn tools() -> Tools {
     let var = |k| std::env::var_os(k).map(std::path::PathBuf::from);
     Tools::locate(var("CAC_FFMPEG"), var("CAC_FFPROBE"))
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use clap::Parser;
-
-    #[test]
-    fn the_open_flags_defaults_are_open_options_default() {
-        #[derive(Parser)]
-        struct Line {
-            #[command(flatten)]
-            open: OpenFlags,
-        }
-        let o = OpenOptions::from(Line::try_parse_from(["score-video"]).unwrap().open);
-        assert_eq!(o, OpenOptions::default());
-        let o = OpenOptions::from(
-            Line::try_parse_from(["s", "--rotate", "90", "--any-codec"])
-                .unwrap()
-                .open,
-        );
-        assert_eq!((o.rotate_ccw, o.allow_any_codec), (Some(90), true));
-    }
-}

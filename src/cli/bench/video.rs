@@ -67,26 +67,3 @@ pub fn run(a: Args) -> Result<()> {
     println!("wrote {}", a.csv.display());
     Ok(())
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use clap::Parser;
-
-    #[test]
-    fn the_flags_defaults_are_the_librarys() {
-        #[derive(Parser)]
-        struct Line {
-            #[command(flatten)]
-            bench: BenchFlags,
-        }
-        let b = VideoBench::from(Line::try_parse_from(["bench"]).unwrap().bench);
-        assert_eq!(b, VideoBench::default());
-        let b = VideoBench::from(
-            Line::try_parse_from(["b", "--codecs", "mjpeg", "--frames", "3"])
-                .unwrap()
-                .bench,
-        );
-        assert_eq!((b.codecs, b.frames), (vec!["mjpeg".to_string()], 3));
-    }
-}

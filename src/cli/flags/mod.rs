@@ -53,6 +53,8 @@ mod tests {
         defaults_agree::<super::physical::CalibrateFlags, physical::print_calib::CalibrateOptions>(
         );
         defaults_agree::<super::export::ExportBenchFlags, cac::bench::export::ExportBench>();
+        defaults_agree::<crate::cli::bench::video::BenchFlags, cac::bench::video::VideoBench>();
+        defaults_agree::<crate::cli::score_video::OpenFlags, cac::video::OpenOptions>();
     }
 
     #[test]
@@ -91,6 +93,14 @@ mod tests {
             .expect("refused")
             .to_string();
         assert!(e.contains("cac, advpat, shapeshifter, upc, camou"), "{e}");
+        let b: cac::bench::video::VideoBench =
+            parsed::<crate::cli::bench::video::BenchFlags, _>(&[
+                "--codecs", "mjpeg", "--frames", "3",
+            ]);
+        assert_eq!((b.codecs, b.frames), (vec!["mjpeg".to_string()], 3));
+        let o: cac::video::OpenOptions =
+            parsed::<crate::cli::score_video::OpenFlags, _>(&["--rotate", "90", "--any-codec"]);
+        assert_eq!((o.rotate_ccw, o.allow_any_codec), (Some(90), true));
         // An alias is accepted.
         let r: cac::eval::realism::RealismJob =
             parsed::<super::eval::RealismFlags, _>(&["--sets", "restricted"]);
