@@ -229,9 +229,6 @@ pub struct BlenderView {
     pub object_box: Option<[f32; 4]>,
 }
 
-/// sRGB decoding, extended linearly-in-power above 1 (cac's light levels may exceed 1).
-pub(crate) use cac_core::colour::decode as srgb_to_linear;
-
 /// Blender's camera for a cac camera: `matrix_world` (row-major 4×4), lens and sensor (mm),
 /// sensor fit and shift. Assumes square pixels (`fx == fy`).
 pub(crate) fn blender_camera(cam: &Camera) -> serde_json::Value {
@@ -569,7 +566,7 @@ impl<'a> Job<'a> {
 /// A display value as the shading mode hands it to Blender (sRGB-decoded in linear mode).
 fn decode(s: &BlenderSettings, x: f32) -> f32 {
     match s.shading {
-        Shading::Linear => srgb_to_linear(x),
+        Shading::Linear => cac_core::colour::decode(x),
         Shading::Display | Shading::CacSurfaces | Shading::Cac => x,
     }
 }
