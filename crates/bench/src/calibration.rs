@@ -28,6 +28,7 @@ pub struct CalibrationBench {
 }
 
 impl Default for CalibrationBench {
+    /// 24, 48, 96 and 192 patches, three charts (seeds) each.
     fn default() -> Self {
         CalibrationBench {
             patches: vec![24, 48, 96, 192],

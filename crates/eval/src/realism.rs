@@ -92,6 +92,10 @@ pub struct RealismJob {
 }
 
 impl Default for RealismJob {
+    /// The pickup, the jeep and the Cesium milk truck (`../shared`); street, free and hemisphere
+    /// views, 12 per set and level, seed 0; the original texture in cac's renderer only; no
+    /// photometric transforms, no HDR light, no printer; the default scene, Blender settings and
+    /// protocol (the command sets the render size from its flags).
     fn default() -> Self {
         RealismJob {
             meshes: [

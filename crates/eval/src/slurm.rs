@@ -25,6 +25,8 @@ pub struct Batch {
 }
 
 impl Default for Batch {
+    /// The cluster's default partition, time limit and memory; one CPU per task; no extra
+    /// `#SBATCH` lines.
     fn default() -> Self {
         Batch {
             partition: None,

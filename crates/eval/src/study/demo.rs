@@ -47,6 +47,8 @@ pub struct DemoJob {
 }
 
 impl Default for DemoJob {
+    /// `cac demo`: into `demo-out`, training seed 0, 640 iterations at batch 1 (under 3 minutes
+    /// on the 2-core AMD EPYC), 16 protocol views per group on view seed 2026, the procedural sky.
     fn default() -> Self {
         DemoJob {
             out: PathBuf::from("demo-out"),

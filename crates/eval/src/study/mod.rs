@@ -39,12 +39,14 @@ pub struct Source {
 }
 
 impl Default for Source {
+    /// `cac train`'s: [`AttackConfig::default`]'s proposals, source models, target and batch.
     fn default() -> Self {
+        let a = AttackConfig::default();
         Source {
-            proposals: ProposalRule::Overlap,
-            models: ["nanodet"].map(String::from).to_vec(),
-            target: "person".into(),
-            batch: 2,
+            proposals: a.proposals,
+            models: a.models,
+            target: a.target,
+            batch: a.batch,
         }
     }
 }

@@ -60,6 +60,8 @@ pub struct TopnJob {
 }
 
 impl Default for TopnJob {
+    /// n = 1, 4, 16, 64, 30 iterations each from seed 0 on the demo's scene, judged by CenterNet
+    /// and NanoDet on 6 free-viewpoint views per level, into `study-topn`.
     fn default() -> Self {
         TopnJob {
             scene: TopnJob::default_scene(),
