@@ -413,3 +413,52 @@ fn eval_hdri_protocol_lights_every_view_and_says_so() {
         "{err}"
     );
 }
+
+/// `cac demo` without `--iterations` fits its training to `--budget`: a budget the scoring
+/// alone spends leaves the training its floor (10 s), whose fitted iterations run.json and
+/// summary.json record alike; the same command again resumes that run to those iterations
+/// instead of fitting a new one.
+#[test]
+fn a_budgeted_demo_records_its_fitted_iterations_and_resumes_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    let args = [
+        "demo",
+        "--budget",
+        "1s",
+        "--views",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    let text = support::cac_ok(&args);
+    let json = |p: &str| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(out.join(p)).unwrap()).unwrap()
+    };
+    let (summary, run) = (json("summary.json"), json("run/run.json"));
+    assert_eq!(summary["training_budget_seconds"].as_f64(), Some(10.0));
+    let fitted = run["attack"]["iterations"].as_u64().unwrap();
+    assert!(
+        fitted > 2,
+        "10 s of training fits more than 2 iterations: {fitted}"
+    );
+    assert_eq!(summary["attack"]["iterations"].as_u64(), Some(fitted));
+    let reached = summary["iterations"].as_u64().unwrap();
+    assert!(reached <= fitted && reached > 0, "{reached} of {fitted}");
+    assert_eq!(
+        summary["attack"]["target_loss"], "logit",
+        "the demo's default"
+    );
+    assert!(
+        text.contains(&format!("trained {reached} iterations")),
+        "{text}"
+    );
+    let again = support::cac_ok(&args);
+    assert!(again.contains("resuming the demo's run"), "{again}");
+    assert_eq!(
+        json("run/run.json")["attack"]["iterations"],
+        run["attack"]["iterations"]
+    );
+    // Resumed to its fitted iterations (a run the budget stopped short goes on to them).
+    assert_eq!(json("summary.json")["iterations"].as_u64(), Some(fitted));
+}

@@ -41,7 +41,7 @@ pub struct Args {
     /// what fits (timed on its first iterations, then started over; run.json records them) and
     /// the run stops cleanly, checkpointed, when the time is spent. The curve's scoring is not
     /// counted (docs/attack.md, "Quality against run time").
-    #[arg(long, value_parser = budget)]
+    #[arg(long, value_parser = crate::cli::values::duration)]
     pub budget: Option<f64>,
     /// Score the texture under the protocol every this many seconds of training (and at the
     /// start and end): curve.csv and curve.png in the run folder, on protocol views the training
@@ -63,14 +63,6 @@ pub struct Args {
     /// terminal, a progress bar.
     #[arg(long, default_value_t = 30.0)]
     pub progress_every: f64,
-}
-
-/// `--budget`'s duration in seconds.
-fn budget(s: &str) -> Result<f64, String> {
-    match cac::report::timer::parse_duration(s) {
-        Some(v) if v > 0.0 => Ok(v),
-        _ => Err(format!("{s:?} is not a duration such as 10m, 90s or 1h30m")),
-    }
 }
 
 pub fn run(a: Args) -> Result<()> {

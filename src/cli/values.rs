@@ -69,3 +69,11 @@ impl TypedValueParser for ModelSpec {
         Some(Box::new(catalogue()))
     }
 }
+
+/// A duration such as `10m`, `90s` or `1h30m`, in seconds (`--budget`).
+pub fn duration(s: &str) -> Result<f64, String> {
+    match cac::report::timer::parse_duration(s) {
+        Some(v) if v > 0.0 => Ok(v),
+        _ => Err(format!("{s:?} is not a duration such as 10m, 90s or 1h30m")),
+    }
+}

@@ -1,7 +1,7 @@
 //! The evaluation's and the studies' flags, mapped onto `cac-eval`'s plain settings.
 
 use cac::attack::baselines::Method;
-use cac::attack::loss::ProposalRule;
+use cac::attack::loss::{ProposalRule, TargetLoss};
 use cac::environment::ViewpointSet;
 use cac::eval::realism::{RealismJob, ViewSet, Which};
 use cac::eval::slurm::Batch;
@@ -122,13 +122,21 @@ pub struct DemoFlags {
     /// Seed of the training run.
     #[arg(long, default_value_t = DemoJob::default().seed)]
     pub seed: u64,
-    /// Attack iterations (640 at batch 1: the demo in under 3 minutes on 2 cores).
-    #[arg(long, default_value_t = DemoJob::default().iterations)]
-    pub iterations: usize,
+    /// Attack iterations (default: as many as fit --budget on this machine; run.json and
+    /// summary.json record them, and `--iterations N` repeats a run bit for bit).
+    #[arg(long)]
+    pub iterations: Option<usize>,
+    /// Wall time the whole demo is fitted to when --iterations is not given: the training gets
+    /// what is left after the original texture is scored and the second scoring is foreseen.
+    #[arg(long, value_parser = crate::cli::values::duration, default_value = "3m")]
+    pub budget: f64,
     /// Views rendered per iteration. One view per step buys the most quality per second in a
     /// short run (docs/attack.md, the knob table: half the time per iteration).
     #[arg(long, default_value_t = DemoJob::default().batch)]
     pub batch: usize,
+    /// The target class's term in every proposal: `bce` or `logit` (as `cac train --target-loss`).
+    #[arg(long, value_parser = crate::cli::values::choice::<TargetLoss>(), default_value_t = DemoJob::default().target_loss)]
+    pub target_loss: TargetLoss,
     /// Protocol views per brightness level and viewpoint set (4 groups: FV/RV × bright/dark).
     #[arg(long, default_value_t = DemoJob::default().views)]
     pub views: usize,
@@ -149,7 +157,9 @@ impl From<DemoFlags> for cac::study::demo::DemoJob {
             out: f.out,
             seed: f.seed,
             iterations: f.iterations,
+            budget_s: f.budget,
             batch: f.batch,
+            target_loss: f.target_loss,
             views: f.views,
             view_seed: f.view_seed,
             hdri: f.hdri,

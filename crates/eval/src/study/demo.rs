@@ -11,7 +11,8 @@ use crate::run::{all_views, evaluate_texture_in, view_groups, ViewPlan};
 use crate::Protocol;
 use anyhow::Result;
 use burn::tensor::Device;
-use cac_attack::run::RunDir;
+use cac_attack::loss::TargetLoss;
+use cac_attack::run::{Along, Progress, RunDir};
 use cac_attack::AttackConfig;
 use cac_attack::Trainer;
 use cac_detect::{self as detect, Detector};
@@ -23,6 +24,12 @@ use std::fmt::Write;
 use std::path::PathBuf;
 use std::time::Instant;
 
+/// The second scoring and the sheets, in units of the first scoring's time.
+const AFTER_SCORING: f64 = 1.25;
+
+/// The least training a budgeted demo does, in seconds.
+const MIN_TRAINING_S: f64 = 10.0;
+
 /// The demo's settings (also `cac demo`'s flags).
 #[derive(Debug, Clone)]
 pub struct DemoJob {
@@ -30,11 +37,18 @@ pub struct DemoJob {
     pub out: PathBuf,
     /// Seed of the training run.
     pub seed: u64,
-    /// Attack iterations (640 at batch 1: the demo in under 3 minutes on 2 cores).
-    pub iterations: usize,
+    /// Attack iterations; `None` (the default) fits them to `budget_s` on this machine.
+    pub iterations: Option<usize>,
+    /// Wall time the whole demo is fitted to when `iterations` is `None`: the training gets
+    /// what is left after scoring the original texture, less the second scoring's estimate
+    /// ([`DemoJob::training_budget`]).
+    pub budget_s: f64,
     /// Views rendered per iteration. One view per step buys the most quality per second in a
     /// short run (docs/attack.md, the knob table: half the time per iteration).
     pub batch: usize,
+    /// The target class's term in every proposal (`cac train --target-loss`): the logit, which
+    /// reached more "person" in the same iterations (docs/attack.md, "The demo").
+    pub target_loss: TargetLoss,
     /// Protocol views per brightness level and viewpoint set (4 groups: FV/RV × bright/dark).
     pub views: usize,
     /// Seed of the protocol views (not the training seed: the texture never saw these views).
@@ -47,19 +61,33 @@ pub struct DemoJob {
 }
 
 impl Default for DemoJob {
-    /// `cac demo`: into `demo-out`, training seed 0, 640 iterations at batch 1 (under 3 minutes
-    /// on the 2-core AMD EPYC), 16 protocol views per group on view seed 2026, the procedural sky.
+    /// `cac demo`: into `demo-out`, training seed 0, at batch 1 as many iterations as fit in
+    /// 3 minutes in all, the logit target term, 16 protocol views per group on view seed 2026,
+    /// the procedural sky.
     fn default() -> Self {
         DemoJob {
             out: PathBuf::from("demo-out"),
             seed: 0,
-            iterations: 640,
+            iterations: None,
+            budget_s: 180.0,
             batch: 1,
+            target_loss: TargetLoss::Logit,
             views: 16,
             view_seed: 2026,
             hdri: vec![],
         }
     }
+}
+
+/// What the demo's training made.
+struct Trained {
+    atlas: Texture,
+    /// The iteration reached.
+    iteration: usize,
+    /// The attack as trained (its iterations fitted to the budget when it had one).
+    attack: AttackConfig,
+    /// Wall time of the training (and of fitting it to the budget).
+    seconds: f64,
 }
 
 /// What the demo measured.
@@ -121,25 +149,37 @@ impl DemoJob {
         };
         let n = 4 * self.views;
         println!("scoring the original texture on {n} protocol views ...");
+        let scoring = Instant::now();
         let before = score("original", &original)?;
-        let (learned, iterations) =
-            self.train(&cfg, &attack, &renderer, &env, all[0], &original, device)?;
+        let scoring_s = scoring.elapsed().as_secs_f64();
+        let budget = self.training_budget(start.elapsed().as_secs_f64(), scoring_s);
+        let trained = self.train(
+            &cfg,
+            &attack,
+            (&renderer, &env),
+            all[0],
+            &original,
+            budget,
+            device,
+        )?;
         println!("scoring the learned texture on the same views ...");
-        let after = score("learned", &learned)?;
+        let after = score("learned", &trained.atlas)?;
         let models = [("nanodet", "white-box"), ("centernet", "transfer")];
         let rows = before_after(("original", &before), ("learned", &after), &models);
         let (sheets, sheet_views) = write_sheets(
             &self.out,
             (&original, &before),
-            (&learned, &after),
+            (&trained.atlas, &after),
             &["nanodet", "centernet"],
         )?;
         let summary = serde_json::json!({
             "protocol": proto,
             "views": plan,
             "scene": cfg,
-            "attack": attack,
-            "iterations": iterations,
+            "attack": trained.attack,
+            "iterations": trained.iteration,
+            "training_seconds": trained.seconds,
+            "training_budget_seconds": budget,
             "results": rows,
             "sheets": sheets,
             "sheet_views": sheet_views,
@@ -150,7 +190,7 @@ impl DemoJob {
             serde_json::to_string_pretty(&summary)?.as_bytes(),
         )?;
         Ok(DemoOutcome {
-            table: self.table(&cfg, &rows),
+            table: self.table(&cfg, &trained, &rows),
             seconds: start.elapsed().as_secs_f64(),
         })
     }
@@ -165,33 +205,53 @@ impl DemoJob {
         cfg
     }
 
-    /// The demo's attack: NanoDet, target "person", checkpoints every 50 iterations.
+    /// Seconds of training that keep the demo within `budget_s` when its iterations are not
+    /// given (`None` when they are): the budget less what is spent, the second scoring and the
+    /// sheets (measured at 1.25 times the first scoring: 26 s against 21 on the Intel Xeon),
+    /// and 5 % of it to spare. At least [`MIN_TRAINING_S`]: a machine too slow for the budget
+    /// still trains, and takes longer.
+    pub fn training_budget(&self, spent_s: f64, scoring_s: f64) -> Option<f64> {
+        self.iterations.is_none().then(|| {
+            let left = 0.95 * (self.budget_s - spent_s) - AFTER_SCORING * scoring_s;
+            left.max(MIN_TRAINING_S)
+        })
+    }
+
+    /// The demo's attack: NanoDet, target "person", checkpoints every 50 iterations; the
+    /// iterations are fitted to the budget when not given (1 until then).
     fn attack_config(&self) -> AttackConfig {
         AttackConfig {
             models: vec!["nanodet".into()],
-            iterations: self.iterations,
+            iterations: self.iterations.unwrap_or(1),
             seed: self.seed,
             batch: self.batch,
+            target_loss: self.target_loss,
             checkpoint_every: 50,
             viewpoints: ViewpointSet::Free,
             ..Default::default()
         }
     }
 
-    /// Trains (or resumes) the demo's run in OUT/run; returns the learned atlas and the
-    /// iteration reached.
+    /// Trains (or resumes) the demo's run in OUT/run, a new run fitted to `budget_s` seconds
+    /// of training when given (a resumed one continues to the iterations its run.json records
+    /// unless `--iterations` says more); returns the learned atlas and the iteration reached.
     #[allow(clippy::too_many_arguments)]
     fn train(
         &self,
         cfg: &SceneConfig,
         attack: &AttackConfig,
-        renderer: &Renderer,
-        env: &Environment,
+        (renderer, env): (&Renderer, &Environment),
         source: &dyn Detector,
         original: &Texture,
+        budget_s: Option<f64>,
         device: &Device,
-    ) -> Result<(Texture, usize)> {
-        let run = RunDir::open_or_create(&self.out.join("run"), cfg.clone(), attack.clone())?;
+    ) -> Result<Trained> {
+        let path = self.out.join("run");
+        let mut attack = attack.clone();
+        if self.iterations.is_none() && path.join("run.json").exists() {
+            attack.iterations = RunDir::open(&path)?.attack.iterations;
+        }
+        let run = RunDir::open_or_create(&path, cfg.clone(), attack.clone())?;
         let training = Device::autodiff(device.clone());
         let tr = Trainer::new(
             attack.clone(),
@@ -202,25 +262,50 @@ impl DemoJob {
             original,
         )?;
         let mut tr = run.resume(tr)?;
-        if tr.state.iteration > 0 {
+        let resumed = tr.state.iteration > 0;
+        if resumed {
             let it = tr.state.iteration;
             println!("resuming the demo's run at iteration {it}");
         }
+        let budget_s = budget_s.filter(|_| !resumed);
+        let length = match budget_s {
+            Some(b) => format!("for {b:.0} s (as many iterations as fit)"),
+            None => format!("{} iterations", attack.iterations),
+        };
         println!(
-            "training {} iterations against nanodet (target \"person\", proposals on the object, \
+            "training {length} against nanodet (target \"person\", proposals on the object, \
              batch {}, protocol distances) ...",
-            self.iterations, self.batch
+            self.batch
         );
-        run.train(&mut tr, true)?;
-        Ok((tr.atlas(), tr.state.iteration))
+        let along = Along {
+            budget_s,
+            ..Along::new(Progress::Bar)
+        };
+        let clock = Instant::now();
+        run.train_along(&mut tr, along)?;
+        Ok(Trained {
+            atlas: tr.atlas(),
+            iteration: tr.state.iteration,
+            attack: tr.config.clone(),
+            seconds: clock.elapsed().as_secs_f64(),
+        })
     }
 
     /// The before/after table and its heading.
-    fn table(&self, cfg: &SceneConfig, rows: &[BeforeAfter]) -> String {
+    fn table(&self, cfg: &SceneConfig, trained: &Trained, rows: &[BeforeAfter]) -> String {
         let mut s = String::new();
+        let fitted = match self.iterations {
+            None => format!(", as many as fit the demo's {:.0} s", self.budget_s),
+            Some(_) => String::new(),
+        };
         let _ = writeln!(
             s,
-            "\n{} protocol views (cac eval's: FV and RV x bright and dark, {} each; distance ratio \
+            "\ntrained {} iterations at batch {} in {:.0} s{fitted} (target loss {}).",
+            trained.iteration, self.batch, trained.seconds, self.target_loss
+        );
+        let _ = writeln!(
+            s,
+            "{} protocol views (cac eval's: FV and RV x bright and dark, {} each; distance ratio \
              {:?}, elevation {:?} deg; view seed {}, training seed {}); 512², 4 spp.\nhit = car/truck \
              with IoU >= 0.5 and confidence >= 0.3; person = a person box on the vehicle (IoU >= 0.5, \
              confidence >= 0.3).",
@@ -262,5 +347,29 @@ impl DemoJob {
             );
         }
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The training gets 95 % of what the budget leaves, less the second scoring's estimate;
+    /// never less than the floor; nothing when the iterations are given.
+    #[test]
+    fn the_training_budget_leaves_room_for_the_second_scoring() {
+        let demo = DemoJob::default();
+        let b = demo.training_budget(22.0, 20.0).unwrap();
+        assert!((b - (0.95 * 158.0 - 25.0)).abs() < 1e-9, "{b}");
+        // More spent or a slower scoring leaves less.
+        assert!(demo.training_budget(40.0, 20.0).unwrap() < b);
+        assert!(demo.training_budget(22.0, 30.0).unwrap() < b);
+        // A machine too slow for the budget still trains, for the floor.
+        assert_eq!(demo.training_budget(170.0, 60.0), Some(MIN_TRAINING_S));
+        let fixed = DemoJob {
+            iterations: Some(640),
+            ..DemoJob::default()
+        };
+        assert_eq!(fixed.training_budget(22.0, 20.0), None);
     }
 }
