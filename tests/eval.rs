@@ -459,6 +459,10 @@ fn a_budgeted_demo_records_its_fitted_iterations_and_resumes_them() {
         json("run/run.json")["attack"]["iterations"],
         run["attack"]["iterations"]
     );
-    // Resumed to its fitted iterations (a run the budget stopped short goes on to them).
+    // Resumed to its fitted iterations (a run the budget stopped short goes on to them), its
+    // training time the run's clock (not this session's, which trained nothing more).
     assert_eq!(json("summary.json")["iterations"].as_u64(), Some(fitted));
+    let seconds = |v: &serde_json::Value| v["training_seconds"].as_f64().unwrap();
+    assert!(seconds(&summary) > 0.0, "{summary}");
+    assert!(seconds(&json("summary.json")) >= seconds(&summary));
 }

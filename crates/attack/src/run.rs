@@ -155,6 +155,15 @@ impl RunDir {
         RunDir::new(path, scene, attack)
     }
 
+    /// Seconds of training the run's clock records (across resumes; without the curve's
+    /// scoring): 0 before its first write.
+    pub fn train_seconds(&self) -> Result<f64> {
+        if !self.path.join("run.json").exists() {
+            return Ok(0.0);
+        }
+        Ok(RunFile::read(&self.path)?.train_seconds)
+    }
+
     /// Whether the folder holds a checkpoint to continue from.
     pub(crate) fn has_checkpoint(&self) -> bool {
         checkpoint::exists(&self.path)

@@ -86,7 +86,8 @@ struct Trained {
     iteration: usize,
     /// The attack as trained (its iterations fitted to the budget when it had one).
     attack: AttackConfig,
-    /// Wall time of the training (and of fitting it to the budget).
+    /// Seconds of training the run records (across resumes; fitting it to the budget
+    /// included).
     seconds: f64,
 }
 
@@ -281,13 +282,12 @@ impl DemoJob {
             budget_s,
             ..Along::new(Progress::Bar)
         };
-        let clock = Instant::now();
         run.train_along(&mut tr, along)?;
         Ok(Trained {
             atlas: tr.atlas(),
             iteration: tr.state.iteration,
             attack: tr.config.clone(),
-            seconds: clock.elapsed().as_secs_f64(),
+            seconds: run.train_seconds()?,
         })
     }
 
