@@ -16,8 +16,9 @@ use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Scene config (TOML); defaults to the training preset: the built-in pickup, the
-    /// evaluation protocol's environment, 320² renders at 1 sample per pixel, a 256² atlas.
+    /// Scene config (TOML); defaults to the 10-minute recipe (meshes/pickup/train-10m.toml): the
+    /// built-in pickup in the evaluation protocol's scene (512² renders at 4 samples per pixel),
+    /// a 256² atlas, half the views lit by an open sky's ambient.
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Run folder (created; must be empty unless --resume).
@@ -168,7 +169,7 @@ fn progress(every_s: f64) -> Progress {
 
 /// The scene of a new run: the config file or the training preset, `--texture-res` applied.
 fn scene_config(a: &Args) -> Result<SceneConfig> {
-    let mut cfg = SceneConfig::from_file_or(a.config.as_deref(), SceneConfig::training)?;
+    let mut cfg = SceneConfig::from_file_or(a.config.as_deref(), SceneConfig::ten_minute)?;
     if let Some(r) = a.texture_res {
         cfg.render.atlas_res = r;
     }
