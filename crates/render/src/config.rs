@@ -168,6 +168,13 @@ mod tests {
     }
 
     #[test]
+    fn the_preset_file_is_the_training_preset() {
+        let text = include_str!("../../../meshes/pickup/train-preset.toml");
+        let cfg: SceneConfig = toml::from_str(text).unwrap();
+        assert_eq!(cfg, SceneConfig::training());
+    }
+
+    #[test]
     fn defaults_round_trip_and_unknown_keys_are_rejected() {
         let text = SceneConfig::default_toml();
         let back: SceneConfig = toml::from_str(&text).unwrap();
