@@ -465,4 +465,8 @@ fn a_budgeted_demo_records_its_fitted_iterations_and_resumes_them() {
     let seconds = |v: &serde_json::Value| v["training_seconds"].as_f64().unwrap();
     assert!(seconds(&summary) > 0.0, "{summary}");
     assert!(seconds(&json("summary.json")) >= seconds(&summary));
+    assert!(
+        json("summary.json")["training_budget_seconds"].is_null(),
+        "not fitted again"
+    );
 }

@@ -89,6 +89,9 @@ struct Trained {
     /// Seconds of training the run records (across resumes; fitting it to the budget
     /// included).
     seconds: f64,
+    /// The budget this session's training was fitted to (none when resumed or given its
+    /// iterations).
+    budget_s: Option<f64>,
 }
 
 /// What the demo measured.
@@ -180,7 +183,7 @@ impl DemoJob {
             "attack": trained.attack,
             "iterations": trained.iteration,
             "training_seconds": trained.seconds,
-            "training_budget_seconds": budget,
+            "training_budget_seconds": trained.budget_s,
             "results": rows,
             "sheets": sheets,
             "sheet_views": sheet_views,
@@ -288,15 +291,16 @@ impl DemoJob {
             iteration: tr.state.iteration,
             attack: tr.config.clone(),
             seconds: run.train_seconds()?,
+            budget_s,
         })
     }
 
     /// The before/after table and its heading.
     fn table(&self, cfg: &SceneConfig, trained: &Trained, rows: &[BeforeAfter]) -> String {
         let mut s = String::new();
-        let fitted = match self.iterations {
-            None => format!(", as many as fit the demo's {:.0} s", self.budget_s),
-            Some(_) => String::new(),
+        let fitted = match trained.budget_s {
+            Some(_) => format!(", as many as fit the demo's {:.0} s", self.budget_s),
+            None => String::new(),
         };
         let _ = writeln!(
             s,
