@@ -157,15 +157,7 @@ impl DemoJob {
         let before = score("original", &original)?;
         let scoring_s = scoring.elapsed().as_secs_f64();
         let budget = self.training_budget(start.elapsed().as_secs_f64(), scoring_s);
-        let trained = self.train(
-            &cfg,
-            &attack,
-            (&renderer, &env),
-            all[0],
-            &original,
-            budget,
-            device,
-        )?;
+        let trained = self.train(&cfg, (&renderer, &env), all[0], &original, budget, device)?;
         println!("scoring the learned texture on the same views ...");
         let after = score("learned", &trained.atlas)?;
         let models = [("nanodet", "white-box"), ("centernet", "transfer")];
@@ -239,11 +231,9 @@ impl DemoJob {
     /// Trains (or resumes) the demo's run in OUT/run, a new run fitted to `budget_s` seconds
     /// of training when given (a resumed one continues to the iterations its run.json records
     /// unless `--iterations` says more); returns the learned atlas and the iteration reached.
-    #[allow(clippy::too_many_arguments)]
     fn train(
         &self,
         cfg: &SceneConfig,
-        attack: &AttackConfig,
         (renderer, env): (&Renderer, &Environment),
         source: &dyn Detector,
         original: &Texture,
@@ -251,7 +241,7 @@ impl DemoJob {
         device: &Device,
     ) -> Result<Trained> {
         let path = self.out.join("run");
-        let mut attack = attack.clone();
+        let mut attack = self.attack_config();
         if self.iterations.is_none() && path.join("run.json").exists() {
             attack.iterations = RunDir::open(&path)?.attack.iterations;
         }
